@@ -1,0 +1,154 @@
+"""Static-patch observations of a fixed camera: frames × patches × RGB, with missing values.
+
+The CSV form is ``frame,time,patch,r,g,b``: one row per frame and patch, ``r,g,b`` the mean camera values of the patch on
+a 0…white-level scale, ``time`` ISO 8601 or empty, frames and patches free-form strings.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass, field
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["Observations", "ObservationError", "read_observations", "write_observations"]
+
+REQUIRED_COLUMNS = ("frame", "time", "patch", "r", "g", "b")
+
+
+class ObservationError(ValueError):
+    """Observations that illumon cannot use; the message names the file, row and problem."""
+
+
+@dataclass
+class Observations:
+    """Patch means of a fixed camera.
+
+    Attributes
+    ----------
+    frames
+        Frame identifiers, in first-seen order (F).
+    patches
+        Patch identifiers, in first-seen order (P).
+    values
+        Camera values (F × P × 3) on a 0…1 scale (divided by the white level); NaN where a patch is missing.
+    times
+        ISO 8601 strings or ``""`` per frame.
+    """
+
+    frames: list[str]
+    patches: list[str]
+    values: NDArray[np.float64]
+    times: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if not self.times:
+            self.times = [""] * len(self.frames)
+        if self.values.shape != (len(self.frames), len(self.patches), 3):
+            raise ObservationError("values must be frames × patches × 3")
+
+    @property
+    def present(self) -> NDArray[np.bool_]:
+        """Mask (F × P) of patches observed in each frame."""
+        return np.all(np.isfinite(self.values), axis=-1)
+
+    def subset(self, frames: slice | NDArray | list[int]) -> Observations:
+        """A new :class:`Observations` with the selected frames."""
+        idx = np.arange(len(self.frames))[frames]
+        return Observations(
+            [self.frames[i] for i in idx], list(self.patches), self.values[idx].copy(), [self.times[i] for i in idx]
+        )
+
+
+def _parse_time(value: str, where: str) -> str:
+    if not value:
+        return ""
+    try:
+        datetime.fromisoformat(value.replace("Z", "+00:00"))
+    except ValueError:
+        raise ObservationError(f"{where}: time {value!r} is not ISO 8601") from None
+    return value
+
+
+def read_observations(path: str | Path, *, white_level: float = 255.0, text: str | None = None) -> Observations:
+    """Read ``frame,time,patch,r,g,b`` CSV into :class:`Observations` scaled by ``white_level``.
+
+    Raises :class:`ObservationError` naming file, row and problem for missing columns, non-numeric, negative or
+    non-finite values, duplicate frame/patch rows or a file that does not hold data.
+    """
+    source = str(path)
+    if not (white_level > 0 and math.isfinite(white_level)):
+        raise ObservationError(f"white level must be a positive number, got {white_level}")
+    if text is None:
+        try:
+            text = Path(path).read_text(encoding="utf-8-sig")
+        except OSError as exc:
+            raise ObservationError(f"{source}: cannot read file ({exc.strerror or exc})") from exc
+    lines = [ln for ln in text.splitlines() if not ln.lstrip().startswith("#")]
+    reader = csv.DictReader(io.StringIO("\n".join(lines)))
+    if reader.fieldnames is None:
+        raise ObservationError(f"{source}: empty file")
+    names = [n.strip() for n in reader.fieldnames]
+    missing = [c for c in REQUIRED_COLUMNS if c not in names]
+    if missing:
+        raise ObservationError(f"{source}: row 1: missing column(s) {', '.join(missing)} (need {','.join(REQUIRED_COLUMNS)})")
+    reader.fieldnames = names
+    frames: dict[str, int] = {}
+    patches: dict[str, int] = {}
+    times: dict[str, str] = {}
+    records: list[tuple[int, int, tuple[float, float, float]]] = []
+    seen: set[tuple[int, int]] = set()
+    for rowno, row in enumerate(reader, start=2):
+        where = f"{source}: row {rowno}"
+        frame = (row.get("frame") or "").strip()
+        patch = (row.get("patch") or "").strip()
+        if not frame:
+            raise ObservationError(f"{where}: empty frame")
+        if not patch:
+            raise ObservationError(f"{where}: empty patch")
+        rgb = []
+        for c in "rgb":
+            cell = (row.get(c) or "").strip()
+            try:
+                v = float(cell)
+            except ValueError:
+                raise ObservationError(f"{where}: column {c}: non-numeric value {cell!r}") from None
+            if not math.isfinite(v):
+                raise ObservationError(f"{where}: column {c}: non-finite value {cell!r}")
+            if v < 0:
+                raise ObservationError(f"{where}: column {c}: negative value {cell!r}")
+            rgb.append(v / white_level)
+        t = _parse_time((row.get("time") or "").strip(), where)
+        fi = frames.setdefault(frame, len(frames))
+        pi = patches.setdefault(patch, len(patches))
+        if fi in times and t and times[fi] and times[fi] != t:
+            raise ObservationError(f"{where}: frame {frame!r} has two different times")
+        if t or fi not in times:
+            times[fi] = t
+        if (fi, pi) in seen:
+            raise ObservationError(f"{where}: duplicate row for frame {frame!r}, patch {patch!r}")
+        seen.add((fi, pi))
+        records.append((fi, pi, tuple(rgb)))
+    if not records:
+        raise ObservationError(f"{source}: no data rows")
+    values = np.full((len(frames), len(patches), 3), np.nan)
+    for fi, pi, rgb in records:
+        values[fi, pi] = rgb
+    return Observations(list(frames), list(patches), values, [times.get(i, "") for i in range(len(frames))])
+
+
+def write_observations(path: str | Path, obs: Observations, *, white_level: float = 255.0) -> None:
+    """Write :class:`Observations` as ``frame,time,patch,r,g,b`` CSV (missing patches are omitted)."""
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(REQUIRED_COLUMNS)
+        for i, f in enumerate(obs.frames):
+            for j, p in enumerate(obs.patches):
+                v = obs.values[i, j]
+                if np.all(np.isfinite(v)):
+                    w.writerow([f, obs.times[i], p, *(f"{x * white_level:.6g}" for x in v)])

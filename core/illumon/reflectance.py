@@ -1,0 +1,87 @@
+"""Surface reflectance basis and prior.
+
+Reflectances are expressed with 8 basis functions (Marguier & Süsstrunk 2007 use 8 principal components of Munsell,
+Macbeth and natural spectra; Maloney 1986 shows 6–8 suffice). illumon's basis is the first 8 right singular vectors
+of 1835 measured reflectances (Munsell matte, Vrhel objects, Joensuu natural colours, DuPont paints, SFU surfaces),
+each set weighted equally; it ships in ``illumon/data/reflectance_basis.csv`` with the coefficient mean and covariance
+of those sets (``reflectance_prior.json``), which serve as the Gaussian reflectance prior (Kinoshita & Kiya 2023).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import resources
+
+import colour
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .spectra import GRID, read_spectral_csv, resample_columns
+
+__all__ = ["ReflectanceBasis", "reflectance_basis", "colourchecker_reflectances"]
+
+
+@dataclass(frozen=True)
+class ReflectanceBasis:
+    """An orthonormal reflectance basis on the grid with a Gaussian prior on its coefficients.
+
+    Attributes
+    ----------
+    functions
+        Basis functions (61 × K), orthonormal columns.
+    prior_mean, prior_covariance
+        Mean (K,) and covariance (K × K) of measured reflectances' coefficients.
+    provenance
+        What data built it.
+    """
+
+    functions: NDArray[np.float64]
+    prior_mean: NDArray[np.float64]
+    prior_covariance: NDArray[np.float64]
+    provenance: dict
+
+    @property
+    def size(self) -> int:
+        """Number of components K."""
+        return self.functions.shape[1]
+
+    def coefficients(self, reflectance: ArrayLike) -> NDArray[np.float64]:
+        """Least-squares coefficients (…, K) of grid reflectances (…, 61)."""
+        return np.asarray(reflectance, dtype=float) @ self.functions
+
+    def spectra(self, coefficients: ArrayLike) -> NDArray[np.float64]:
+        """Reflectance spectra (…, 61) from coefficients (…, K)."""
+        return np.asarray(coefficients, dtype=float) @ self.functions.T
+
+
+@lru_cache(maxsize=1)
+def reflectance_basis() -> ReflectanceBasis:
+    """The shipped 8-component reflectance basis (see module docstring for provenance)."""
+    root = resources.files("illumon") / "data"
+    text = (root / "reflectance_basis.csv").read_text()
+    wl, values, _ = read_spectral_csv("reflectance_basis.csv", text=text)
+    funcs = resample_columns(wl, values, GRID)
+    prior = json.loads((root / "reflectance_prior.json").read_text())
+    return ReflectanceBasis(
+        functions=funcs,
+        prior_mean=np.asarray(prior["coefficient_mean"]),
+        prior_covariance=np.asarray(prior["coefficient_covariance"]),
+        provenance={k: prior[k] for k in ("sets", "energy_captured", "rmse_reconstruction")},
+    )
+
+
+@lru_cache(maxsize=8)
+def colourchecker_reflectances(name: str = "BabelColor Average") -> tuple[list[str], NDArray[np.float64]]:
+    """The 24 ColorChecker reflectances shipped with colour-science, in standard order, on the grid (24 × 61)."""
+    if name not in colour.SDS_COLOURCHECKERS:
+        known = ", ".join(k for k in colour.SDS_COLOURCHECKERS if " " in k)
+        raise KeyError(f"unknown chart {name!r}; known: {known}")
+    sds = colour.SDS_COLOURCHECKERS[name]
+    names = list(sds)
+    out = []
+    for n in names:
+        sd = sds[n]
+        out.append(resample_columns(sd.wavelengths, sd.values[:, None], GRID)[:, 0])
+    return names, np.clip(np.asarray(out), 0.0, 1.0)

@@ -1,0 +1,114 @@
+"""Shared pieces of the multi-frame retrieval methods: the result type and the linear imaging operators."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..camera import camera_white, gains_from_white
+from ..daylight import cct_duv_from_xy, spectrum_to_xy
+from ..observations import Observations
+from ..reflectance import ReflectanceBasis
+
+__all__ = ["RetrievalResult", "imaging_operators", "make_result", "gray_world"]
+
+
+@dataclass
+class RetrievalResult:
+    """Per-frame illuminants and the static patches' reflectances recovered from a history.
+
+    Attributes
+    ----------
+    frames, patches
+        Identifiers, as in the observations.
+    spectra
+        Estimated illuminant spectra (F × 61), 100 at 560 nm.
+    xy, cct, duv
+        Chromaticity, correlated colour temperature (K) and Duv of each estimate.
+    white
+        Camera response to a perfect white diffuser under each estimate (F × 3), green = 1.
+    gains
+        White-balance gains (F × 3), ``gain_g = 1``.
+    exposures
+        Relative exposure of each frame (F,), or NaN where a method does not estimate it.
+    reflectances
+        Recovered patch reflectances (P × 61) on an absolute scale fixed by the reflectance prior, or NaN.
+    method
+        Name of the method that produced it.
+    info
+        Diagnostics: cost, iterations, starts, condition numbers.
+    """
+
+    frames: list[str]
+    patches: list[str]
+    spectra: NDArray[np.float64]
+    xy: NDArray[np.float64]
+    cct: NDArray[np.float64]
+    duv: NDArray[np.float64]
+    white: NDArray[np.float64]
+    gains: NDArray[np.float64]
+    exposures: NDArray[np.float64]
+    reflectances: NDArray[np.float64]
+    method: str
+    times: list[str] = field(default_factory=list)
+    info: dict = field(default_factory=dict)
+
+
+def imaging_operators(
+    sensitivities: NDArray[np.float64], illuminant_basis: NDArray[np.float64], reflectance: ReflectanceBasis
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Precompute ``K[k] = Cᵀ diag(E_k) S`` (nb × 3 × K) and ``w[k] = Cᵀ E_k`` (nb × 3).
+
+    With illuminant ``E = Σ_k a_k E_k`` and reflectance ``R = S σ`` the camera response is ``(Σ_k a_k K[k]) σ`` and the
+    camera white ``Σ_k a_k w[k]``: both linear, so solvers never touch the wavelength axis in their loops.
+    """
+    c = np.asarray(sensitivities, dtype=float)
+    e = np.asarray(illuminant_basis, dtype=float)
+    s = reflectance.functions
+    k = np.einsum("lc,lk,lj->kcj", c, e, s)
+    w = e.T @ c
+    return k, w
+
+
+def make_result(
+    obs: Observations,
+    sensitivities: NDArray[np.float64],
+    spectra: NDArray[np.float64],
+    method: str,
+    *,
+    xy: NDArray[np.float64] | None = None,
+    exposures: NDArray[np.float64] | None = None,
+    reflectances: NDArray[np.float64] | None = None,
+    info: dict | None = None,
+) -> RetrievalResult:
+    """Assemble a :class:`RetrievalResult` from estimated spectra (chromaticity from ``xy`` when the model knows it)."""
+    f = len(obs.frames)
+    if xy is None:
+        xy = spectrum_to_xy(spectra)
+    cct, duv = cct_duv_from_xy(xy)
+    white = camera_white(sensitivities, spectra)
+    white = white / white[:, 1:2]
+    return RetrievalResult(
+        frames=list(obs.frames),
+        patches=list(obs.patches),
+        spectra=spectra,
+        xy=xy,
+        cct=cct,
+        duv=duv,
+        white=white,
+        gains=gains_from_white(white),
+        exposures=exposures if exposures is not None else np.full(f, np.nan),
+        reflectances=reflectances if reflectances is not None else np.full((len(obs.patches), spectra.shape[1]), np.nan),
+        method=method,
+        times=list(obs.times),
+        info=info or {},
+    )
+
+
+def gray_world(obs: Observations) -> NDArray[np.float64]:
+    """Gray-world camera white per frame (F × 3): the mean of the frame's observed patches (Buchsbaum 1980)."""
+    v = np.where(np.isfinite(obs.values), obs.values, np.nan)
+    white = np.nanmean(v, axis=1)
+    return white / white[:, 1:2]

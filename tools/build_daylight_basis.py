@@ -6,8 +6,8 @@ Run: ``python tools/build_daylight_basis.py [--split time|random]``. Reads ``../
 ``neuralsignal/dreye`` repository), keeps the *training* half only (default: the first 1300 spectra in file order,
 a split by time; the second half is held out for evaluation by ``illumon report daylight``) and writes
 
-* ``daylight_basis.csv`` — mean and principal components of unit-mean spectra on 400–700 nm / 5 nm;
-* ``daylight_prior.json`` — regression on chromaticity, residual shape prior, off-locus prior, provenance.
+* ``measured_daylight_basis.csv`` — mean and principal components of unit-mean spectra on 400–700 nm / 5 nm;
+* ``measured_daylight_model.json`` — regression on chromaticity, residual shape prior, off-locus prior, provenance.
 
 See :mod:`illumon.daylight_measured` for the model.
 """
@@ -49,13 +49,13 @@ def main(argv: list[str] | None = None) -> None:
     }
     data = fit_measured_daylight(spectra[train], provenance=prov)
     data.save(
-        str(OUT / "daylight_basis.csv"),
-        str(OUT / "daylight_prior.json"),
+        str(OUT / "measured_daylight_basis.csv"),
+        str(OUT / "measured_daylight_model.json"),
         comments=(
             f"illumon measured-daylight basis: mean + {data.k} principal components of unit-mean spectra",
             f"built by tools/build_daylight_basis.py from the {args.split}-split training half ({train.size} spectra) of",
             "Granada daylight (Hernandez-Andres et al., JOSA A 18(6), 2001; via neuralsignal/dreye)",
-            "model parameters and provenance: daylight_prior.json",
+            "model parameters and provenance: measured_daylight_model.json",
         ),
     )
     print(f"k = {data.k} (cv errors {', '.join(f'{e:.5f}' for e in data.cv_errors)}), delta sd {data.delta_sd:.5f}")

@@ -21,7 +21,7 @@ spectrum at that chromaticity with what measured daylight looks like there:
 * ``δ`` — Gaussian prior N(δ̄(mired), σ_δ²) with a mean linear in mired learnt from the training spectra, because
   measured skies sit below the locus at 5000–6000 K and above it beyond 10000 K.
 
-The shipped model (``illumon/data/daylight_basis.csv`` and ``daylight_prior.json``) is derived by
+The shipped model (``illumon/data/measured_daylight_basis.csv`` and ``measured_daylight_model.json``) is derived by
 ``tools/build_daylight_basis.py`` from the training half of the Granada spectra as distributed in the
 ``neuralsignal/dreye`` repository.
 """
@@ -297,11 +297,11 @@ def fit_measured_daylight(
 
 @lru_cache(maxsize=1)
 def shipped_measured_daylight() -> MeasuredDaylightData:
-    """The model shipped in ``illumon/data`` (``daylight_basis.csv`` + ``daylight_prior.json``)."""
+    """The model shipped in ``illumon/data`` (``measured_daylight_basis.csv`` + ``measured_daylight_model.json``)."""
     root = resources.files("illumon") / "data"
-    wl, values, names = read_spectral_csv("daylight_basis.csv", text=(root / "daylight_basis.csv").read_text())
+    wl, values, names = read_spectral_csv("measured_daylight_basis.csv", text=(root / "measured_daylight_basis.csv").read_text())
     cols = resample_columns(wl, values)
-    meta = json.loads((root / "daylight_prior.json").read_text())
+    meta = json.loads((root / "measured_daylight_model.json").read_text())
     return MeasuredDaylightData(
         mean=cols[:, 0],
         components=cols[:, 1:],

@@ -1,0 +1,1 @@
+"""Camera spectral sensitivities from one chart image under unknown light (issue 5)."""

@@ -1,0 +1,289 @@
+"""Priors for camera spectral sensitivities and for the unknown daylight, built from measured data.
+
+Two Gaussian priors feed the single-chart estimators:
+
+* :class:`CameraPrior` — the 183-vector of a camera's (R, G, B) sensitivities on
+:data:`~illumon.spectra.GRID`,
+  max-normalised over all channels, modelled as ``mean + components @ z`` with ``z ~ N(0, diag(variances))``
+  (joint principal components, so correlations *between* channels are kept). It also carries per-channel
+  uncentred
+  eigenvectors, the basis Jiang et al. (WACV 2013) use.
+* :class:`DaylightPrior` — daylight spectra (scaled to unit mean over 400–700 nm) as ``mean + components @
+y`` with
+  ``y ~ N(coefficient_mean, coefficient_covariance)``, from the 2600 Granada measurements.
+
+Both can be rebuilt from arrays (:func:`build_camera_prior`, :func:`build_daylight_prior`), which is what the
+leave-one-camera-out tests and benchmark do: the camera under test is never in its own prior. The shipped
+versions
+(``illumon/data/camera_prior.csv|json`` and ``daylight_prior.csv|json``) are derived from all 24 measured
+cameras and
+all Granada spectra by ``tools/build_sensitivity_priors.py``.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from functools import lru_cache
+from importlib import resources
+
+import colour
+import numpy as np
+from colour.recovery import PCA_Jiang2013
+from numpy.typing import ArrayLike, NDArray
+
+from ..spectra import GRID, WAVELENGTHS, read_spectral_csv, resample_columns
+
+__all__ = [
+    "CameraPrior",
+    "DaylightPrior",
+    "build_camera_prior",
+    "build_daylight_prior",
+    "default_camera_prior",
+    "default_daylight_prior",
+    "max_normalise",
+    "jiang2013_channel_bases",
+]
+
+N_WL = WAVELENGTHS.size
+
+
+def max_normalise(sensitivities: ArrayLike) -> NDArray[np.float64]:
+    """Sensitivities (61 × 3) divided by their maximum over all channels."""
+    c = np.asarray(sensitivities, dtype=float)
+    return c / c.max()
+
+
+@dataclass(frozen=True)
+class CameraPrior:
+    """Gaussian prior on camera sensitivities (see module docstring).
+
+    Attributes
+    ----------
+    mean
+        Mean sensitivities (61 × 3), of max-normalised cameras.
+    components
+        Joint principal components (183 × K), columns are the stacked ``[r; g; b]`` curves, orthonormal.
+    variances
+        Variance of each component's coefficient (K,).
+    channel_bases
+        Per-channel uncentred eigenvectors (3 × 61 × J), largest first (Jiang et al. 2013's basis).
+    residual_variance
+        Mean per-sample variance left outside the K components (used as a white-noise floor of the prior).
+    provenance
+        What built it.
+    """
+
+    mean: NDArray[np.float64]
+    components: NDArray[np.float64]
+    variances: NDArray[np.float64]
+    channel_bases: NDArray[np.float64]
+    residual_variance: float
+    provenance: dict = field(default_factory=dict)
+
+    @property
+    def size(self) -> int:
+        """Number of joint components K."""
+        return int(self.components.shape[1])
+
+    def spectra(self, coefficients: ArrayLike) -> NDArray[np.float64]:
+        """Sensitivities (61 × 3) for joint coefficients (K,)."""
+        v = self.mean.T.reshape(-1) + self.components @ np.asarray(coefficients, dtype=float)
+        return v.reshape(3, N_WL).T
+
+    def covariance(self, floor: float | None = None) -> NDArray[np.float64]:
+        """Prior covariance of the stacked 183-vector, with a white floor (default: the residual variance)."""
+        f = self.residual_variance if floor is None else floor
+        return (self.components * self.variances) @ self.components.T + f * np.eye(3 * N_WL)
+
+    def truncated(self, k: int) -> CameraPrior:
+        """The same prior keeping the first ``k`` joint components."""
+        return CameraPrior(
+            self.mean,
+            self.components[:, :k],
+            self.variances[:k],
+            self.channel_bases,
+            self.residual_variance + float(self.variances[k:].sum()) / (3 * N_WL),
+            self.provenance,
+        )
+
+
+@dataclass(frozen=True)
+class DaylightPrior:
+    """Gaussian prior on daylight spectra scaled to unit mean over the grid.
+
+    Attributes
+    ----------
+    mean
+        Mean spectrum (61,).
+    components
+        Orthonormal principal components (61 × J).
+    coefficient_mean, coefficient_covariance
+        Gaussian on the coefficients (J,), (J × J).
+    provenance
+        What built it.
+    """
+
+    mean: NDArray[np.float64]
+    components: NDArray[np.float64]
+    coefficient_mean: NDArray[np.float64]
+    coefficient_covariance: NDArray[np.float64]
+    provenance: dict = field(default_factory=dict)
+
+    @property
+    def size(self) -> int:
+        """Number of components J."""
+        return int(self.components.shape[1])
+
+    @property
+    def basis(self) -> NDArray[np.float64]:
+        """Mean followed by the components (61 × (J + 1)), for linear least-squares fits."""
+        return np.column_stack([self.mean, self.components])
+
+    def spectra(self, coefficients: ArrayLike) -> NDArray[np.float64]:
+        """Spectra (…, 61) for coefficients (…, J)."""
+        return self.mean + np.asarray(coefficients, dtype=float) @ self.components.T
+
+
+def build_camera_prior(
+    cameras: Sequence[ArrayLike],
+    n_components: int | None = None,
+    n_channel_basis: int = 3,
+    provenance: dict | None = None,
+) -> CameraPrior:
+    """Build a :class:`CameraPrior` from measured sensitivities.
+
+    Parameters
+    ----------
+    cameras
+        Sensitivities on the grid (each 61 × 3); each is max-normalised over all channels first.
+    n_components
+        Joint components kept (default: all, ``len(cameras) − 1``).
+    n_channel_basis
+        Per-channel eigenvectors kept for the Jiang et al. (2013) basis.
+    provenance
+        Stored with the prior.
+
+    Notes
+    -----
+    The per-channel basis follows Jiang et al. (2013) as implemented by :func:`colour.recovery.PCA_Jiang2013`:
+    eigenvectors of the uncentred scatter matrix of each channel's curves, each curve normalised to a maximum
+    of 1.
+    """
+    arr = np.stack([max_normalise(c) for c in cameras])  # n × 61 × 3
+    n = arr.shape[0]
+    if n < 2:
+        raise ValueError("a camera prior needs at least two cameras")
+    stacked = arr.transpose(0, 2, 1).reshape(n, -1)  # n × 183, [r; g; b]
+    mean = stacked.mean(0)
+    _, s, vt = np.linalg.svd(stacked - mean, full_matrices=False)
+    var = s**2 / max(n - 1, 1)
+    k = min(n - 1, n_components if n_components is not None else n - 1)
+    comps = vt[:k].T
+    for j in range(k):
+        if comps[np.argmax(np.abs(comps[:, j])), j] < 0:
+            comps[:, j] *= -1
+    residual = float(var[k:].sum()) / stacked.shape[1] + 1e-6
+    bases = jiang2013_channel_bases(arr, n_channel_basis)
+    return CameraPrior(
+        mean=mean.reshape(3, N_WL).T,
+        components=comps,
+        variances=var[:k],
+        channel_bases=np.stack(bases),
+        residual_variance=residual,
+        provenance=dict(provenance or {"cameras": n}),
+    )
+
+
+def jiang2013_channel_bases(cameras: Sequence[ArrayLike], n_basis: int = 3) -> NDArray[np.float64]:
+    """Per-channel eigenvectors (3 × 61 × ``n_basis``) of Jiang et al. (2013), via
+    :func:`colour.recovery.PCA_Jiang2013`.
+
+    Each channel curve is normalised to a maximum of 1 and the eigenvectors of the uncentred scatter matrix
+    are
+    taken, largest eigenvalue first, signs fixed so that each vector's largest excursion is positive.
+    """
+    msds = {
+        str(i): colour.MultiSpectralDistributions(np.asarray(c, dtype=float), WAVELENGTHS, labels=list("RGB"))
+        for i, c in enumerate(cameras)
+    }
+    vectors = PCA_Jiang2013(msds, n_basis)
+    bases = []
+    for v in vectors:
+        v = np.array(v, dtype=float)
+        for j in range(v.shape[1]):
+            if v[np.argmax(np.abs(v[:, j])), j] < 0:
+                v[:, j] *= -1
+        bases.append(v)
+    return np.stack(bases)
+
+
+def build_daylight_prior(
+    spectra: ArrayLike, n_components: int = 4, provenance: dict | None = None
+) -> DaylightPrior:
+    """Build a :class:`DaylightPrior` from measured daylight spectra (n × 61), each scaled to unit mean
+    first."""
+    d = np.asarray(spectra, dtype=float)
+    d = d / d.mean(axis=1, keepdims=True)
+    mean = d.mean(0)
+    _, _, vt = np.linalg.svd(d - mean, full_matrices=False)
+    comps = vt[:n_components].T
+    for j in range(n_components):
+        if comps[np.argmax(np.abs(comps[:, j])), j] < 0:
+            comps[:, j] *= -1
+    coef = (d - mean) @ comps
+    return DaylightPrior(
+        mean=mean,
+        components=comps,
+        coefficient_mean=coef.mean(0),
+        coefficient_covariance=np.cov(coef, rowvar=False),
+        provenance=dict(provenance or {"spectra": int(d.shape[0])}),
+    )
+
+
+def _read_csv_resource(name: str) -> tuple[NDArray[np.float64], list[str]]:
+    text = (resources.files("illumon") / "data" / name).read_text()
+    wl, values, names = read_spectral_csv(name, text=text)
+    return resample_columns(wl, values, GRID), names
+
+
+@lru_cache(maxsize=1)
+def default_camera_prior() -> CameraPrior:
+    """The shipped camera prior, built from all 24 measured cameras (see ``illumon/data/README.md``)."""
+    values, names = _read_csv_resource("camera_prior.csv")
+    meta = json.loads((resources.files("illumon") / "data" / "camera_prior.json").read_text())
+    col = {n: i for i, n in enumerate(names)}
+    mean = values[:, [col["mean_r"], col["mean_g"], col["mean_b"]]]
+    k = int(meta["n_components"])
+    comps = np.column_stack(
+        [np.concatenate([values[:, col[f"pc{j + 1}_{c}"]] for c in "rgb"]) for j in range(k)]
+    )
+    nb = int(meta["n_channel_basis"])
+    bases = np.stack(
+        [np.column_stack([values[:, col[f"jiang{j + 1}_{c}"]] for j in range(nb)]) for c in "rgb"]
+    )
+    return CameraPrior(
+        mean=mean,
+        components=comps,
+        variances=np.asarray(meta["variances"], dtype=float),
+        channel_bases=bases,
+        residual_variance=float(meta["residual_variance"]),
+        provenance={k_: meta[k_] for k_ in ("cameras", "source", "licence")},
+    )
+
+
+@lru_cache(maxsize=1)
+def default_daylight_prior() -> DaylightPrior:
+    """The shipped daylight prior, from the 2600 Granada spectra (see ``illumon/data/README.md``)."""
+    values, names = _read_csv_resource("daylight_prior.csv")
+    meta = json.loads((resources.files("illumon") / "data" / "daylight_prior.json").read_text())
+    col = {n: i for i, n in enumerate(names)}
+    j = int(meta["n_components"])
+    return DaylightPrior(
+        mean=values[:, col["mean"]],
+        components=np.column_stack([values[:, col[f"pc{i + 1}"]] for i in range(j)]),
+        coefficient_mean=np.asarray(meta["coefficient_mean"], dtype=float),
+        coefficient_covariance=np.asarray(meta["coefficient_covariance"], dtype=float),
+        provenance={k_: meta[k_] for k_ in ("spectra", "source", "licence")},
+    )

@@ -10,7 +10,7 @@ cameras'
   400–700 nm) with the Gaussian of their coefficients;
 * ``fluorophores.csv`` — excitation and emission spectra (400–700 nm, 5 nm, peak-normalised) of 12
 fluorophores
-  from the McNamara & Boswell compilation, chosen so that their emission peaks spread over 440–660 nm and a
+  from the McNamara & Boswell compilation, chosen so that their emission peaks spread over 430–670 nm and a
   good
   share of their excitation lies in the visible, where daylight is strong. Used to simulate Han et al.'s
   chart.
@@ -33,7 +33,7 @@ CAMERA_LICENCE = (
     "RIT; Glenn Butcher 2020); this derived file is CC BY-NC-SA 4.0 as well"
 )
 N_DAYLIGHT = 4
-FLUOROPHORE_TARGETS = (440, 460, 480, 500, 520, 540, 560, 580, 600, 620, 640, 660)
+FLUOROPHORE_TARGETS = tuple(range(430, 671, 12))
 
 
 def build_cameras() -> None:
@@ -141,7 +141,7 @@ def build_fluorophores() -> None:
         WAVELENGTHS,
         cols,
         comments=[
-            "excitation (exNN) and emission (emNN) spectra of 12 fluorophores, 400-700 nm, peak-normalised",
+            "excitation (exNN) and emission (emNN) spectra of 21 fluorophores, 400-700 nm, peak-normalised",
             "from the McNamara & Boswell fluorophore spectra compilation (shared/data/fluorophores)",
             *notes,
         ],

@@ -1,1 +1,104 @@
-"""Camera spectral sensitivities from one chart image under unknown light (issue 5)."""
+"""Camera spectral sensitivities from one chart image under unknown light, daylight recovery, colour
+correction.
+
+Methods (select by name with :func:`estimate_sensitivities`):
+
+``default``
+    illumon's estimator: measured-camera and measured-daylight Gaussian priors, sensitivities integrated out
+    to
+    choose the daylight, then a non-negative MAP (:func:`~illumon.sensitivity.default.sensitivities_illumon`).
+``bayes``
+    Kinoshita & Kiya's Gaussian posteriors (eqs. 11–16), alternated for an unknown daylight.
+``jiang2013``
+    Jiang et al. (WACV 2013): 2 eigenvectors per channel and a CIE-D search, with colour-science's
+    :func:`colour.recovery.RGB_to_msds_camera_sensitivities_Jiang2013`.
+``huynh2016``
+    Huynh & Robles-Kelly: NNLS (eq. 3) and coordinate descent on eq. (8).
+``han2012``
+    Han et al. (CVPR 2012): fluorescent chart + reference chart (eqs. 6–16); needs the fluorescent chart's
+    inputs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from numpy.typing import ArrayLike
+
+from .bayes import sensitivities_Kinoshita2023
+from .common import SensitivityResult, rmse_per_channel
+from .correction import (
+    channel_gains_Han2012,
+    correct_Han2012,
+    to_cie1931_Huynh2016,
+    transfer_matrix_Huynh2016,
+)
+from .daylight_recovery import daylight_Han2012
+from .default import sensitivities_illumon
+from .han2012 import sensitivities_Han2012
+from .huynh2016 import sensitivities_Huynh2016
+from .jiang2013 import sensitivities_Jiang2013
+from .prior import (
+    CameraPrior,
+    DaylightPrior,
+    build_camera_prior,
+    build_daylight_prior,
+    default_camera_prior,
+    default_daylight_prior,
+)
+
+__all__ = [
+    "METHODS",
+    "estimate_sensitivities",
+    "SensitivityResult",
+    "rmse_per_channel",
+    "sensitivities_illumon",
+    "sensitivities_Kinoshita2023",
+    "sensitivities_Jiang2013",
+    "sensitivities_Huynh2016",
+    "sensitivities_Han2012",
+    "daylight_Han2012",
+    "channel_gains_Han2012",
+    "correct_Han2012",
+    "transfer_matrix_Huynh2016",
+    "to_cie1931_Huynh2016",
+    "CameraPrior",
+    "DaylightPrior",
+    "build_camera_prior",
+    "build_daylight_prior",
+    "default_camera_prior",
+    "default_daylight_prior",
+]
+
+METHODS: dict[str, Callable[..., SensitivityResult]] = {
+    "default": sensitivities_illumon,
+    "bayes": sensitivities_Kinoshita2023,
+    "jiang2013": sensitivities_Jiang2013,
+    "huynh2016": sensitivities_Huynh2016,
+    "han2012": sensitivities_Han2012,
+}
+"""Sensitivity estimators by name."""
+
+
+def estimate_sensitivities(
+    chart_rgb: ArrayLike, chart_reflectances: ArrayLike, method: str = "default", **kwargs: object
+) -> SensitivityResult:
+    """Estimate camera sensitivities from one chart image with the method named ``method``.
+
+    Parameters
+    ----------
+    chart_rgb
+        Linear camera values of the chart patches (P × 3).
+    chart_reflectances
+        Patch reflectances on the grid (P × 61).
+    method
+        A key of :data:`METHODS`.
+    **kwargs
+        Passed to the method (priors, parameters; ``han2012`` needs ``fluorescent_rgb``,
+        ``fluorescent_emissions`` and ``fluorescent_reflectances``).
+    """
+    try:
+        fn = METHODS[method]
+    except KeyError:
+        raise ValueError(f"unknown sensitivity method {method!r}; choose from {', '.join(METHODS)}") from None
+    return fn(chart_rgb, chart_reflectances, **kwargs)

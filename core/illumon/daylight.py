@@ -361,9 +361,14 @@ DAYLIGHT_MODELS: dict[str, type[DaylightModel]] = {"cie": CIEDaylight}
 
 
 def daylight_model(name: str | DaylightModel = "cie") -> DaylightModel:
-    """A daylight model instance by name (``"cie"``; more are registered in :data:`DAYLIGHT_MODELS`)."""
+    """A daylight model instance by name: ``"cie"`` or ``"measured"`` (:class:`illumon.daylight_measured.MeasuredDaylight`,
+    registered here on first use); more may be registered in :data:`DAYLIGHT_MODELS`."""
     if isinstance(name, DaylightModel):
         return name
+    if "measured" not in DAYLIGHT_MODELS:  # lazy: illumon.daylight_measured imports this module
+        from .daylight_measured import MeasuredDaylight
+
+        DAYLIGHT_MODELS["measured"] = MeasuredDaylight
     try:
         return DAYLIGHT_MODELS[name]()
     except KeyError:

@@ -10,12 +10,14 @@ that its chromaticities scatter above the locus at high correlated colour temper
 ``mired = 10⁶/CCT`` and the offset ``δ = Duv − Duv_locus(CCT)`` from the CIE daylight locus — and replaces the CIE
 spectrum at that chromaticity with what measured daylight looks like there:
 
-``E = μ + V a``,  ``a = B · [1, M1(xy), M2(xy)] + U diag(s) z``
+``E = μ + V a``,  ``a = Π_xy(B · [1, M1(xy), M2(xy)] + U diag(s) z)``
 
 * ``μ, V`` — mean and first ``k`` principal components of unit-mean training spectra (``k`` chosen by cross-validated
   reconstruction error within the training split);
 * ``B`` — a linear regression of the PCA coefficients on the CIE D weights ``(1, M1, M2)`` of each training spectrum's own
   chromaticity (CIE 015:2018 eq. 4.8), so the expected spectrum follows chromaticity and extrapolates like CIE D;
+* ``Π_xy`` — the smallest change of ``a`` that gives the spectrum exactly the chromaticity ``xy`` (two linear
+  constraints on tristimulus values), so ``(mired, δ)`` is the spectrum's chromaticity and ``z`` only its shape;
 * ``z`` — ``n_extra`` whitened coefficients along the principal directions ``U`` of the regression residual, prior
   N(0, I) (the part of measured spectral shape that chromaticity does not predict);
 * ``δ`` — Gaussian prior N(δ̄(mired), σ_δ²) with a mean linear in mired learnt from the training spectra, because
@@ -166,6 +168,9 @@ class MeasuredDaylightData:
         Range (0.5–99.5 %) of the training spectra's reciprocal temperatures.
     mired_mean, mired_sd
         Mean and standard deviation of the training spectra's reciprocal temperatures (MK⁻¹).
+    residual_rel_sd
+        Per-wavelength standard deviation (61,) of the training spectra's relative residual after a free fit with
+        ``[μ, V]``: the natural spectral detail the basis leaves out (absorption lines, noise).
     cv_errors
         Cross-validated relative RMSE for k = 1…12 that chose ``k``.
     provenance
@@ -182,6 +187,7 @@ class MeasuredDaylightData:
     mired_range: tuple[float, float]
     mired_mean: float
     mired_sd: float
+    residual_rel_sd: NDArray[np.float64]
     cv_errors: NDArray[np.float64]
     provenance: dict = field(default_factory=dict)
 
@@ -200,10 +206,29 @@ class MeasuredDaylightData:
         m = np.clip(np.asarray(mired, dtype=float), *self.mired_range)
         return self.delta_coef[0] + self.delta_coef[1] * m
 
+    def coefficients(self, xy: ArrayLike, extra: ArrayLike | None = None) -> NDArray[np.float64]:
+        """PCA coefficients (…, k) at chromaticity ``xy``: regression (+ ``extra``), then the smallest change that
+        gives the spectrum exactly that chromaticity (two linear constraints on X, Y, Z)."""
+        xy = np.asarray(xy, dtype=float)
+        a = _features(xy) @ self.regression.T
+        if extra is not None:
+            a = a + extra
+        from .daylight import CMFS
+
+        x, y = xy[..., :1], xy[..., 1:2]
+        s = CMFS.sum(1)
+        gx = CMFS[:, 0][None] - x * s[None]  # (…, 61): x·(X+Y+Z) − X = 0
+        gy = CMFS[:, 1][None] - y * s[None]
+        g = np.stack([gx, gy], axis=-2)  # (…, 2, 61)
+        c = g @ self.components  # (…, 2, k)
+        r = -(g @ self.mean) - np.einsum("...ij,...j->...i", c, a)  # (…, 2)
+        cct = c @ np.swapaxes(c, -1, -2)
+        lam = np.linalg.solve(cct, r[..., None])[..., 0]
+        return a + np.einsum("...ij,...i->...j", c, lam)
+
     def predict(self, xy: ArrayLike) -> NDArray[np.float64]:
-        """Expected unit-mean-scale spectrum (…, 61) of measured daylight at chromaticity ``xy``."""
-        a = _features(np.asarray(xy, dtype=float)) @ self.regression.T
-        return self.mean + a @ self.components.T
+        """Expected unit-mean-scale spectrum (…, 61) of measured daylight at chromaticity ``xy`` (exact xy)."""
+        return self.mean + self.coefficients(xy) @ self.components.T
 
     def to_json(self) -> dict:
         """The non-spectral parts as a JSON-ready dict (the basis goes to CSV)."""
@@ -218,6 +243,7 @@ class MeasuredDaylightData:
             "mired_range": list(self.mired_range),
             "mired_mean": self.mired_mean,
             "mired_sd": self.mired_sd,
+            "residual_rel_sd": self.residual_rel_sd.tolist(),
             "cv_errors": self.cv_errors.tolist(),
             "provenance": self.provenance,
         }
@@ -290,6 +316,7 @@ def fit_measured_daylight(
         mired_range=(float(np.percentile(mired, 0.5)), float(np.percentile(mired, 99.5))),
         mired_mean=float(mired.mean()),
         mired_sd=float(mired.std()),
+        residual_rel_sd=(e / free_fit(np.column_stack([mu, v]), e) - 1.0).std(0),
         cv_errors=cv,
         provenance=prov,
     )
@@ -313,6 +340,7 @@ def shipped_measured_daylight() -> MeasuredDaylightData:
         mired_range=(float(meta["mired_range"][0]), float(meta["mired_range"][1])),
         mired_mean=float(meta["mired_mean"]),
         mired_sd=float(meta["mired_sd"]),
+        residual_rel_sd=np.asarray(meta["residual_rel_sd"], dtype=float),
         cv_errors=np.asarray(meta["cv_errors"], dtype=float),
         provenance=meta["provenance"],
     )
@@ -358,17 +386,16 @@ class MeasuredDaylight(DaylightModel):
         self.basis = self.data.basis
         self._shape = self.data.residual_directions[:, : self.n_extra] * self.data.residual_sd[: self.n_extra]
 
-    def _nominal_cct_duv(self, params: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def _cct_duv(self, params: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         p = np.atleast_2d(params)
         cct = 1e6 / p[:, 0]
         return cct, daylight_locus_duv(cct) + p[:, 1]
 
     def weights(self, params: NDArray[np.float64]) -> NDArray[np.float64]:
         p = np.atleast_2d(np.asarray(params, dtype=float))
-        cct, duv = self._nominal_cct_duv(p)
-        a = _features(xy_from_cct_duv(cct, duv)) @ self.data.regression.T
-        if self.n_extra:
-            a = a + p[:, 2:] @ self._shape.T
+        cct, duv = self._cct_duv(p)
+        extra = p[:, 2:] @ self._shape.T if self.n_extra else None
+        a = self.data.coefficients(xy_from_cct_duv(cct, duv), extra)
         return np.concatenate([np.ones((p.shape[0], 1)), a], axis=1)
 
     def prior_residuals(self, params: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -381,6 +408,10 @@ class MeasuredDaylight(DaylightModel):
         lo = np.array([MIRED_RANGE[0], -DELTA_BOUND] + [-Z_BOUND] * self.n_extra)
         hi = np.array([MIRED_RANGE[1], DELTA_BOUND] + [Z_BOUND] * self.n_extra)
         return lo, hi
+
+    def scale(self) -> NDArray[np.float64]:
+        """Characteristic change of each parameter: 10 MK⁻¹, σ_δ and one prior σ of each ``z``."""
+        return np.array([10.0, self.data.delta_sd] + [1.0] * self.n_extra)
 
     def start(self, mired: NDArray[np.float64]) -> NDArray[np.float64]:
         m = np.clip(np.asarray(mired, dtype=float).ravel(), *MIRED_RANGE)

@@ -1,0 +1,1 @@
+"""Reproducible reports (Markdown + PNG + JSON) on illumon's models and data."""

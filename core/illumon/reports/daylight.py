@@ -99,7 +99,7 @@ def load_measured_spectra(path: str | Path) -> tuple[list[str], NDArray[np.float
         )
     info = {"n_file": int(values.shape[1]), "n_dropped_nonpositive": int((~ok).sum()),
             "file_range_nm": [float(wl[0]), float(wl[-1])]}
-    return [n for n, k in zip(names, ok) if k], unit_mean(grid[ok]), info
+    return [n for n, k in zip(names, ok, strict=True) if k], unit_mean(grid[ok]), info
 
 
 def _theta_fit(e: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -192,7 +192,7 @@ def _simulate_gain(
     res: dict[str, dict[str, list[float]]] = {k: {"angular": [], "rmse": [], "gfc": []} for k in models}
     hist = []
     t0 = time.perf_counter()
-    for h in range(n_histories):
+    for _ in range(n_histories):
         if time.perf_counter() - t0 > time_budget_s:
             break
         cam_name = cams[int(rng.integers(len(cams)))]
@@ -291,7 +291,7 @@ def daylight_report(
         for k, v in err.items()
     }
     by_cct = []
-    for lo, hi in zip(CCT_BINS[:-1], CCT_BINS[1:]):
+    for lo, hi in zip(CCT_BINS[:-1], CCT_BINS[1:], strict=True):
         s = (cct >= lo) & (cct < hi)
         if s.any():
             by_cct.append({
@@ -441,7 +441,7 @@ def _plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) 
     for k in ("cie_cct", "cie_xy", "cie_free", "theta"):
         ax[0].scatter(cct, 1 - np.asarray(fig["error_vs_cct"][f"gfc_{k}"]), s=3, label=k, alpha=0.5)
         ax[1].scatter(cct, fig["error_vs_cct"][f"rmse_{k}"], s=3, label=k, alpha=0.5)
-    for a, lab in zip(ax, ("1 − GFC", "relative RMSE")):
+    for a, lab in zip(ax, ("1 − GFC", "relative RMSE"), strict=True):
         a.set_xscale("log")
         a.set_yscale("log")
         a.set_xlabel("CCT (K)")
@@ -496,7 +496,7 @@ def _plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) 
 
     worst = np.argsort(err["cie_xy"]["gfc"])[:4]
     f, axs = plt.subplots(1, 4, figsize=(14, 3.5))
-    for a, i in zip(axs, worst):
+    for a, i in zip(axs, worst, strict=False):
         a.plot(WAVELENGTHS, e[i], "k", label="measured")
         a.plot(WAVELENGTHS, fits["cie_xy"][i], label="CIE D (own xy)")
         a.plot(WAVELENGTHS, fits["cie_free"][i], label="S0/S1/S2 free")

@@ -195,7 +195,7 @@ def cct_duv_from_xy(xy: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.floa
 
 @lru_cache(maxsize=1)
 def _locus_duv_table() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    nominal = np.linspace(1000.0, 40000.0, 4000)
+    nominal = np.geomspace(2000.0, 50000.0, 4000)
     cct, duv = cct_duv_from_xy(daylight_locus_xy(nominal))
     mired = 1e6 / cct
     order = np.argsort(mired)
@@ -304,6 +304,10 @@ class DaylightModel:
         """Initial parameters (F × n_params) for reciprocal temperatures ``mired`` (MK⁻¹)."""
         raise NotImplementedError
 
+    def scale(self) -> NDArray[np.float64]:
+        """Characteristic size of each parameter's meaningful change (trust-region scaling)."""
+        raise NotImplementedError
+
     def spectra(self, params: NDArray[np.float64]) -> NDArray[np.float64]:
         """Illuminant spectra (F × 61), CIE-normalised to 100 at 560 nm."""
         spd = self.weights(params) @ self.basis.T
@@ -317,13 +321,19 @@ class CIEDaylight(DaylightModel):
     Parameters per frame: ``mired = 10⁶ / CCT`` and ``δ = Duv − Duv_locus(CCT)``. ``δ`` carries a Gaussian prior
     N(0, ``duv_sigma``²); the 2600 Granada spectra scatter around the CIE daylight locus with σ ≈ 0.0025, so the default
     0.003 lets measured skies leave the locus while keeping the estimate daylight-like. ``duv_sigma=0`` pins frames on
-    the locus (one parameter per frame, like the θ curve).
+    the locus (one parameter per frame, like the θ curve). A weak Gaussian prior on the reciprocal temperature,
+    N(150, 45²) MK⁻¹ (Granada: mean 149, σ 34, 1–99 % 55–186 MK⁻¹, widened for other sites), keeps the common
+    colour-temperature shift that static patches cannot determine (see :mod:`illumon.retrieval.joint`) near daylight.
     """
 
     name = "cie"
 
-    def __init__(self, duv_sigma: float = 0.003) -> None:
+    def __init__(
+        self, duv_sigma: float = 0.003, mired_mean: float = 150.0, mired_sigma: float = 45.0
+    ) -> None:
         self.duv_sigma = float(duv_sigma)
+        self.mired_mean = float(mired_mean)
+        self.mired_sigma = float(mired_sigma)
         self.n_params = 2 if self.duv_sigma > 0 else 1
         self.basis = CIE_D_BASIS
 
@@ -340,14 +350,18 @@ class CIEDaylight(DaylightModel):
 
     def prior_residuals(self, params: NDArray[np.float64]) -> NDArray[np.float64]:
         p = np.atleast_2d(params)
-        if self.n_params == 1:
-            return np.zeros((p.shape[0], 0))
-        return p[:, 1:2] / self.duv_sigma
+        out = [(p[:, :1] - self.mired_mean) / self.mired_sigma]
+        if self.n_params == 2:
+            out.append(p[:, 1:2] / self.duv_sigma)
+        return np.concatenate(out, axis=1)
 
     def bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if self.n_params == 1:
             return np.array([MIRED_RANGE[0]]), np.array([MIRED_RANGE[1]])
         return np.array([MIRED_RANGE[0], -0.03]), np.array([MIRED_RANGE[1], 0.03])
+
+    def scale(self) -> NDArray[np.float64]:
+        return np.array([10.0, self.duv_sigma][: self.n_params])
 
     def start(self, mired: NDArray[np.float64]) -> NDArray[np.float64]:
         m = np.clip(np.asarray(mired, dtype=float), *MIRED_RANGE)[:, None]

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import sparse
 from scipy.optimize import least_squares
 
 from ..daylight import DaylightModel, daylight_locus_duv, daylight_model, xy_from_cct_duv
@@ -30,7 +31,12 @@ __all__ = ["illuminant_retrieval_joint", "JointProblem"]
 
 
 class JointProblem:
-    """The variable-projection least-squares problem behind :func:`illuminant_retrieval_joint`.
+    """The joint least-squares problem behind :func:`illuminant_retrieval_joint`.
+
+    Unknowns: per frame the daylight parameters and a log exposure; per patch the reflectance coefficients. Residuals
+    (all whitened): the data, the Gaussian reflectance prior, the daylight prior and a hinge penalty on reflectances
+    outside 0…1 on the wavelength grid. Each data residual depends on one frame and one patch only, so the Jacobian is
+    block-sparse and finite differences need only ``n_frame_params + K`` evaluations (scipy groups the columns).
 
     Parameters
     ----------
@@ -45,6 +51,8 @@ class JointProblem:
     relative_error, absolute_error
         Noise model of a patch mean: σ = sqrt((relative·y)² + absolute²), ``y`` normalised to a median of 1. The
         relative part also absorbs model error (basis truncation of reflectances and daylight).
+    bound_weight
+        Weight of the hinge residuals that keep reflectances within 0…1.
     """
 
     def __init__(
@@ -56,6 +64,7 @@ class JointProblem:
         *,
         relative_error: float = 0.02,
         absolute_error: float = 0.002,
+        bound_weight: float = 20.0,
     ) -> None:
         self.model = model
         self.rb = reflectance
@@ -63,30 +72,30 @@ class JointProblem:
         y = np.asarray(obs.values, dtype=float)
         present = np.all(np.isfinite(y), axis=-1)
         self.F, self.P = present.shape
+        self.nk = reflectance.size
         green = y[..., 1][present]
         self.scale = float(np.median(green)) if green.size else 1.0
         if not self.scale > 0:
             self.scale = float(np.nanmax(y)) or 1.0
-        yn = np.where(present[..., None], y / self.scale, 0.0)
-        wt = 1.0 / np.sqrt((relative_error * yn) ** 2 + absolute_error**2)
-        wt = np.where(present[..., None], wt, 0.0)
-        # Rows ordered frame-major: r = 3 f + c; arrays are P × 3F.
-        self.Y = yn.transpose(1, 0, 2).reshape(self.P, 3 * self.F)
-        self.W = wt.transpose(1, 0, 2).reshape(self.P, 3 * self.F)
-        self.W2Y = self.W**2 * self.Y
-        cov = reflectance.prior_covariance
-        self.Lambda = np.linalg.inv(cov)
+        self.Y = np.where(present[..., None], y / self.scale, 0.0)  # F × P × 3
+        wt = 1.0 / np.sqrt((relative_error * self.Y) ** 2 + absolute_error**2)
+        self.W = np.where(present[..., None], wt, 0.0)
+        self.Lambda = np.linalg.inv(reflectance.prior_covariance)
         self.R = np.linalg.cholesky(self.Lambda).T  # ‖R(σ−μ)‖² = (σ−μ)ᵀΛ(σ−μ)
         self.mu = reflectance.prior_mean
-        self.Lmu = self.Lambda @ self.mu
         self.present = present
         self.np = model.n_params
+        self.nf = self.np + 1
+        self.bound_weight = bound_weight
+        self.gauge_weight = 100.0
+        self.logk_ref: float | None = None
 
-    # parameters: per frame [model params..., log exposure]
-    def unpack(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Split the parameter vector into daylight parameters (F × n) and log exposures (F,)."""
-        x = x.reshape(self.F, self.np + 1)
-        return x[:, : self.np], x[:, self.np]
+    # x = [frame params (F × nf: model params…, log exposure)] + [reflectance coefficients (P × K)]
+    def split(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """Daylight parameters (F × n), log exposures (F,) and reflectance coefficients (P × K) from ``x``."""
+        fr = x[: self.F * self.nf].reshape(self.F, self.nf)
+        sigma = x[self.F * self.nf :].reshape(self.P, self.nk)
+        return fr[:, : self.np], fr[:, self.np], sigma
 
     def operators(self, params: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Per-frame response matrices (F × 3 × K) for unit exposure, with the illuminant scaled to white_g = 1."""
@@ -95,41 +104,133 @@ class JointProblem:
         m = np.einsum("fk,kcj->fcj", a, self.K) / white[:, 1, None, None]
         return m, white
 
-    def solve_reflectances(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Posterior-mean reflectance coefficients (P × K) and the stacked operator (3F × K) for parameters ``x``."""
-        params, logk = self.unpack(x)
-        m, _ = self.operators(params)
-        a = (np.exp(logk)[:, None, None] * m).reshape(3 * self.F, -1)
-        n = np.einsum("pr,ri,rj->pij", self.W**2, a, a) + self.Lambda
-        b = self.W2Y @ a + self.Lmu
-        sigma = np.linalg.solve(n, b[..., None])[..., 0]
-        return sigma, a
-
     def residuals(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Whitened residuals: data, reflectance prior and daylight prior."""
-        sigma, a = self.solve_reflectances(x)
-        data = self.W * (self.Y - sigma @ a.T)
+        """Whitened residuals: data, reflectance prior, daylight prior, physical bounds."""
+        params, logk, sigma = self.split(x)
+        m, _ = self.operators(params)
+        pred = np.exp(logk)[:, None, None] * np.einsum("fcj,pj->fpc", m, sigma)
+        data = self.W * (self.Y - pred)
         prior = (sigma - self.mu) @ self.R.T
-        params, _ = self.unpack(x)
-        return np.concatenate([data.ravel(), prior.ravel(), self.model.prior_residuals(params).ravel()])
+        refl = sigma @ self.rb.functions.T
+        hinge = self.bound_weight * (np.clip(-refl, 0, None) + np.clip(refl - 1.0, 0, None))
+        # Gauge: reflectance scale and exposure trade off exactly; pin the mean log exposure to its start value so the
+        # reflectance prior cannot buy a lower cost by darkening every patch.
+        gauge = np.atleast_1d(self.gauge_weight * (np.mean(logk) - self.logk_ref))
+        return np.concatenate(
+            [data.ravel(), prior.ravel(), self.model.prior_residuals(params).ravel(), hinge.ravel(), gauge]
+        )
+
+    def projected_residuals(self, xf: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Residuals with the reflectances eliminated (variable projection): frame parameters only (F·nf,)."""
+        fr = xf.reshape(self.F, self.nf)
+        sigma = self.solve_reflectances(fr[:, : self.np], fr[:, self.np])
+        return self.residuals(np.concatenate([xf, sigma.ravel()]))
+
+    def frame_scale(self) -> NDArray[np.float64]:
+        """Characteristic scale of each frame parameter (for the trust region): 10 MK⁻¹, model units, 0.1 in log k."""
+        return np.tile(np.append(self.model.scale(), 0.1), self.F)
+
+    def sparsity(self) -> sparse.csr_matrix:
+        """Jacobian sparsity pattern of :meth:`residuals`."""
+        f, p, nf, nk = self.F, self.P, self.nf, self.nk
+        rows, cols = [], []
+        # data rows (f, p, c)
+        r = np.arange(f * p * 3).reshape(f, p, 3)
+        for j in range(nf):
+            rows.append(r.ravel())
+            cols.append((np.arange(f)[:, None, None] * nf + j + 0 * r).ravel())
+        for j in range(nk):
+            rows.append(r.ravel())
+            cols.append((f * nf + np.arange(p)[None, :, None] * nk + j + 0 * r).ravel())
+        off = f * p * 3
+        # reflectance prior rows (p, k) depend on σ_p
+        rp = off + np.arange(p * nk).reshape(p, nk)
+        for j in range(nk):
+            rows.append(rp.ravel())
+            cols.append((f * nf + np.arange(p)[:, None] * nk + j + 0 * rp).ravel())
+        off += p * nk
+        nd = self.model.prior_residuals(self.model.start(np.full(1, 150.0))).shape[1]
+        rd = off + np.arange(f * nd).reshape(f, nd)
+        for j in range(self.np):
+            rows.append(rd.ravel())
+            cols.append((np.arange(f)[:, None] * nf + j + 0 * rd).ravel())
+        off += f * nd
+        nl = self.rb.functions.shape[0]
+        rh = off + np.arange(p * nl).reshape(p, nl)
+        for j in range(nk):
+            rows.append(rh.ravel())
+            cols.append((f * nf + np.arange(p)[:, None] * nk + j + 0 * rh).ravel())
+        off += p * nl
+        rows.append(np.full(f, off))
+        cols.append(np.arange(f) * nf + self.np)
+        n_rows = off + 1
+        rows_a, cols_a = np.concatenate(rows), np.concatenate(cols)
+        return sparse.csr_matrix((np.ones(rows_a.size), (rows_a, cols_a)), shape=(n_rows, f * nf + p * nk))
+
+    def jacobian(self, x: NDArray[np.float64], dense: bool = True) -> NDArray[np.float64] | sparse.csr_matrix:
+        """Finite-difference Jacobian with grouped columns (frames share no rows, nor do patches): ``nf + K`` extra
+        residual evaluations whatever the history size."""
+        if not hasattr(self, "_pattern"):
+            self._pattern = self.sparsity().tocsc()
+        pattern = self._pattern
+        r0 = self.residuals(x)
+        f, p, nf, nk = self.F, self.P, self.nf, self.nk
+        groups = [np.arange(f) * nf + j for j in range(nf)] + [f * nf + np.arange(p) * nk + j for j in range(nk)]
+        lo, hi = self.bounds()
+        data, rows, cols = [], [], []
+        for g in groups:
+            h = 1e-6 * np.maximum(1.0, np.abs(x[g]))
+            # step away from an upper bound
+            h = np.where(x[g] + h > hi[g], -h, h)
+            xp = x.copy()
+            xp[g] += h
+            dr = self.residuals(xp) - r0
+            for col, step in zip(g, h, strict=True):
+                rr = pattern.indices[pattern.indptr[col] : pattern.indptr[col + 1]]
+                rows.append(rr)
+                cols.append(np.full(rr.size, col))
+                data.append(dr[rr] / step)
+        # The gauge row couples every frame's exposure; its derivative is known exactly.
+        gauge_row = pattern.shape[0] - 1
+        keep = [rr != gauge_row for rr in rows]
+        rows = [rr[k] for rr, k in zip(rows, keep, strict=True)] + [np.full(f, gauge_row)]
+        data = [d[k] for d, k in zip(data, keep, strict=True)] + [np.full(f, self.gauge_weight / f)]
+        cols = [cc[k] for cc, k in zip(cols, keep, strict=True)] + [np.arange(f) * nf + self.np]
+        jac = sparse.csr_matrix(
+            (np.concatenate(data), (np.concatenate(rows), np.concatenate(cols))), shape=pattern.shape
+        )
+        return jac.toarray() if dense else jac
 
     def bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Bounds of the full parameter vector."""
         lo, hi = self.model.bounds()
-        lo = np.tile(np.append(lo, -np.inf), self.F)
-        hi = np.tile(np.append(hi, np.inf), self.F)
+        lo = np.concatenate([np.tile(np.append(lo, -np.inf), self.F), np.full(self.P * self.nk, -np.inf)])
+        hi = np.concatenate([np.tile(np.append(hi, np.inf), self.F), np.full(self.P * self.nk, np.inf)])
         return lo, hi
 
+    def solve_reflectances(self, params: NDArray[np.float64], logk: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Posterior-mean reflectance coefficients (P × K) for given illuminants and exposures (linear solve)."""
+        m, _ = self.operators(params)
+        a = np.exp(logk)[:, None, None] * m  # F × 3 × K
+        w2 = (self.W**2).transpose(1, 0, 2)  # P × F × 3
+        n = np.einsum("pfc,fci,fcj->pij", w2, a, a) + self.Lambda
+        b = np.einsum("pfc,fci->pi", w2 * self.Y.transpose(1, 0, 2), a) + self.Lambda @ self.mu
+        return np.linalg.solve(n, b[..., None])[..., 0]
+
     def start(self, mired: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Initial vector from per-frame reciprocal temperatures, exposures fitted to the frames' levels."""
+        """Initial vector from per-frame reciprocal temperatures: exposures from the frames' levels, then
+        reflectances from the linear solve."""
         params = self.model.start(mired)
         m, _ = self.operators(params)
-        typical = m @ self.mu  # F × 3 responses of the mean reflectance
+        typical = m @ self.mu
         level = np.array(
-            [np.mean(self.Y[self.present[f], 3 * f + 1]) if self.present[f].any() else 1.0 for f in range(self.F)]
+            [np.mean(self.Y[f, self.present[f], 1]) if self.present[f].any() else 1.0 for f in range(self.F)]
         )
         logk = np.log(np.maximum(level, 1e-6) / np.maximum(typical[:, 1], 1e-9))
-        return np.concatenate([params, logk[:, None]], axis=1).ravel()
+        if self.logk_ref is None:
+            self.logk_ref = float(np.mean(logk))
+        sigma = self.solve_reflectances(params, logk)
+        return np.concatenate([np.concatenate([params, logk[:, None]], axis=1).ravel(), sigma.ravel()])
 
 
 def _gray_world_mired(obs: Observations, sensitivities: NDArray[np.float64], model: DaylightModel) -> NDArray[np.float64]:
@@ -157,6 +258,7 @@ def illuminant_retrieval_joint(
     absolute_error: float = 0.002,
     start_offsets: tuple[float, ...] = (0.0, -40.0, 40.0),
     max_nfev: int = 200,
+    polish_max_frames: int = 400,
 ) -> RetrievalResult:
     """Retrieve every frame's illuminant and the patches' reflectances by a joint bounded least-squares fit.
 
@@ -181,6 +283,9 @@ def illuminant_retrieval_joint(
         Offsets (MK⁻¹) added to the gray-world start; each is one start.
     max_nfev
         Function-evaluation cap of each least-squares run.
+    polish_max_frames
+        Histories up to this size get the final all-unknowns polish (dense Jacobian); longer ones keep the projected
+        solution.
 
     Returns
     -------
@@ -189,36 +294,47 @@ def illuminant_retrieval_joint(
     model = daylight_model(daylight)
     rb = reflectance or reflectance_basis()
     c = np.asarray(sensitivities, dtype=float)
+    if len(obs.frames) < 2:
+        raise ValueError("joint retrieval needs at least two frames")
     prob = JointProblem(obs, c, model, rb, relative_error=relative_error, absolute_error=absolute_error)
     lo, hi = prob.bounds()
+    nfr = prob.F * prob.nf
     base = _gray_world_mired(obs, c, model)
     best = None
     runs = []
     for off in start_offsets:
         x0 = np.clip(prob.start(base + off), lo + 1e-9, hi - 1e-9)
-        sol = least_squares(prob.residuals, x0, bounds=(lo, hi), x_scale="jac", max_nfev=max_nfev, method="trf")
+        # Stage 1: variable projection over the frame parameters (reflectances eliminated linearly).
+        sol = least_squares(
+            prob.projected_residuals, x0[:nfr], bounds=(lo[:nfr], hi[:nfr]), x_scale=prob.frame_scale(),
+            max_nfev=max_nfev, method="trf",
+        )
         runs.append(float(sol.cost))
         if best is None or sol.cost < best.cost:
             best = sol
     assert best is not None
-    params, logk = prob.unpack(best.x)
-    sigma, _ = prob.solve_reflectances(best.x)
+    fr = best.x.reshape(prob.F, prob.nf)
+    sigma0 = prob.solve_reflectances(fr[:, : prob.np], fr[:, prob.np])
+    # Stage 2: polish all unknowns together, so the reflectances honour their 0…1 bounds exactly.
+    x1 = np.concatenate([best.x, sigma0.ravel()])
+    if prob.F <= polish_max_frames:
+        best = least_squares(
+            prob.residuals, x1, jac=prob.jacobian, bounds=(lo, hi), method="dogbox",
+            x_scale=np.concatenate([prob.frame_scale(), np.full(sigma0.size, 0.1)]), max_nfev=30,
+        )
+    else:
+        best.x = x1
+    params, logk, sigma = prob.split(best.x)
     refl = rb.spectra(sigma)
     spectra = model.spectra(params)
     xy = None
     if hasattr(model, "_cct_duv"):
         cct, duv = model._cct_duv(params)
         xy = xy_from_cct_duv(cct, duv)
-    jac = best.jac
-    try:
-        cond = float(np.linalg.cond(jac))
-    except np.linalg.LinAlgError:
-        cond = float("inf")
     info = {
         "cost": float(best.cost),
         "start_costs": runs,
         "nfev": int(best.nfev),
-        "jacobian_condition": cond,
         "reflectance_out_of_range": float(np.mean((refl < -0.02) | (refl > 1.02))),
         "scale": prob.scale,
     }
@@ -229,6 +345,6 @@ def illuminant_retrieval_joint(
         "joint",
         xy=xy,
         exposures=np.exp(logk) / prob.scale,
-        reflectances=refl,
+        reflectances=np.clip(refl, 0.0, 1.0),
         info=info,
     )

@@ -1,0 +1,150 @@
+"""The ``illumon`` command.
+
+Subcommands: ``estimate`` (multi-frame retrieval, or per-frame with a learned ``--model``), ``fit``, ``sensitivity``,
+``report daylight``, ``diagnose`` and ``serve`` where installed. Errors in the user's input print one line
+``illumon: error: …`` naming the file, row and problem, and exit with status 2; nothing prints a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["main", "build_parser", "write_estimates"]
+
+
+class UsageError(Exception):
+    """A problem with the user's input, reported as one line and exit status 2."""
+
+
+def _white_level(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"white level must be a number, got {text!r}") from None
+    if not (v > 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"white level must be positive, got {text!r}")
+    return v
+
+
+def write_estimates(path: str | Path, result, extra: dict[str, np.ndarray] | None = None) -> None:
+    """Write a retrieval result as ``ESTIMATES.csv`` (one row per frame; see the README for the columns)."""
+    extra = extra or {}
+    cols = ["frame", "time", "cct_k", "duv", "x", "y", "white_r", "white_g", "white_b", "gain_r", "gain_g", "gain_b"]
+    cols += list(extra)
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(cols)
+        for i, frame in enumerate(result.frames):
+            row = [
+                frame,
+                result.times[i] if result.times else "",
+                f"{result.cct[i]:.1f}",
+                f"{result.duv[i]:.5f}",
+                f"{result.xy[i, 0]:.5f}",
+                f"{result.xy[i, 1]:.5f}",
+                *(f"{v:.6f}" for v in result.white[i]),
+                *(f"{v:.6f}" for v in result.gains[i]),
+            ]
+            row += [f"{extra[k][i]:.6g}" for k in extra]
+            w.writerow(row)
+
+
+def _write_reflectances(path: str | Path, result) -> None:
+    from .spectra import WAVELENGTHS, write_spectral_csv
+
+    write_spectral_csv(
+        path,
+        WAVELENGTHS,
+        {p: result.reflectances[j] for j, p in enumerate(result.patches)},
+        comments=[f"illumon {result.method}: recovered patch reflectances (0…1)"],
+    )
+
+
+def _cmd_estimate(args: argparse.Namespace) -> int:
+    from .observations import read_observations
+
+    obs = read_observations(args.observations, white_level=args.white_level)
+    if args.model:
+        try:
+            from .model import estimate_with_model
+        except ImportError as exc:  # pragma: no cover - the model module ships with the package
+            raise UsageError(f"--model needs illumon.model ({exc})") from None
+        result, extra = estimate_with_model(obs, args.model)
+    else:
+        if not args.sensitivities:
+            raise UsageError("estimate needs --sensitivities (or --model from `illumon fit`)")
+        from .retrieval import retrieve_illuminants
+        from .spectra import read_sensitivities
+
+        css = read_sensitivities(args.sensitivities)
+        if len(obs.frames) < 2:
+            raise UsageError(
+                f"{args.observations}: only one frame; multi-frame retrieval needs at least two (or use --model)"
+            )
+        kwargs = {}
+        if args.method == "joint":
+            kwargs["daylight"] = args.daylight_model
+        result = retrieve_illuminants(obs, css, method=args.method, **kwargs)
+        extra = None
+    write_estimates(args.out, result, extra)
+    if args.reflectances:
+        _write_reflectances(args.reflectances, result)
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``illumon`` command."""
+    parser = argparse.ArgumentParser(prog="illumon", description="Daylight illuminant and white balance for fixed cameras")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    est = sub.add_parser("estimate", help="estimate every frame's illuminant and white-balance gains")
+    est.add_argument("observations", help="OBSERVATIONS.csv with columns frame,time,patch,r,g,b")
+    est.add_argument("--sensitivities", help="camera sensitivities CSV wavelength_nm,r,g,b")
+    est.add_argument("--model", help="scene model JSON from `illumon fit` (per-frame estimates with intervals)")
+    est.add_argument("--out", required=True, help="ESTIMATES.csv to write")
+    est.add_argument("--method", default="joint", choices=["joint", "marguier2007", "gray_world"])
+    est.add_argument("--daylight-model", default="cie", choices=["cie", "measured"])
+    est.add_argument("--white-level", type=_white_level, default=255.0, help="value of a saturated pixel (255)")
+    est.add_argument("--reflectances", help="also write the recovered patch reflectances to this CSV")
+    est.set_defaults(func=_cmd_estimate)
+
+    for module, fn in (
+        ("illumon.model", "add_fit_command"),
+        ("illumon.sensitivity.cli", "add_sensitivity_command"),
+        ("illumon.reports.cli", "add_report_command"),
+        ("illumon.diagnosis.cli", "add_diagnose_command"),
+        ("illumon_service.cli", "add_serve_command"),
+    ):
+        try:
+            mod = __import__(module, fromlist=[fn])
+        except ImportError:
+            continue
+        getattr(mod, fn)(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``illumon`` console script."""
+    warnings.filterwarnings("ignore")
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except (UsageError, ValueError, KeyError, FileNotFoundError, np.linalg.LinAlgError) as exc:
+        msg = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+        print(f"illumon: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:  # pragma: no cover
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

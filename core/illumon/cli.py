@@ -102,7 +102,9 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``illumon`` command."""
-    parser = argparse.ArgumentParser(prog="illumon", description="Daylight illuminant and white balance for fixed cameras")
+    parser = argparse.ArgumentParser(
+        prog="illumon", description="Daylight illuminant and white balance for fixed cameras"
+    )
     sub = parser.add_subparsers(dest="command", required=True)
 
     est = sub.add_parser("estimate", help="estimate every frame's illuminant and white-balance gains")

@@ -1,0 +1,147 @@
+"""Frame ingest: images (``/frames``) and client-side region means (``/observations``)."""
+
+from __future__ import annotations
+
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+from fastapi import APIRouter, HTTPException, Request, status
+from sqlalchemy import select
+from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import UploadFile
+
+from ...deps import PrincipalDep, SessionDep, camera_for
+from ...estimation import estimate_frame
+from ...regions import ImageError, Region, RegionError, decode_image, region_means, response_for, sniff_format
+from ...storage import Camera, Estimate, Frame, as_utc
+from ..schemas import ObservationIn
+from .estimates import estimate_out
+
+router = APIRouter(prefix="/v1/cameras", tags=["frames"])
+
+IMAGE_TYPES = {"image/png", "image/jpeg", "image/jpg", "image/tiff", "application/octet-stream", ""}
+
+
+def parse_time(text: str | None) -> datetime:
+    """ISO 8601 → aware UTC datetime (naive means UTC); now when empty. 422 when malformed."""
+    if not text:
+        return datetime.now(timezone.utc)
+    try:
+        t = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
+    except ValueError:
+        raise HTTPException(422, f"taken_at {text!r} is not ISO 8601") from None
+    return t.replace(tzinfo=timezone.utc) if t.tzinfo is None else t.astimezone(timezone.utc)
+
+
+def _store(
+    request: Request, session, cam: Camera, taken_at: datetime, patches: dict, size: tuple[int, int] | None,
+    image: bytes | None = None, fmt: str | None = None,
+) -> dict:
+    """Store a frame, estimate it if a model exists, commit, and build the 201 answer."""
+    settings = request.app.state.settings
+    metrics = request.app.state.metrics
+    frame = Frame(camera_id=cam.id, taken_at=taken_at, patches=patches,
+                  width=size[0] if size else None, height=size[1] if size else None)
+    session.add(frame)
+    session.flush()
+    if image is not None and settings.keep_images:
+        folder = Path(settings.data_dir) / "images" / f"camera-{cam.id}"
+        folder.mkdir(parents=True, exist_ok=True)
+        path = folder / f"{frame.id}.{fmt}"
+        path.write_bytes(image)
+        frame.image_path = str(path)
+    t0 = time.perf_counter()
+    est = estimate_frame(settings.data_dir, cam.id, str(frame.id), taken_at.isoformat(), patches,
+                         [r["id"] for r in cam.regions])
+    metrics.observe("illumon_estimate_seconds", time.perf_counter() - t0)
+    row = None
+    if est is not None:
+        row = Estimate(frame_id=frame.id, camera_id=cam.id, taken_at=taken_at, **est)
+        session.add(row)
+    session.commit()
+    metrics.inc("illumon_frames_ingested_total")
+    return {
+        "frame_id": frame.id,
+        "taken_at": as_utc(frame.taken_at).isoformat(),
+        "regions": patches,
+        "estimate": estimate_out(row) if row is not None else None,
+    }
+
+
+@router.post("/{camera_id}/frames", status_code=status.HTTP_201_CREATED)
+async def post_frame(camera_id: int, request: Request, session: SessionDep, principal: PrincipalDep) -> dict:
+    """Ingest one image (multipart ``image`` and optional ``taken_at``): robust region means, then an estimate."""
+    t_start = time.perf_counter()
+    settings = request.app.state.settings
+    cam = await run_in_threadpool(camera_for, session, principal, camera_id)
+    ctype = request.headers.get("content-type", "")
+    if not ctype.lower().startswith("multipart/form-data"):
+        raise HTTPException(415, f"content type {ctype or 'none'!r}: send multipart/form-data with an 'image' part")
+    limit = settings.max_upload_bytes
+    declared = request.headers.get("content-length")
+    if declared and declared.isdigit() and int(declared) > limit + 65536:
+        raise HTTPException(413, f"upload of {declared} bytes exceeds the limit of {limit} bytes")
+    form = await request.form(max_files=1, max_fields=10)
+    try:
+        upload = form.get("image")
+        if not isinstance(upload, UploadFile):
+            raise HTTPException(422, "missing file part 'image'")
+        part_type = (upload.content_type or "").split(";")[0].strip().lower()
+        if part_type not in IMAGE_TYPES:
+            raise HTTPException(415, f"image part has content type {part_type!r}; send PNG, JPEG or TIFF")
+        data = await upload.read(limit + 1)
+        if len(data) > limit:
+            raise HTTPException(413, f"image exceeds the upload limit of {limit} bytes")
+        taken = form.get("taken_at")
+        taken_at = parse_time(taken if isinstance(taken, str) else None)
+    finally:
+        await form.close()
+
+    def work() -> dict:
+        try:
+            img, full = decode_image(data, max_pixels=settings.max_image_pixels)
+            response = response_for(cam.response, full)
+            patches = region_means(
+                img, [Region(**r) for r in cam.regions], response,
+                clip_fraction=settings.clip_fraction, min_fraction=settings.min_region_fraction,
+            )
+        except ImageError as exc:
+            raise HTTPException(exc.status, str(exc)) from None
+        except RegionError as exc:
+            raise HTTPException(422, str(exc)) from None
+        size = (int(img.shape[1]), int(img.shape[0]))
+        return _store(request, session, cam, taken_at, patches, size, data, sniff_format(data))
+
+    out = await run_in_threadpool(work)
+    request.app.state.metrics.observe("illumon_ingest_seconds", time.perf_counter() - t_start)
+    return out
+
+
+@router.post("/{camera_id}/observations", status_code=status.HTTP_201_CREATED)
+def post_observations(camera_id: int, body: ObservationIn, request: Request, session: SessionDep,
+                      principal: PrincipalDep) -> dict:
+    """Ingest region means measured by the client (linear values; ``null`` for a missing region)."""
+    cam = camera_for(session, principal, camera_id)
+    known = {r["id"] for r in cam.regions}
+    unknown = sorted(set(body.patches) - known)
+    if unknown:
+        raise HTTPException(422, f"unknown region id(s) {', '.join(map(repr, unknown))}; known: {sorted(known)}")
+    patches = {k: (None if v is None else [x / body.white_level for x in v]) for k, v in body.patches.items()}
+    taken_at = parse_time(body.taken_at.isoformat() if body.taken_at else None)
+    return _store(request, session, cam, taken_at, patches, None)
+
+
+@router.get("/{camera_id}/frames")
+def list_frames(camera_id: int, session: SessionDep, principal: PrincipalDep, since: datetime | None = None,
+                until: datetime | None = None, limit: int = 1000) -> list[dict]:
+    """Stored frames (region means, linear 0…1) in ``since`` ≤ taken_at ≤ ``until``, oldest first."""
+    camera_for(session, principal, camera_id)
+    q = select(Frame).where(Frame.camera_id == camera_id)
+    if since is not None:
+        q = q.where(Frame.taken_at >= parse_time(since.isoformat()))
+    if until is not None:
+        q = q.where(Frame.taken_at <= parse_time(until.isoformat()))
+    rows = session.scalars(q.order_by(Frame.taken_at, Frame.id).limit(max(1, min(limit, 100000)))).all()
+    return [{"frame_id": f.id, "taken_at": as_utc(f.taken_at).isoformat(), "regions": f.patches,
+             "width": f.width, "height": f.height} for f in rows]

@@ -1,0 +1,51 @@
+"""White-balance gains in camera-software conventions (see :mod:`illumon.gains` for each convention)."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+from fastapi import APIRouter, HTTPException, Query
+from illumon.gains import all_conventions
+
+from ...deps import PrincipalDep, SessionDep, camera_for
+from ...storage import as_utc
+from .estimates import nearest_estimate
+
+router = APIRouter(prefix="/v1/cameras", tags=["gains"])
+
+
+def parse_range(text: str | None) -> tuple[float, float] | None:
+    """``"lo,hi"`` → ``(lo, hi)``; 422 when malformed."""
+    if not text:
+        return None
+    try:
+        lo, hi = (float(v) for v in text.split(","))
+    except ValueError:
+        raise HTTPException(422, f"onvif_range {text!r}: expected two numbers 'lo,hi'") from None
+    if not (lo < hi) or any(v != v or abs(v) == float("inf") for v in (lo, hi)):
+        raise HTTPException(422, f"onvif_range {text!r}: expected finite lo < hi")
+    return lo, hi
+
+
+@router.get("/{camera_id}/wb-gains")
+def wb_gains(
+    camera_id: int,
+    session: SessionDep,
+    principal: PrincipalDep,
+    at: datetime | None = None,
+    onvif_range: str | None = Query(None, description="vendor CrGain/CbGain range 'lo,hi' (e.g. '0,255')"),
+    v4l2_unity: int = Query(1000, gt=0, le=1_000_000, description="red/blue_balance value of unity gain"),
+) -> dict:
+    """Gains for the estimate nearest ``at`` (latest without it) in every supported convention.
+
+    ``rgb`` = [G/R, 1, G/B] of the camera white; ``onvif`` CrGain/CbGain (unitless gains, or log2-mapped onto
+    ``onvif_range``); ``libcamera`` ColourGains [r, b] + ColourTemperature; ``v4l2`` red/blue_balance =
+    gain × ``v4l2_unity`` + white_balance_temperature (K, 2800–6500); ``dng`` AsShotNeutral = 1/gains;
+    ``android`` RggbChannelVector [r, 1, 1, b].
+    """
+    camera_for(session, principal, camera_id)
+    e = nearest_estimate(session, camera_id, at)
+    out = all_conventions(e.white_rgb, e.cct_k, onvif_range=parse_range(onvif_range), v4l2_unity=v4l2_unity)
+    out.update({"frame_id": e.frame_id, "taken_at": as_utc(e.taken_at).isoformat(), "confidence": e.confidence,
+                "cct_k": e.cct_k})
+    return out

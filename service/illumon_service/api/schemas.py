@@ -1,0 +1,92 @@
+"""Request and response bodies. Floats reject NaN and infinity; lengths and signs are checked."""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+__all__ = ["SensitivitiesIn", "RegionIn", "ResponseIn", "CameraIn", "RegionsIn", "ObservationIn"]
+
+Finite = Annotated[float, Field(allow_inf_nan=False)]
+NonNegative = Annotated[float, Field(allow_inf_nan=False, ge=0)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(allow_inf_nan=False, extra="forbid")
+
+
+class SensitivitiesIn(_Strict):
+    """Camera spectral sensitivities: one wavelength (nm) and three values per sample; must cover 400–700 nm."""
+
+    wavelength_nm: list[Finite] = Field(min_length=2, max_length=2000)
+    r: list[NonNegative]
+    g: list[NonNegative]
+    b: list[NonNegative]
+
+    @model_validator(mode="after")
+    def _lengths(self) -> SensitivitiesIn:
+        n = len(self.wavelength_nm)
+        if not (len(self.r) == len(self.g) == len(self.b) == n):
+            raise ValueError("wavelength_nm, r, g and b must have the same length")
+        return self
+
+
+class RegionIn(_Strict):
+    """A rectangle of static scene in pixels (origin top-left)."""
+
+    id: str = Field(min_length=1, max_length=100)
+    x: int = Field(ge=0)
+    y: int = Field(ge=0)
+    width: int = Field(gt=0)
+    height: int = Field(gt=0)
+
+
+def _unique(regions: list[RegionIn]) -> list[RegionIn]:
+    ids = [r.id for r in regions]
+    if len(set(ids)) != len(ids):
+        raise ValueError("region ids must be unique")
+    return regions
+
+
+class ResponseIn(_Strict):
+    """Tone response; levels in the image's units (white level defaults to the image's full scale)."""
+
+    encoding: Literal["linear", "srgb", "gamma"] = "linear"
+    gamma: float = Field(default=2.2, gt=0, allow_inf_nan=False)
+    black_level: float = Field(default=0.0, ge=0, allow_inf_nan=False)
+    white_level: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+
+    @model_validator(mode="after")
+    def _levels(self) -> ResponseIn:
+        if self.white_level is not None and self.white_level <= self.black_level:
+            raise ValueError("white_level must exceed black_level")
+        return self
+
+
+class CameraIn(_Strict):
+    """Registration of a camera."""
+
+    name: str = Field(min_length=1, max_length=200)
+    sensitivities: SensitivitiesIn
+    regions: list[RegionIn] = Field(min_length=1, max_length=500)
+    response: ResponseIn = ResponseIn()
+
+    _check_regions = field_validator("regions")(_unique)
+
+
+class RegionsIn(_Strict):
+    """Replacement of a camera's regions."""
+
+    regions: list[RegionIn] = Field(min_length=1, max_length=500)
+
+    _check_regions = field_validator("regions")(_unique)
+
+
+class ObservationIn(_Strict):
+    """Region means measured by the client: linear values divided by ``white_level`` (default 1: already 0…1)."""
+
+    taken_at: datetime | None = None
+    patches: dict[str, Annotated[list[NonNegative], Field(min_length=3, max_length=3)] | None] = Field(min_length=1)
+    white_level: float = Field(default=1.0, gt=0, allow_inf_nan=False)

@@ -1,0 +1,97 @@
+"""The FastAPI application factory."""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from pathlib import Path
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from .api.routes import cameras, estimates, frames, gains, health, jobs
+from .jobs import JobRunner
+from .metrics import Metrics
+from .settings import Settings
+from .storage import hash_token, make_engine, make_session_factory, new_token
+
+__all__ = ["create_app", "admin_token"]
+
+log = logging.getLogger("illumon_service")
+
+
+def admin_token(settings: Settings) -> str:
+    """The admin token: ``ILLUMON_ADMIN_TOKEN``, else ``<data dir>/admin_token``, else a new one stored there (0600).
+
+    A newly generated token is printed once on standard error.
+    """
+    if settings.admin_token:
+        return settings.admin_token
+    path = Path(settings.data_dir) / "admin_token"
+    if path.is_file():
+        return path.read_text().strip()
+    token = new_token()
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w") as fh:
+        fh.write(token + "\n")
+    print(f"illumon: generated admin token (stored in {path}, mode 0600): {token}", file=sys.stderr, flush=True)
+    return token
+
+
+def _validation_detail(exc: RequestValidationError) -> list[dict]:
+    """Validation errors without the offending input (which may hold NaN and is not JSON-serialisable)."""
+    out = []
+    for err in exc.errors():
+        out.append({"loc": list(err.get("loc", ())), "msg": str(err.get("msg", "")), "type": err.get("type", "")})
+    return out
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    """Build the service: database (tables created), admin token, job runner, routes and error handlers."""
+    settings = settings or Settings()
+    Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
+    engine = make_engine(settings.resolved_database_url)
+    sessions = make_session_factory(engine)
+    metrics = Metrics()
+    runner = JobRunner(sessions, settings, metrics)
+
+    @asynccontextmanager
+    async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        runner.start_schedule()
+        yield
+        runner.shutdown()
+        engine.dispose()
+
+    app = FastAPI(title="illumon", version="0.1.0", lifespan=lifespan,
+                  description="Daylight illuminant and white-balance estimation for fixed cameras")
+    app.state.settings = settings
+    app.state.engine = engine
+    app.state.sessions = sessions
+    app.state.metrics = metrics
+    app.state.jobs = runner
+    app.state.admin_token_hash = hash_token(admin_token(settings))
+
+    @app.exception_handler(RequestValidationError)
+    async def _on_validation(_request: Request, exc: RequestValidationError) -> JSONResponse:
+        metrics.inc("illumon_http_errors_total", labels='status="422"')
+        return JSONResponse({"detail": _validation_detail(exc)}, status_code=422)
+
+    @app.exception_handler(StarletteHTTPException)
+    async def _on_http(_request: Request, exc: StarletteHTTPException) -> JSONResponse:
+        metrics.inc("illumon_http_errors_total", labels=f'status="{exc.status_code}"')
+        return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=getattr(exc, "headers", None))
+
+    @app.exception_handler(Exception)
+    async def _on_error(request: Request, exc: Exception) -> JSONResponse:
+        metrics.inc("illumon_http_errors_total", labels='status="500"')
+        log.exception("unhandled error on %s %s", request.method, request.url.path)
+        return JSONResponse({"detail": "internal server error"}, status_code=500)
+
+    for module in (cameras, frames, estimates, gains, jobs, health):
+        app.include_router(module.router)
+    return app

@@ -1,0 +1,70 @@
+"""``illumon serve`` and ``illumon refit``, registered on the core CLI by :func:`add_serve_command`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+__all__ = ["add_serve_command"]
+
+
+def _settings(args: argparse.Namespace):  # noqa: ANN202 - avoids importing pydantic at CLI start-up
+    from .settings import Settings
+
+    overrides = {}
+    if getattr(args, "data_dir", None):
+        overrides["data_dir"] = Path(args.data_dir)
+    if getattr(args, "database_url", None):
+        overrides["database_url"] = args.database_url
+    return Settings(**overrides)
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    import uvicorn
+
+    from .app import create_app
+
+    settings = _settings(args)
+    app = create_app(settings)
+    uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level)
+    return 0
+
+
+def _cmd_refit(args: argparse.Namespace) -> int:
+    from .jobs import run_batch
+
+    settings = _settings(args)
+    Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
+    ids = None if args.all else [args.camera]
+    results = run_batch(settings, ids, args.dask_scheduler)
+    for r in results:
+        print(json.dumps(r, sort_keys=True))
+    return 1 if any("error" in r for r in results) else 0
+
+
+def add_serve_command(subparsers: argparse._SubParsersAction) -> None:
+    """Register ``serve`` (the HTTP service) and ``refit`` (batch re-estimation) on the ``illumon`` command."""
+    serve = subparsers.add_parser("serve", help="run the HTTP service")
+    serve.add_argument("--host", default="127.0.0.1", help="address to bind (127.0.0.1)")
+    serve.add_argument("--port", type=int, default=8000, help="port (8000)")
+    serve.add_argument("--data-dir", help="folder for the SQLite database, admin token and models (./var)")
+    serve.add_argument("--database-url", help="SQLAlchemy URL, e.g. postgresql+psycopg://… (SQLite by default)")
+    serve.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+    serve.set_defaults(func=_cmd_serve)
+
+    refit = subparsers.add_parser("refit", help="re-estimate stored frames of one or all cameras")
+    which = refit.add_mutually_exclusive_group(required=True)
+    which.add_argument("--camera", type=int, help="camera id")
+    which.add_argument("--all", action="store_true", help="every camera (fanned out over Dask)")
+    refit.add_argument("--data-dir", help="service data folder (./var)")
+    refit.add_argument("--database-url", help="SQLAlchemy URL (SQLite under the data dir by default)")
+    refit.add_argument("--dask-scheduler", help="address of a Dask scheduler (a LocalCluster by default)")
+    refit.set_defaults(func=_cmd_refit)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    from illumon.cli import main
+
+    sys.exit(main())

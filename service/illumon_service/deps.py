@@ -1,0 +1,76 @@
+"""FastAPI dependencies: database session and bearer-token authentication."""
+
+from __future__ import annotations
+
+import hmac
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Annotated
+
+from fastapi import Depends, HTTPException, Request
+from sqlalchemy.orm import Session
+
+from .storage import Camera, camera_by_token, hash_token
+
+__all__ = ["SessionDep", "Principal", "PrincipalDep", "AdminDep", "camera_for", "not_found"]
+
+
+def get_session(request: Request) -> Iterator[Session]:
+    """A database session for the request (routes commit explicitly before answering)."""
+    with request.app.state.sessions() as session:
+        yield session
+
+
+SessionDep = Annotated[Session, Depends(get_session)]
+
+
+@dataclass(frozen=True)
+class Principal:
+    """Who is calling: the admin, or one camera."""
+
+    admin: bool
+    camera_id: int | None = None
+
+
+def get_principal(request: Request, session: SessionDep) -> Principal:
+    """Authenticate ``Authorization: Bearer <token>`` as the admin or a camera; 401 otherwise."""
+    header = request.headers.get("authorization", "")
+    scheme, _, token = header.partition(" ")
+    token = token.strip()
+    if scheme.lower() != "bearer" or not token:
+        raise HTTPException(401, "missing bearer token (Authorization: Bearer <token>)",
+                            headers={"WWW-Authenticate": "Bearer"})
+    if hmac.compare_digest(hash_token(token), request.app.state.admin_token_hash):
+        return Principal(admin=True)
+    cam = camera_by_token(session, token)
+    if cam is None:
+        raise HTTPException(401, "invalid token", headers={"WWW-Authenticate": "Bearer"})
+    return Principal(admin=False, camera_id=cam.id)
+
+
+PrincipalDep = Annotated[Principal, Depends(get_principal)]
+
+
+def require_admin(principal: PrincipalDep) -> Principal:
+    """Only the admin token; a camera token gets 403."""
+    if not principal.admin:
+        raise HTTPException(403, "this route needs the admin token")
+    return principal
+
+
+AdminDep = Annotated[Principal, Depends(require_admin)]
+
+
+def not_found(camera_id: int) -> HTTPException:
+    """The 404 for a camera that does not exist or that the caller may not see."""
+    return HTTPException(404, f"unknown camera {camera_id}")
+
+
+def camera_for(session: Session, principal: Principal, camera_id: int) -> Camera:
+    """The camera if the caller may use it; another camera's resources answer 404, as unknown ones."""
+    if not principal.admin and principal.camera_id != camera_id:
+        raise not_found(camera_id)
+    cam = session.get(Camera, camera_id)
+    if cam is None:
+        raise not_found(camera_id)
+    return cam

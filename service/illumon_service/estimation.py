@@ -1,0 +1,171 @@
+"""The service's only doorway to estimation; all numerics live in the core library.
+
+* :func:`estimate_frame` — per-frame estimate at ingest. Uses the learned scene model (:mod:`illumon.model`) when the
+  module is importable and a model has been fitted for the camera (``<data dir>/models/camera-<id>.json``); otherwise
+  returns ``None`` and the frame is estimated by the next refit.
+* :func:`refit_estimates` — multi-frame retrieval (:func:`illumon.retrieval.retrieve_illuminants`) over a camera's
+  stored history, returning one estimate per frame; it also tries to fit a scene model for fast per-frame estimates.
+
+Confidence (0…1) is the fraction of the camera's regions seen in the frame, scaled down when the model reports wide
+intervals; it is a ranking aid, not a probability.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from illumon.observations import Observations
+from illumon.spectra import WAVELENGTHS
+from numpy.typing import NDArray
+
+__all__ = [
+    "model_path",
+    "model_available",
+    "sensitivities_array",
+    "build_observations",
+    "estimate_frame",
+    "refit_estimates",
+]
+
+log = logging.getLogger("illumon_service.estimation")
+
+
+def model_path(data_dir: Path | str, camera_id: int) -> Path:
+    """Where the fitted scene model of a camera is stored."""
+    return Path(data_dir) / "models" / f"camera-{camera_id}.json"
+
+
+def _model_module() -> Any | None:
+    try:
+        import illumon.model as model  # noqa: PLC0415 - optional, written concurrently
+    except ImportError:
+        return None
+    return model
+
+
+def model_available(data_dir: Path | str, camera_id: int) -> bool:
+    """Whether per-frame estimation is possible for the camera (module importable and a model fitted)."""
+    return _model_module() is not None and model_path(data_dir, camera_id).is_file()
+
+
+def sensitivities_array(stored: Sequence[Sequence[float]]) -> NDArray[np.float64]:
+    """Stored sensitivities (61 lists of r, g, b on the grid) as an array."""
+    return np.asarray(stored, dtype=float)
+
+
+def build_observations(
+    frames: Sequence[tuple[str, str, dict[str, Any]]], region_ids: Sequence[str]
+) -> Observations:
+    """Observations from ``(frame id, ISO time, {region id: [r, g, b] | None})`` triples (values linear 0…1)."""
+    values = np.full((len(frames), len(region_ids), 3), np.nan)
+    for i, (_, _, patches) in enumerate(frames):
+        for j, rid in enumerate(region_ids):
+            v = patches.get(rid)
+            if v is not None:
+                values[i, j] = v
+    return Observations([f[0] for f in frames], list(region_ids), values, [f[1] for f in frames])
+
+
+def _row(result: Any, i: int, confidence: float, source: str, intervals: dict | None = None) -> dict:
+    return {
+        "cct_k": float(result.cct[i]),
+        "duv": float(result.duv[i]),
+        "xy": [float(v) for v in result.xy[i]],
+        "white_rgb": [float(v) for v in result.white[i]],
+        "gains_rgb": [float(v) for v in result.gains[i]],
+        "confidence": float(np.clip(confidence, 0.0, 1.0)),
+        "spectrum": [float(v) for v in result.spectra[i]],
+        "intervals": intervals,
+        "source": source,
+    }
+
+
+def estimate_frame(
+    data_dir: Path | str, camera_id: int, frame_id: str, taken_at: str, patches: dict, region_ids: Sequence[str]
+) -> dict | None:
+    """Per-frame estimate from the camera's fitted scene model, or ``None`` when there is none (yet)."""
+    model = _model_module()
+    path = model_path(data_dir, camera_id)
+    if model is None or not path.is_file() or not hasattr(model, "estimate_with_model"):
+        return None
+    obs = build_observations([(frame_id, taken_at, patches)], region_ids)
+    present = obs.present[0]
+    if present.sum() < 1:
+        return None
+    try:
+        result, extra = model.estimate_with_model(obs, str(path))
+    except Exception as exc:  # noqa: BLE001 - the model API is not final; never fail an ingest on it
+        log.warning("scene model estimate failed for camera %s: %s", camera_id, exc)
+        return None
+    intervals = {k: float(np.asarray(v)[0]) for k, v in (extra or {}).items()} or None
+    return _row(result, 0, float(present.mean()), "model", intervals)
+
+
+def _fit_model(obs: Observations, css: NDArray[np.float64], path: Path) -> str:
+    """Try to fit and save a scene model with whatever API :mod:`illumon.model` offers; returns a status string."""
+    model = _model_module()
+    if model is None:
+        return "illumon.model not installed"
+    scene = getattr(model, "SceneModel", None)
+    if scene is None or not hasattr(scene, "fit"):
+        return "illumon.model has no SceneModel.fit"
+    try:
+        fitted = scene.fit(obs, css)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if hasattr(fitted, "save"):
+            fitted.save(path)
+        elif hasattr(fitted, "to_json"):
+            path.write_text(fitted.to_json())
+        else:
+            return "SceneModel has neither save nor to_json"
+    except Exception as exc:  # noqa: BLE001 - the model API is not final
+        return f"scene model fit failed: {exc}"
+    return "fitted"
+
+
+def refit_estimates(
+    frames: Sequence[tuple[str, str, dict[str, Any]]],
+    region_ids: Sequence[str],
+    sensitivities: NDArray[np.float64],
+    *,
+    method: str = "joint",
+    model_file: Path | None = None,
+) -> tuple[dict[str, dict], dict]:
+    """Estimates of the given frames by multi-frame retrieval: ``({frame id: estimate}, summary)``.
+
+    Frames with fewer than two regions seen are left out. Raises ``ValueError`` when fewer than two frames remain.
+    """
+    obs = build_observations(frames, region_ids)
+    usable = np.flatnonzero(obs.present.sum(axis=1) >= 2)
+    if usable.size < 2:
+        raise ValueError(f"refit needs at least two frames with two regions seen; {usable.size} available")
+    obs = obs.subset(usable)
+    kwargs = {"daylight": "cie"} if method == "joint" else {}
+    result = retrieve(obs, sensitivities, method, kwargs)
+    frac = obs.present.mean(axis=1)
+    out = {fid: _row(result, i, frac[i], f"refit:{method}") for i, fid in enumerate(result.frames)}
+    summary = {
+        "frames": len(result.frames),
+        "skipped_frames": len(frames) - len(result.frames),
+        "method": method,
+        "cost": result.info.get("cost"),
+        "cct_k_median": float(np.median(result.cct)),
+    }
+    if model_file is not None:
+        summary["model"] = _fit_model(obs, sensitivities, model_file)
+    return out, summary
+
+
+def retrieve(obs: Observations, css: NDArray[np.float64], method: str, kwargs: dict) -> Any:
+    """Call :func:`illumon.retrieval.retrieve_illuminants` (imported lazily: it loads SciPy)."""
+    from illumon.retrieval import retrieve_illuminants
+
+    return retrieve_illuminants(obs, css, method=method, **kwargs)
+
+
+GRID_WAVELENGTHS = [float(v) for v in WAVELENGTHS]
+"""Wavelengths (nm) of stored spectra."""

@@ -1,0 +1,194 @@
+"""Refit jobs: re-estimate a camera's stored frames by multi-frame retrieval.
+
+In the service a job runs in one background thread (or inline when ``jobs_inline`` is set, as in tests); the
+``illumon refit`` batch command runs the same :func:`refit_camera` for one camera or, with ``--all``, fans the cameras
+out over a Dask cluster (a ``LocalCluster`` unless ``--dask-scheduler`` names one) with a tqdm progress bar.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+import uuid
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session, sessionmaker
+
+from .estimation import model_path, refit_estimates, sensitivities_array
+from .metrics import Metrics
+from .settings import Settings
+from .storage import Camera, Estimate, Frame, Job, as_utc, make_engine, make_session_factory, utcnow
+
+__all__ = ["refit_camera", "JobRunner", "run_batch"]
+
+log = logging.getLogger("illumon_service.jobs")
+
+
+def refit_camera(
+    sessions: sessionmaker[Session],
+    camera_id: int,
+    *,
+    data_dir: Path,
+    max_frames: int = 300,
+    method: str = "joint",
+    progress: Callable[[float], None] | None = None,
+) -> dict:
+    """Re-estimate the most recent ``max_frames`` frames of a camera and store the estimates; returns a summary."""
+    t0 = time.perf_counter()
+    report = progress or (lambda _p: None)
+    with sessions() as s:
+        cam = s.get(Camera, camera_id)
+        if cam is None:
+            raise ValueError(f"unknown camera {camera_id}")
+        rows = s.scalars(
+            select(Frame).where(Frame.camera_id == camera_id).order_by(Frame.taken_at.desc(), Frame.id.desc())
+            .limit(max_frames)
+        ).all()
+        rows = list(reversed(rows))
+        region_ids = [r["id"] for r in cam.regions]
+        css = sensitivities_array(cam.sensitivities)
+        frames = [(str(f.id), as_utc(f.taken_at).isoformat(), f.patches) for f in rows]
+        times = {str(f.id): f.taken_at for f in rows}
+    report(0.1)
+    estimates, summary = refit_estimates(
+        frames, region_ids, css, method=method, model_file=model_path(data_dir, camera_id)
+    )
+    report(0.8)
+    with sessions() as s, s.begin():
+        ids = [int(k) for k in estimates]
+        s.execute(delete(Estimate).where(Estimate.frame_id.in_(ids)))
+        for fid, est in estimates.items():
+            s.add(Estimate(frame_id=int(fid), camera_id=camera_id, taken_at=times[fid], **est))
+    summary["seconds"] = round(time.perf_counter() - t0, 3)
+    summary["camera_id"] = camera_id
+    report(1.0)
+    return summary
+
+
+class JobRunner:
+    """Queues refit jobs, records their state in the ``jobs`` table and runs them one at a time."""
+
+    def __init__(self, sessions: sessionmaker[Session], settings: Settings, metrics: Metrics) -> None:
+        self.sessions = sessions
+        self.settings = settings
+        self.metrics = metrics
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="illumon-refit")
+        self._stop = threading.Event()
+        self._scheduler: threading.Thread | None = None
+
+    def submit(self, camera_id: int) -> str:
+        """Record a queued job for the camera and start it; returns the job id."""
+        job_id = uuid.uuid4().hex
+        with self.sessions() as s, s.begin():
+            s.add(Job(id=job_id, camera_id=camera_id, state="queued", progress=0.0))
+        if self.settings.jobs_inline:
+            self._run(job_id, camera_id)
+        else:
+            self._pool.submit(self._run, job_id, camera_id)
+        return job_id
+
+    def _set(self, job_id: str, **fields) -> None:
+        with self.sessions() as s, s.begin():
+            job = s.get(Job, job_id)
+            if job is not None:
+                for k, v in fields.items():
+                    setattr(job, k, v)
+
+    def _run(self, job_id: str, camera_id: int) -> None:
+        t0 = time.perf_counter()
+        self._set(job_id, state="running", progress=0.0)
+        try:
+            summary = refit_camera(
+                self.sessions,
+                camera_id,
+                data_dir=Path(self.settings.data_dir),
+                max_frames=self.settings.refit_max_frames,
+                method=self.settings.refit_method,
+                progress=lambda p: self._set(job_id, progress=p),
+            )
+        except Exception as exc:  # noqa: BLE001 - a failed job is reported in its summary, never raised
+            log.exception("refit of camera %s failed", camera_id)
+            self.metrics.inc("illumon_refit_total", labels='outcome="failed"')
+            self._set(job_id, state="failed", summary={"error": str(exc)}, finished_at=utcnow())
+            return
+        self.metrics.observe("illumon_refit_seconds", time.perf_counter() - t0)
+        self.metrics.inc("illumon_refit_total", labels='outcome="done"')
+        self._set(job_id, state="done", progress=1.0, summary=summary, finished_at=utcnow())
+
+    def start_schedule(self) -> None:
+        """Refit every camera every ``refit_every_hours`` hours in a daemon thread (no-op when the setting is 0)."""
+        hours = self.settings.refit_every_hours
+        if hours <= 0 or self._scheduler is not None:
+            return
+
+        def loop() -> None:
+            while not self._stop.wait(hours * 3600.0):
+                with self.sessions() as s:
+                    ids = list(s.scalars(select(Camera.id)).all())
+                for cid in ids:
+                    self.submit(cid)
+
+        self._scheduler = threading.Thread(target=loop, name="illumon-refit-schedule", daemon=True)
+        self._scheduler.start()
+
+    def shutdown(self) -> None:
+        """Stop the schedule and wait for the running job."""
+        self._stop.set()
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _refit_worker(database_url: str, camera_id: int, data_dir: str, max_frames: int, method: str) -> dict:
+    """Dask task: refit one camera with its own engine (engines are not picklable)."""
+    engine = make_engine(database_url)
+    try:
+        return refit_camera(
+            make_session_factory(engine), camera_id, data_dir=Path(data_dir), max_frames=max_frames, method=method
+        )
+    finally:
+        engine.dispose()
+
+
+def run_batch(settings: Settings, camera_ids: list[int] | None, dask_scheduler: str | None = None) -> list[dict]:
+    """Refit the given cameras (all when ``None``); more than one camera fans out over Dask. Returns summaries."""
+    from tqdm import tqdm
+
+    url = settings.resolved_database_url
+    engine = make_engine(url)
+    sessions = make_session_factory(engine)
+    with sessions() as s:
+        known = set(s.scalars(select(Camera.id)).all())
+    engine.dispose()
+    ids = sorted(known) if camera_ids is None else camera_ids
+    unknown = [c for c in ids if c not in known]
+    if unknown:
+        raise ValueError(f"unknown camera {unknown[0]}")
+    args = (str(settings.data_dir), settings.refit_max_frames, settings.refit_method)
+    results: list[dict] = []
+    if len(ids) <= 1 and dask_scheduler is None:
+        for cid in tqdm(ids, desc="refit", unit="camera"):
+            results.append(_refit_worker(url, cid, *args))
+        return results
+    from dask.distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if dask_scheduler:
+        client = Client(dask_scheduler)
+    else:
+        cluster = LocalCluster(n_workers=min(len(ids), 2), threads_per_worker=1, processes=True, dashboard_address=None)
+        client = Client(cluster)
+    try:
+        futures = [client.submit(_refit_worker, url, cid, *args, pure=False) for cid in ids]
+        for fut in tqdm(as_completed(futures), total=len(futures), desc="refit", unit="camera"):
+            try:
+                results.append(fut.result())
+            except Exception as exc:  # noqa: BLE001 - one camera's failure must not stop the others
+                results.append({"error": str(exc)})
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    return results

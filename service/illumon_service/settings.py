@@ -1,0 +1,52 @@
+"""Service settings from the environment (prefix ``ILLUMON_``) and the command line."""
+
+from __future__ import annotations
+
+from functools import cached_property
+from pathlib import Path
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+__all__ = ["Settings"]
+
+
+class Settings(BaseSettings):
+    """Configuration of the illumon service.
+
+    Every field can be set as ``ILLUMON_<FIELD>`` in the environment, e.g. ``ILLUMON_DATABASE_URL``.
+    """
+
+    model_config = SettingsConfigDict(env_prefix="ILLUMON_", extra="ignore")
+
+    data_dir: Path = Path("./var")
+    """Folder for the SQLite database, the generated admin token, fitted models and kept images."""
+    database_url: str | None = None
+    """SQLAlchemy URL (e.g. ``postgresql+psycopg://user:pw@host/db``); SQLite under ``data_dir`` when unset."""
+    admin_token: str | None = None
+    """Admin bearer token; generated and stored in ``data_dir/admin_token`` (mode 0600) when unset."""
+    max_upload_bytes: int = Field(default=32 * 1024 * 1024, gt=0)
+    """Largest accepted image upload."""
+    max_image_pixels: int = Field(default=50_000_000, gt=0)
+    """Largest accepted decoded image (width × height)."""
+    keep_images: bool = False
+    """Keep uploaded images under ``data_dir/images``."""
+    refit_max_frames: int = Field(default=300, ge=2)
+    """A refit uses at most this many of the most recent frames."""
+    refit_method: str = "joint"
+    """Retrieval method of the refit (``joint``, ``marguier2007``, ``gray_world``)."""
+    refit_every_hours: float = Field(default=0.0, ge=0.0)
+    """Refit every camera every N hours inside the service (0 = off; use ``illumon refit`` from cron instead)."""
+    jobs_inline: bool = False
+    """Run refit jobs synchronously inside the request (tests); otherwise in a background thread."""
+    min_region_fraction: float = Field(default=0.5, gt=0.0, le=1.0)
+    """A region is missing in a frame when fewer than this fraction of its pixels are usable."""
+    clip_fraction: float = Field(default=0.98, gt=0.0, le=1.0)
+    """Pixels at or above this fraction of the white level in any channel count as clipped."""
+
+    @cached_property
+    def resolved_database_url(self) -> str:
+        """The database URL in use: the configured one, else ``sqlite:///<data_dir>/illumon.sqlite3``."""
+        if self.database_url:
+            return self.database_url
+        return f"sqlite:///{(Path(self.data_dir) / 'illumon.sqlite3').resolve()}"

@@ -1,0 +1,91 @@
+"""/v1/cameras: registration, auth, validation."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from conftest import admin_headers, bearer, camera_body, grid_regions
+
+
+def _css() -> np.ndarray:
+    wl = np.arange(400, 701, 5)
+    return np.column_stack([np.exp(-0.5 * ((wl - c) / 30) ** 2) for c in (600, 540, 460)])
+
+
+def test_register_and_get(client):
+    body = camera_body(_css(), grid_regions())
+    r = client.post("/v1/cameras", json=body, headers=admin_headers())
+    assert r.status_code == 201
+    cam = r.json()
+    assert set(cam) >= {"id", "token"}
+    got = client.get(f"/v1/cameras/{cam['id']}", headers=bearer(cam["token"]))
+    assert got.status_code == 200
+    assert got.json()["name"] == "test camera"
+    assert "token" not in got.json()
+
+
+def test_register_needs_admin(client):
+    body = camera_body(_css(), grid_regions())
+    cam = client.post("/v1/cameras", json=body, headers=admin_headers()).json()
+    r = client.post("/v1/cameras", json=body, headers=bearer(cam["token"]))
+    assert r.status_code == 403
+    assert "admin" in r.json()["detail"]
+    assert client.post("/v1/cameras", json=body).status_code == 401
+    assert client.post("/v1/cameras", json=body, headers=bearer("nope")).status_code == 401
+
+
+def test_cross_camera_is_404(client):
+    body = camera_body(_css(), grid_regions())
+    a = client.post("/v1/cameras", json=body, headers=admin_headers()).json()
+    b = client.post("/v1/cameras", json=body, headers=admin_headers()).json()
+    for path in ("", "/estimates", "/illuminant", "/wb-gains", "/frames"):
+        r = client.get(f"/v1/cameras/{b['id']}{path}", headers=bearer(a["token"]))
+        assert r.status_code == 404, path
+        assert "unknown camera" in r.json()["detail"]
+    r = client.post(f"/v1/cameras/{b['id']}/refit", headers=bearer(a["token"]))
+    assert r.status_code == 404
+    assert client.get("/v1/cameras/999", headers=admin_headers()).status_code == 404
+
+
+def test_sensitivities_not_covering_400_700(client):
+    body = camera_body(_css(), grid_regions())
+    s = body["sensitivities"]
+    for k in ("wavelength_nm", "r", "g", "b"):
+        s[k] = s[k][4:]  # starts at 420 nm
+    r = client.post("/v1/cameras", json=body, headers=admin_headers())
+    assert r.status_code == 422
+    assert "400–700" in r.json()["detail"]
+
+
+def test_nan_negative_and_inf_rejected(client):
+    body = camera_body(_css(), grid_regions())
+    body["sensitivities"]["r"][3] = -1.0
+    r = client.post("/v1/cameras", json=body, headers=admin_headers())
+    assert r.status_code == 422
+    text = camera_body(_css(), grid_regions())
+    raw = __import__("json").dumps(text).replace(str(text["sensitivities"]["g"][10]), "NaN", 1)
+    r = client.post("/v1/cameras", content=raw, headers={**admin_headers(), "content-type": "application/json"})
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"]
+    raw = __import__("json").dumps(text).replace(str(text["sensitivities"]["b"][10]), "Infinity", 1)
+    r = client.post("/v1/cameras", content=raw, headers={**admin_headers(), "content-type": "application/json"})
+    assert r.status_code == 422
+    assert not math.isnan(0.0)
+
+
+def test_bad_regions(client):
+    body = camera_body(_css(), grid_regions())
+    body["regions"][1]["id"] = body["regions"][0]["id"]
+    assert client.post("/v1/cameras", json=body, headers=admin_headers()).status_code == 422
+    body = camera_body(_css(), grid_regions())
+    body["regions"][0]["width"] = 0
+    assert client.post("/v1/cameras", json=body, headers=admin_headers()).status_code == 422
+
+
+def test_put_regions(client):
+    cam = client.post("/v1/cameras", json=camera_body(_css(), grid_regions()), headers=admin_headers()).json()
+    new = grid_regions(4, 20)
+    r = client.put(f"/v1/cameras/{cam['id']}/regions", json={"regions": new}, headers=bearer(cam["token"]))
+    assert r.status_code == 200
+    assert [g["id"] for g in r.json()["regions"]] == [g["id"] for g in new]

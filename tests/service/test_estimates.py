@@ -1,0 +1,58 @@
+"""Estimates after a refit: accuracy against the rendered truth, filters, illuminant."""
+
+from __future__ import annotations
+
+import numpy as np
+from conftest import T0, bearer
+from illumon.camera import angular_error_deg
+
+
+def test_refit_job_done(populated):
+    job = populated.job
+    assert job["state"] == "done", job
+    assert job["progress"] == 1.0
+    assert job["summary"]["frames"] == len(populated.frame_ids)
+
+
+def test_estimates_accuracy(populated):
+    c, cam, token = populated.client, populated.camera_id, populated.token
+    r = c.get(f"/v1/cameras/{cam}/estimates", headers=bearer(token))
+    assert r.status_code == 200
+    est = r.json()
+    assert [e["frame_id"] for e in est] == populated.frame_ids
+    for e in est:
+        assert {"frame_id", "taken_at", "cct_k", "duv", "xy", "white_rgb", "gains_rgb", "confidence"} <= set(e)
+        assert 0 < e["confidence"] <= 1
+    white = np.array([e["white_rgb"] for e in est])
+    err = angular_error_deg(white, populated.scene.true_white)
+    print(f"angular error (deg): median {np.median(err):.2f} max {err.max():.2f}")
+    assert np.median(err) < 3.0
+
+
+def test_estimates_since_until(populated):
+    c, cam, token = populated.client, populated.camera_id, populated.token
+    times = populated.scene.times
+    r = c.get(f"/v1/cameras/{cam}/estimates", params={"since": times[3].isoformat(), "until": times[5].isoformat()},
+              headers=bearer(token))
+    assert [e["frame_id"] for e in r.json()] == populated.frame_ids[3:6]
+
+
+def test_illuminant(populated):
+    c, cam, token = populated.client, populated.camera_id, populated.token
+    latest = c.get(f"/v1/cameras/{cam}/illuminant", headers=bearer(token)).json()
+    assert latest["frame_id"] == populated.frame_ids[-1]
+    assert len(latest["spectrum"]["wavelength_nm"]) == len(latest["spectrum"]["values"]) == 61
+    assert "intervals" in latest
+    at = populated.scene.times[4].replace(second=0) + (populated.scene.times[1] - T0) * 0.4  # nearer frame 4
+    near = c.get(f"/v1/cameras/{cam}/illuminant", params={"at": at.isoformat()}, headers=bearer(token)).json()
+    assert near["frame_id"] == populated.frame_ids[4]
+
+
+def test_no_estimate_yet_is_404(client):
+    from conftest import camera_body, grid_regions, register
+
+    css = np.ones((61, 3))
+    cid, token = register(client, css, grid_regions())
+    r = client.get(f"/v1/cameras/{cid}/illuminant", headers=bearer(token))
+    assert r.status_code == 404 and "refit" in r.json()["detail"]
+    assert camera_body(css, grid_regions())["name"]

@@ -1,0 +1,127 @@
+"""/frames and /observations: ingest, robust region means, bad uploads."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from conftest import SIZE, bearer, camera_body, encode_png, grid_regions, make_settings, post_image, register
+from fastapi.testclient import TestClient
+from illumon_service.app import create_app
+
+
+def _css() -> np.ndarray:
+    wl = np.arange(400, 701, 5)
+    return np.column_stack([np.exp(-0.5 * ((wl - c) / 30) ** 2) for c in (600, 540, 460)])
+
+
+@pytest.fixture
+def cam(client):
+    return register(client, _css(), grid_regions())
+
+
+def _image(value=(0.2, 0.3, 0.4)) -> bytes:
+    img = np.zeros((SIZE[1], SIZE[0], 3), np.uint8)
+    img[:] = (np.asarray(value) * 255).astype(np.uint8)
+    return encode_png(img)
+
+
+def test_post_frame(client, cam):
+    cid, token = cam
+    r = post_image(client, cid, token, _image(), None)
+    assert r.status_code == 201, r.text
+    out = r.json()
+    assert {"frame_id", "taken_at", "estimate"} <= set(out)
+    assert out["estimate"] is None
+    assert len(client.get(f"/v1/cameras/{cid}/frames", headers=bearer(token)).json()) == 1
+
+
+def test_jpeg_and_tiff_16bit(client, cam):
+    cid, token = cam
+    img = np.full((SIZE[1], SIZE[0], 3), 120, np.uint8)
+    assert post_image(client, cid, token, encode_png(img, ".jpg"), content_type="image/jpeg").status_code == 201
+    img16 = np.full((SIZE[1], SIZE[0], 3), 30000, np.uint16)
+    r = post_image(client, cid, token, encode_png(img16, ".tiff"), content_type="image/tiff")
+    assert r.status_code == 201, r.text
+    v = r.json()["regions"]["r0"]
+    assert v is not None and all(0.0 < x < 1.0 for x in v)
+
+
+@pytest.mark.parametrize(
+    ("data", "ctype", "status", "word"),
+    [
+        (b"", "image/png", 400, "empty"),
+        (b"\x89PNG\r\n\x1a\n" + b"garbage" * 20, "image/png", 422, "decoded"),
+        (b"GIF89a" + b"\0" * 50, "image/gif", 415, "content type"),
+        (b"hello world, not an image", "application/octet-stream", 415, "PNG, JPEG or TIFF"),
+    ],
+)
+def test_bad_uploads(client, cam, data, ctype, status, word):
+    cid, token = cam
+    r = post_image(client, cid, token, data, content_type=ctype)
+    assert r.status_code == status, r.text
+    assert word in r.json()["detail"]
+
+
+def test_wrong_request_content_type(client, cam):
+    cid, token = cam
+    headers = {**bearer(token), "content-type": "image/png"}
+    r = client.post(f"/v1/cameras/{cid}/frames", content=_image(), headers=headers)
+    assert r.status_code == 415
+    assert "multipart" in r.json()["detail"]
+
+
+def test_oversized(tmp_path):
+    with TestClient(create_app(make_settings(tmp_path, max_upload_bytes=1000))) as c:
+        cid, token = register(c, _css(), grid_regions())
+        noisy = np.random.default_rng(0).integers(0, 255, (SIZE[1], SIZE[0], 3), dtype=np.uint8)
+        r = post_image(c, cid, token, encode_png(noisy))
+        assert r.status_code == 413
+        assert "limit" in r.json()["detail"]
+
+
+def test_region_outside_image(client):
+    regions = grid_regions() + [{"id": "far", "x": 1000, "y": 10, "width": 20, "height": 20}]
+    cid, token = register(client, _css(), regions)
+    r = post_image(client, cid, token, _image())
+    assert r.status_code == 422
+    assert "far" in r.json()["detail"] and "outside" in r.json()["detail"]
+
+
+def test_bad_taken_at(client, cam):
+    cid, token = cam
+    r = client.post(f"/v1/cameras/{cid}/frames", files={"image": ("f.png", _image(), "image/png")},
+                    data={"taken_at": "yesterday"}, headers=bearer(token))
+    assert r.status_code == 422
+    assert "ISO 8601" in r.json()["detail"]
+
+
+def test_observations(client, cam):
+    cid, token = cam
+    body = {"taken_at": "2025-06-01T12:00:00Z", "patches": {"r0": [0.1, 0.2, 0.3], "r1": None}}
+    r = client.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token))
+    assert r.status_code == 201, r.text
+    assert r.json()["taken_at"].startswith("2025-06-01T12:00:00")
+    bad = json.dumps({"patches": {"r0": [0.1, 0.2, 0.3]}}).replace("0.2", "NaN")
+    r = client.post(f"/v1/cameras/{cid}/observations", content=bad,
+                    headers={**bearer(token), "content-type": "application/json"})
+    assert r.status_code == 422
+    r = client.post(f"/v1/cameras/{cid}/observations", json={"patches": {"r0": [0.1, -0.2, 0.3]}},
+                    headers=bearer(token))
+    assert r.status_code == 422
+    r = client.post(f"/v1/cameras/{cid}/observations", json={"patches": {"zz": [0.1, 0.2, 0.3]}},
+                    headers=bearer(token))
+    assert r.status_code == 422 and "zz" in r.json()["detail"]
+
+
+def test_keep_images(tmp_path):
+    with TestClient(create_app(make_settings(tmp_path, keep_images=True))) as c:
+        cid, token = register(c, _css(), grid_regions())
+        assert post_image(c, cid, token, _image()).status_code == 201
+        assert list((tmp_path / "images").rglob("*.png"))
+
+
+def test_camera_body_roundtrip():
+    body = camera_body(_css(), grid_regions())
+    assert len(body["sensitivities"]["wavelength_nm"]) == 61

@@ -1,0 +1,53 @@
+"""/wb-gains and illumon.gains: every convention agrees with the estimate's RGB gains."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import bearer
+from illumon.gains import all_conventions
+
+
+def _check(g: dict, gains_rgb: list[float]) -> None:
+    r, one, b = g["rgb"]
+    assert one == 1.0
+    np.testing.assert_allclose([r, one, b], gains_rgb, rtol=1e-9)
+    np.testing.assert_allclose(g["libcamera"]["ColourGains"], [r, b])
+    np.testing.assert_allclose(g["dng"]["AsShotNeutral"], [1 / r, 1, 1 / b])
+    np.testing.assert_allclose(g["android"]["RggbChannelVector"], [r, 1, 1, b])
+    assert g["onvif"]["Mode"] == "MANUAL"
+    np.testing.assert_allclose([g["onvif"]["CrGain"], g["onvif"]["CbGain"]], [r, b])
+    assert g["v4l2"]["red_balance"] == round(1000 * r) and g["v4l2"]["blue_balance"] == round(1000 * b)
+    assert 2800 <= g["v4l2"]["white_balance_temperature"] <= 6500
+
+
+def test_wb_gains_every_frame(populated):
+    c, cam, token = populated.client, populated.camera_id, populated.token
+    est = c.get(f"/v1/cameras/{cam}/estimates", headers=bearer(token)).json()
+    for e in est:
+        r = c.get(f"/v1/cameras/{cam}/wb-gains", params={"at": e["taken_at"]}, headers=bearer(token))
+        assert r.status_code == 200
+        g = r.json()
+        assert g["taken_at"] == e["taken_at"] and g["confidence"] == e["confidence"]
+        _check(g, e["gains_rgb"])
+        assert g["libcamera"]["ColourTemperature"] == round(e["cct_k"])
+
+
+def test_onvif_range(populated):
+    c, cam, token = populated.client, populated.camera_id, populated.token
+    g = c.get(f"/v1/cameras/{cam}/wb-gains", params={"onvif_range": "0,255"}, headers=bearer(token)).json()
+    r, _, b = g["rgb"]
+    for gain, v in ((r, g["onvif"]["CrGain"]), (b, g["onvif"]["CbGain"])):
+        assert 0 <= v <= 255
+        assert (v > 127.5) == (gain > 1)
+    bad = c.get(f"/v1/cameras/{cam}/wb-gains", params={"onvif_range": "9,1"}, headers=bearer(token))
+    assert bad.status_code == 422 and "onvif_range" in bad.json()["detail"]
+
+
+def test_core_conventions():
+    g = all_conventions([0.5, 1.0, 0.8], 5000.0, onvif_range=(0, 100))
+    assert g["rgb"] == [2.0, 1.0, 1.25]
+    assert g["onvif"]["CrGain"] == pytest.approx(50 + 50 * 1 / 2)  # log2(2) = 1 of ±2
+    assert g["dng"]["AsShotNeutral"] == [0.5, 1.0, 0.8]
+    with pytest.raises(ValueError):
+        all_conventions([0.0, 1.0, 1.0], 5000.0)

@@ -1,0 +1,40 @@
+"""/refit and /v1/jobs, and the `illumon refit` batch command."""
+
+from __future__ import annotations
+
+import numpy as np
+from conftest import admin_headers, bearer, grid_regions, make_settings, register
+from fastapi.testclient import TestClient
+from illumon.cli import main
+from illumon_service.app import create_app
+
+
+def test_job_visibility(populated):
+    c = populated.client
+    job_id = c.post(f"/v1/cameras/{populated.camera_id}/refit", headers=admin_headers()).json()["job_id"]
+    assert c.get(f"/v1/jobs/{job_id}", headers=admin_headers()).json()["state"] == "done"
+    assert c.get("/v1/jobs/nope", headers=admin_headers()).status_code == 404
+
+
+def test_refit_too_few_frames_fails_cleanly(client):
+    cid, token = register(client, np.ones((61, 3)), grid_regions())
+    job_id = client.post(f"/v1/cameras/{cid}/refit", headers=bearer(token)).json()["job_id"]
+    job = client.get(f"/v1/jobs/{job_id}", headers=bearer(token)).json()
+    assert job["state"] == "failed"
+    assert "at least two frames" in job["summary"]["error"]
+
+
+def test_refit_cli(tmp_path, scene, capsys):
+    """`illumon refit --camera` on JSON observations stored by the service, and an unknown camera."""
+    with TestClient(create_app(make_settings(tmp_path))) as c:
+        cid, token = register(c, scene.css, scene.regions)
+        rng = np.random.default_rng(3)
+        for f in range(4):
+            patches = {r["id"]: list(rng.uniform(0.1, 0.6, 3)) for r in scene.regions}
+            body = {"taken_at": f"2025-06-01T0{f}:00:00Z", "patches": patches}
+            assert c.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token)).status_code == 201
+    assert main(["refit", "--camera", str(cid), "--data-dir", str(tmp_path)]) == 0
+    assert '"frames": 4' in capsys.readouterr().out
+    assert main(["refit", "--camera", "99", "--data-dir", str(tmp_path)]) == 2
+    with TestClient(create_app(make_settings(tmp_path))) as c:
+        assert len(c.get(f"/v1/cameras/{cid}/estimates", headers=bearer(token)).json()) == 4

@@ -1,0 +1,38 @@
+"""Robust region statistics: clipping, passers-by, occlusion, 16-bit linear images."""
+
+from __future__ import annotations
+
+import numpy as np
+from conftest import encode_png
+from illumon.camera import ResponseCurve
+from illumon_service.regions import Region, decode_image, region_means, response_for
+
+
+def test_linear16_with_clutter_and_clipping():
+    rng = np.random.default_rng(1)
+    truth = np.array([0.2, 0.35, 0.15])
+    img = np.clip(truth * (1 + 0.01 * rng.standard_normal((100, 100, 3))), 0, 1)
+    img[10:40, 10:40] = [0.9, 0.1, 0.1]  # a passer-by over 9 % of region a
+    img[60:70, 0:100] = 1.0  # clipped streak
+    data = encode_png(np.round(img * 65535).astype(np.uint16))
+    arr, full = decode_image(data)
+    assert arr.dtype == np.uint16 and full == 65535
+    resp = response_for({"encoding": "linear"}, full)
+    out = region_means(arr, [Region("a", 0, 0, 100, 100), Region("b", 0, 55, 100, 20)], resp)
+    np.testing.assert_allclose(out["a"], truth, rtol=0.01)
+    assert out["b"] is not None  # half clipped → just usable
+
+
+def test_mostly_clipped_is_missing():
+    img = np.full((50, 50, 3), 255, np.uint8)
+    img[:10] = 100
+    arr, full = decode_image(encode_png(img))
+    out = region_means(arr, [Region("a", 0, 0, 50, 50)], ResponseCurve("srgb", white_level=255))
+    assert out["a"] is None
+
+
+def test_srgb8_linearised():
+    img = np.full((20, 20, 3), 188, np.uint8)  # sRGB 188 ≈ 0.5 linear
+    arr, full = decode_image(encode_png(img))
+    out = region_means(arr, [Region("a", 0, 0, 20, 20)], response_for({"encoding": "srgb", "white_level": 255}, full))
+    np.testing.assert_allclose(out["a"], 0.5, atol=0.01)

@@ -38,3 +38,18 @@ def test_refit_cli(tmp_path, scene, capsys):
     assert main(["refit", "--camera", "99", "--data-dir", str(tmp_path)]) == 2
     with TestClient(create_app(make_settings(tmp_path))) as c:
         assert len(c.get(f"/v1/cameras/{cid}/estimates", headers=bearer(token)).json()) == 4
+
+
+def test_refit_all_with_dask(tmp_path, scene, capsys):
+    """`illumon refit --all` fans two cameras out over a Dask LocalCluster."""
+    rng = np.random.default_rng(4)
+    with TestClient(create_app(make_settings(tmp_path))) as c:
+        for _ in range(2):
+            cid, token = register(c, scene.css, scene.regions)
+            for f in range(3):
+                patches = {r["id"]: list(rng.uniform(0.1, 0.6, 3)) for r in scene.regions}
+                body = {"taken_at": f"2025-06-01T0{f}:00:00Z", "patches": patches}
+                assert c.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token)).status_code == 201
+    assert main(["refit", "--all", "--data-dir", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert out.count('"frames": 3') == 2

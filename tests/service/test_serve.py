@@ -1,0 +1,86 @@
+"""`illumon serve` as a real process on a loopback port: a committed frame survives a kill and restart."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import numpy as np
+from conftest import encode_png, grid_regions
+from illumon_service.app import admin_token
+from illumon_service.settings import Settings
+
+ILLUMON = Path(sys.executable).with_name("illumon")
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _start(data_dir: Path, port: int) -> subprocess.Popen:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ILLUMON_")}
+    cmd = [str(ILLUMON), "serve", "--host", "127.0.0.1", "--port", str(port), "--data-dir", str(data_dir),
+           "--log-level", "warning"]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 30
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise AssertionError(f"serve exited: {proc.stderr.read()}")
+        try:
+            if httpx.Client(trust_env=False).get(f"http://127.0.0.1:{port}/healthz", timeout=1).status_code == 200:
+                return proc
+        except httpx.TransportError:
+            time.sleep(0.2)
+    proc.kill()
+    raise AssertionError("serve did not answer /healthz within 30 s")
+
+
+def _kill(proc: subprocess.Popen) -> str:
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=10)
+    return proc.stderr.read()
+
+
+def test_serve_durable(tmp_path):
+    port = _free_port()
+    proc = _start(tmp_path, port)
+    try:
+        token = (tmp_path / "admin_token").read_text().strip()
+        assert oct((tmp_path / "admin_token").stat().st_mode & 0o777) == "0o600"
+        base = f"http://127.0.0.1:{port}"
+        http = httpx.Client(trust_env=False, timeout=30)
+        admin = {"Authorization": f"Bearer {token}"}
+        wl = list(range(400, 701, 10))
+        ones = [1.0] * len(wl)
+        body = {"name": "cam", "sensitivities": {"wavelength_nm": wl, "r": ones, "g": ones, "b": ones},
+                "regions": grid_regions(), "response": {"encoding": "srgb"}}
+        cam = http.post(f"{base}/v1/cameras", json=body, headers=admin).json()
+        img = encode_png(np.full((240, 320, 3), 90, np.uint8))
+        r = http.post(f"{base}/v1/cameras/{cam['id']}/frames", files={"image": ("a.png", img, "image/png")},
+                       data={"taken_at": "2025-06-01T10:00:00Z"}, headers={"Authorization": f"Bearer {cam['token']}"})
+        assert r.status_code == 201, r.text
+        frame_id = r.json()["frame_id"]
+    finally:
+        stderr = _kill(proc)
+    assert token in stderr  # printed once on first start
+    proc = _start(tmp_path, port)
+    try:
+        r = http.get(f"{base}/v1/cameras/{cam['id']}/frames", headers={"Authorization": f"Bearer {cam['token']}"})
+        assert [f["frame_id"] for f in r.json()] == [frame_id]
+    finally:
+        stderr = _kill(proc)
+    assert token not in stderr  # not printed again
+
+
+def test_admin_token_from_env_or_file(tmp_path):
+    assert admin_token(Settings(data_dir=tmp_path, admin_token="abc")) == "abc"
+    t = admin_token(Settings(data_dir=tmp_path))
+    assert admin_token(Settings(data_dir=tmp_path)) == t

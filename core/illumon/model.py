@@ -60,6 +60,14 @@ MODEL_FORMAT = "illumon-scene-model"
 MODEL_VERSION = 1
 Z95 = 1.959963984540054
 
+MODEL_ERROR = {"mired": 0.8, "duv": 0.001, "log_gain": 0.002, "common_duv": 0.0015}
+"""Standard deviations of the CIE D-series' mismatch to measured daylight as a camera sees it, added in quadrature to
+the Laplace intervals: for Granada spectra 1000–2599 and four measured cameras (Nikon D5100, D3X, Canon 5D Mark II,
+600D), the CIE daylight with the same camera white differs from the measured spectrum by 0.6–0.9 MK⁻¹ (σ), −0.0006 ±
+0.0007 in Duv and 0.16–0.20 % (RMS) in log gains. ``common_duv`` is the uncertainty of the offset from the daylight
+locus shared by all frames of a history: static patches cannot separate it from a tint of every reflectance (it is set
+by the prior, not the data), and a day of Granada skies departs from the locus by ~0.0015 on average."""
+
 
 class IdentifiabilityWarning(UserWarning):
     """The fitted history cannot determine the illuminants (too little illuminant variation or an ill-posed fit)."""
@@ -458,13 +466,16 @@ def _assemble(
     spectra = dm.spectra(theta[:, :2])
     res = make_result(obs, model.sensitivities, spectra, "model", xy=xy, exposures=np.exp(theta[:, 2]) / model.noise["scale"])
     res.cct, res.duv = cct, duv
-    sm = np.sqrt(np.clip(cov[:, 0, 0], 0, None))
+    me = model.noise.get("model_error", MODEL_ERROR)
+    cov = cov.copy()
+    cov[:, 1, 1] += me.get("common_duv", 0.0) ** 2  # the day's common offset from the locus (see MODEL_ERROR)
+    sm = np.sqrt(np.clip(cov[:, 0, 0], 0, None) + me["mired"] ** 2)
     cct_lo = 1e6 / np.clip(mired + Z95 * sm, 1e-3, None)
     cct_hi = 1e6 / np.clip(mired - Z95 * sm, 1e-3, None)
     cct_hi = np.where(mired - Z95 * sm > 0, cct_hi, np.inf)
     dlocus = (solver.table.lookup(mired + 0.5)[:, 4] - solver.table.lookup(mired - 0.5)[:, 4]) / 1.0
     g = np.stack([dlocus, np.ones_like(dlocus)], axis=1)
-    sduv = np.sqrt(np.clip(np.einsum("fi,fij,fj->f", g, cov[:, :2, :2], g), 0, None))
+    sduv = np.sqrt(np.clip(np.einsum("fi,fij,fj->f", g, cov[:, :2, :2], g), 0, None) + me["duv"] ** 2)
     # white, gains and their sensitivities to (mired, δ)
     h = np.array([0.5, 1e-4])
     a0 = solver.table.weights(mired, delta)
@@ -473,10 +484,12 @@ def _assemble(
     wh = [a @ solver.w for a in (a0, a1, a2)]
     gains = [gains_from_white(w) for w in wh]
     jg = np.stack([(gains[1] - gains[0]) / h[0], (gains[2] - gains[0]) / h[1]], axis=-1)  # F × 3 × 2
-    sg = np.sqrt(np.clip(np.einsum("fci,fij,fcj->fc", jg, cov[:, :2, :2], jg), 0, None))
+    sg = np.sqrt(
+        np.clip(np.einsum("fci,fij,fcj->fc", jg, cov[:, :2, :2], jg), 0, None) + (gains[0] * me["log_gain"]) ** 2
+    )
     unit = [w / np.linalg.norm(w, axis=1, keepdims=True) for w in wh]
     ju = np.stack([(unit[1] - unit[0]) / h[0], (unit[2] - unit[0]) / h[1]], axis=-1)
-    tr = np.einsum("fci,fij,fcj->f", ju, cov[:, :2, :2], ju)  # total angular variance (rad²)
+    tr = np.einsum("fci,fij,fcj->f", ju, cov[:, :2, :2], ju) + 2 * me["log_gain"] ** 2  # angular variance (rad²)
     rho = math.radians(1.0)
     confidence = 1.0 - np.exp(-(rho**2) / np.clip(tr, 1e-30, None))  # Rayleigh with σ² = tr/2
     nan = np.full(len(mired), np.nan)
@@ -661,7 +674,7 @@ def fit_scene_model(
         grid=(float(GRID.start), float(GRID.end), float(GRID.interval)), basis=rb.functions,
         daylight={"name": "cie", "duv_sigma": dm.duv_sigma, "mired_mean": dm.mired_mean, "mired_sigma": dm.mired_sigma},
         noise={"relative_error": relative_error, "absolute_error": absolute_error, "noise_scale": noise_scale,
-               "scale": scale},
+               "scale": scale, "model_error": dict(MODEL_ERROR)},
     )
     # Illuminants of every frame with the learned reflectances (the fast solver), for the training summary.
     res, _ = model.estimate(obs)
@@ -695,7 +708,7 @@ def identifiability(
     y: NDArray[np.float64], present: NDArray[np.bool_], css: NDArray[np.float64], dm: CIEDaylight,
     rb: ReflectanceBasis, theta: NDArray[np.float64], coef: NDArray[np.float64], w2: NDArray[np.float64],
     mired_all: NDArray[np.float64], *, max_frames: int = 40, min_mired_spread: float = 4.0,
-    max_condition: float = 1e4,
+    max_condition: float = 1e8,
 ) -> dict:
     """How well a history determines its illuminants.
 
@@ -726,7 +739,11 @@ def identifiability(
         xp[j] += h
         jac[:, j] = (pred(xp) - r0) / h * steps[j]
     sv = np.linalg.svd(jac, compute_uv=False)
-    cond = float(sv[0] / max(sv[-2], 1e-300)) if sv.size > 1 else math.inf
+    # Three directions are not fixed by the data of any history: the exposure/reflectance scale (exact gauge) and a
+    # common shift of every frame's temperature and Duv (absorbed by reflectance changes, set by the priors).
+    # The condition of the rest says whether the data determine the illuminants relative to each other.
+    cond = float(sv[0] / max(sv[-4], 1e-300)) if sv.size > 4 else math.inf
+    sv_tail = [float(v / sv[0]) for v in sv[-4:]]
     spread = float(np.std(mired_all)) if mired_all.size else 0.0
     p5, p95 = (np.percentile(mired_all, [5, 95]) if mired_all.size else (np.nan, np.nan))
     warn = []
@@ -743,6 +760,7 @@ def identifiability(
         "mired_p95": float(p95),
         "condition": cond,
         "condition_frames": int(f),
+        "smallest_singular_values_relative": sv_tail,
         "determined": not warn,
         "warnings": warn,
     }

@@ -6,13 +6,16 @@
 * :func:`refit_estimates` — multi-frame retrieval (:func:`illumon.retrieval.retrieve_illuminants`) over a camera's
   stored history, returning one estimate per frame; it also tries to fit a scene model for fast per-frame estimates.
 
-Confidence (0…1) is the fraction of the camera's regions seen in the frame, scaled down when the model reports wide
-intervals; it is a ranking aid, not a probability.
+Confidence (0…1): with a scene model, its posterior probability that the camera white is within 1° of the truth
+(:mod:`illumon.model`); from a refit without a model, the fraction of the camera's regions seen in the frame (a
+ranking aid, not a probability). Intervals (95 %: ``cct_lo/hi``, ``duv_lo/hi``, ``gain_lo/hi``) come from the model.
 """
 
 from __future__ import annotations
 
 import logging
+import os
+import threading
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -84,45 +87,76 @@ def _row(result: Any, i: int, confidence: float, source: str, intervals: dict | 
     }
 
 
+_MODEL_CACHE: dict[str, tuple[int, Any]] = {}
+_CACHE_LOCK = threading.Lock()
+
+
+def _load_model(model: Any, path: Path) -> Any:
+    """The scene model at ``path``, loaded once per file version (the per-frame solve is then ~1 ms)."""
+    mtime = path.stat().st_mtime_ns
+    key = str(path)
+    with _CACHE_LOCK:
+        hit = _MODEL_CACHE.get(key)
+        if hit is not None and hit[0] == mtime:
+            return hit[1]
+    loaded = model.SceneModel.load(path)
+    with _CACHE_LOCK:
+        _MODEL_CACHE[key] = (mtime, loaded)
+    return loaded
+
+
+def _intervals(result: Any, extra: dict, i: int) -> dict | None:
+    out: dict[str, Any] = {k: float(np.asarray(v)[i]) for k, v in (extra or {}).items() if k != "confidence"}
+    for k in ("gain_lo", "gain_hi"):
+        if k in result.info:
+            out[k] = [float(v) for v in np.asarray(result.info[k])[i]]
+    return out or None
+
+
 def estimate_frame(
     data_dir: Path | str, camera_id: int, frame_id: str, taken_at: str, patches: dict, region_ids: Sequence[str]
 ) -> dict | None:
     """Per-frame estimate from the camera's fitted scene model, or ``None`` when there is none (yet)."""
     model = _model_module()
     path = model_path(data_dir, camera_id)
-    if model is None or not path.is_file() or not hasattr(model, "estimate_with_model"):
+    if model is None or not path.is_file():
         return None
     obs = build_observations([(frame_id, taken_at, patches)], region_ids)
     present = obs.present[0]
-    if present.sum() < 1:
+    if present.sum() < 2:
         return None
     try:
-        result, extra = model.estimate_with_model(obs, str(path))
-    except Exception as exc:  # noqa: BLE001 - the model API is not final; never fail an ingest on it
+        if hasattr(model, "SceneModel") and hasattr(model.SceneModel, "load"):
+            result, extra = _load_model(model, path).estimate(obs)
+        else:
+            result, extra = model.estimate_with_model(obs, str(path))
+    except Exception as exc:  # noqa: BLE001 - the model API is young; never fail an ingest on it
         log.warning("scene model estimate failed for camera %s: %s", camera_id, exc)
         return None
-    intervals = {k: float(np.asarray(v)[0]) for k, v in (extra or {}).items()} or None
-    return _row(result, 0, float(present.mean()), "model", intervals)
+    if not np.all(np.isfinite(result.white[0])):
+        return None
+    conf = float(np.asarray(extra["confidence"])[0]) if extra and "confidence" in extra else float(present.mean())
+    return _row(result, 0, conf, "model", _intervals(result, extra, 0))
 
 
 def _fit_model(obs: Observations, css: NDArray[np.float64], path: Path) -> str:
-    """Try to fit and save a scene model with whatever API :mod:`illumon.model` offers; returns a status string."""
+    """Fit and save a scene model with :mod:`illumon.model` when available; returns a status string."""
     model = _model_module()
     if model is None:
         return "illumon.model not installed"
-    scene = getattr(model, "SceneModel", None)
-    if scene is None or not hasattr(scene, "fit"):
-        return "illumon.model has no SceneModel.fit"
     try:
-        fitted = scene.fit(obs, css)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        if hasattr(fitted, "save"):
-            fitted.save(path)
-        elif hasattr(fitted, "to_json"):
-            path.write_text(fitted.to_json())
+        if hasattr(model, "fit_scene_model"):
+            fitted = model.fit_scene_model(obs, css)
+        elif hasattr(getattr(model, "SceneModel", None), "fit"):
+            fitted = model.SceneModel.fit(obs, css)
         else:
-            return "SceneModel has neither save nor to_json"
-    except Exception as exc:  # noqa: BLE001 - the model API is not final
+            return "illumon.model offers no fit"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_suffix(".tmp")
+        fitted.save(tmp)
+        os.replace(tmp, path)  # atomic: readers see the old or the new model, never half of one
+    except Exception as exc:  # noqa: BLE001 - the model API is young; the refit's estimates still stand
+        log.warning("scene model fit failed: %s", exc)
         return f"scene model fit failed: {exc}"
     return "fitted"
 

@@ -1,0 +1,73 @@
+"""``illumon fit`` and ``illumon estimate --model`` through illumon.cli.main."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from illumon import datasets
+from illumon.cli import main
+from illumon.observations import Observations, write_observations
+from illumon.reflectance import colourchecker_reflectances
+from illumon.simulate import simulate_history
+from illumon.spectra import WAVELENGTHS
+
+pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="measured data (shared/data) not available")
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    d = tmp_path_factory.mktemp("fitcli")
+    _, granada = datasets.load_granada_daylight()
+    css = datasets.load_camera("Nikon_D5100")
+    _, refl = colourchecker_reflectances()
+    hist = simulate_history(css, granada[:160], refl[:12], rng=3)
+    write_observations(d / "fit.csv", hist.observations.subset(slice(0, 100)))
+    write_observations(d / "new.csv", hist.observations.subset(slice(100, None)))
+    with open(d / "css.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["wavelength_nm", "r", "g", "b"])
+        for wl, row in zip(WAVELENGTHS, css, strict=True):
+            w.writerow([f"{wl:g}", *(f"{v:.6g}" for v in row)])
+    return {"dir": d, "hist": hist}
+
+
+def test_fit_then_estimate(files: dict) -> None:
+    d = files["dir"]
+    assert main(["fit", str(d / "fit.csv"), "--sensitivities", str(d / "css.csv"), "--model", str(d / "m.json")]) == 0
+    model = json.loads((d / "m.json").read_text())
+    assert model["format"] == "illumon-scene-model" and model["version"] == 1
+    assert main(["estimate", str(d / "new.csv"), "--model", str(d / "m.json"), "--out", str(d / "est.csv")]) == 0
+    with open(d / "est.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 60
+    assert list(rows[0])[-5:] == ["cct_lo", "cct_hi", "duv_lo", "duv_hi", "confidence"]
+    for r in rows:
+        assert float(r["cct_lo"]) < float(r["cct_k"]) < float(r["cct_hi"])
+        assert 0.0 <= float(r["confidence"]) <= 1.0
+
+
+def test_bad_inputs(files: dict, capsys: pytest.CaptureFixture[str]) -> None:
+    d = files["dir"]
+    assert main(["estimate", str(d / "new.csv"), "--model", str(d / "nope.json"), "--out", str(d / "x.csv")]) == 2
+    assert "nope.json" in capsys.readouterr().err
+    (d / "bad.json").write_text("{}")
+    assert main(["estimate", str(d / "new.csv"), "--model", str(d / "bad.json"), "--out", str(d / "x.csv")]) == 2
+    assert "not an illumon scene model" in capsys.readouterr().err
+    # observations whose patches the model never saw
+    obs = files["hist"].observations.subset(slice(0, 5))
+    other = Observations(obs.frames, [f"q{i}" for i in range(len(obs.patches))], obs.values)
+    write_observations(d / "other.csv", other)
+    if not (d / "m.json").exists():
+        main(["fit", str(d / "fit.csv"), "--sensitivities", str(d / "css.csv"), "--model", str(d / "m.json")])
+    assert main(["estimate", str(d / "other.csv"), "--model", str(d / "m.json"), "--out", str(d / "x.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "share none" in err and err.count("\n") == 1
+    single = Observations(obs.frames[:1], obs.patches, obs.values[:1])
+    write_observations(d / "one.csv", single)
+    assert main(["fit", str(d / "one.csv"), "--sensitivities", str(d / "css.csv"), "--model", str(d / "y.json")]) == 2
+    assert "one.csv" in capsys.readouterr().err
+    np.testing.assert_equal(Path(d / "y.json").exists(), False)

@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from .spectra import GRID, read_spectral_csv, resample_columns
 
-__all__ = ["ReflectanceBasis", "reflectance_basis", "colourchecker_reflectances"]
+__all__ = ["ReflectanceBasis", "reflectance_basis", "colourchecker_reflectances", "unseen_reflectances"]
 
 
 @dataclass(frozen=True)
@@ -85,3 +85,20 @@ def colourchecker_reflectances(name: str = "BabelColor Average") -> tuple[list[s
         sd = sds[n]
         out.append(resample_columns(sd.wavelengths, sd.values[:, None], GRID)[:, 0])
     return names, np.clip(np.asarray(out), 0.0, 1.0)
+
+
+@lru_cache(maxsize=1)
+def unseen_reflectances() -> tuple[list[str], NDArray[np.float64]]:
+    """Reflectances never used to build the shipped basis: ColorChecker (BabelColor average), CIE 1995 TCS01–14 and
+    NIST CQS 9.0 VS1–15, all shipped with colour-science (53 spectra, on the grid). Used to simulate scenes the
+    estimator has never seen."""
+    from colour.quality.datasets import SDS_TCS, SDS_VS
+
+    names, cc = colourchecker_reflectances("BabelColor Average")
+    names = [f"cc_{n}" for n in names]
+    out = [cc]
+    for label, sds in (("tcs", SDS_TCS["CIE 1995"]), ("vs", SDS_VS["NIST CQS 9.0"])):
+        for key, sd in sds.items():
+            names.append(f"{label}_{key}")
+            out.append(resample_columns(sd.wavelengths, sd.values[:, None], GRID)[:, 0][None])
+    return names, np.clip(np.concatenate(out), 0.0, 1.0)

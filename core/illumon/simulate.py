@@ -16,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from .camera import camera_white, render
 from .observations import Observations
 
-__all__ = ["CameraNoise", "SimulatedHistory", "simulate_history"]
+__all__ = ["CameraNoise", "DEFAULT_NOISE", "SimulatedHistory", "simulate_history"]
 
 
 @dataclass(frozen=True)
@@ -28,6 +28,9 @@ class CameraNoise:
     exposure_jitter: float = 0.15
     target: float = 0.75
 
+
+DEFAULT_NOISE = CameraNoise()
+"""The default camera noise and auto-exposure model."""
 
 @dataclass
 class SimulatedHistory:
@@ -50,7 +53,7 @@ def simulate_history(
     illuminants: ArrayLike,
     reflectances: ArrayLike,
     *,
-    noise: CameraNoise | None = CameraNoise(),
+    noise: CameraNoise | None = DEFAULT_NOISE,
     rng: np.random.Generator | int | None = None,
     missing_fraction: float = 0.0,
     times: list[str] | None = None,

@@ -1,0 +1,77 @@
+"""Reproducible evaluation scenarios built from measured spectra, shared by tests and benchmarks.
+
+* :func:`paper_protocol` — Marguier & Süsstrunk's synthetic protocol (CIC 2007, Tables 1–3): a ColorChecker seen by
+  a measured camera under CIE D40…D100, 6 patches, 2–4 images.
+* :func:`measured_daylight_history` — a fixed camera over many frames lit by measured Granada daylight, with patches
+  the reflectance basis never saw (:func:`illumon.reflectance.unseen_reflectances`).
+
+Both need the measured data beside the project (:mod:`illumon.datasets`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import datasets
+from .daylight import daylight_locus_xy, daylight_spectrum
+from .reflectance import colourchecker_reflectances, unseen_reflectances
+from .simulate import DEFAULT_NOISE, CameraNoise, SimulatedHistory, simulate_history
+
+__all__ = ["PAPER_TABLES", "PAPER_PATCH_SETS", "paper_protocol", "measured_daylight_history"]
+
+PAPER_TABLES: dict[int, list[tuple[int, ...]]] = {
+    1: [(40, 50), (40, 90), (40, 100), (65, 80), (65, 90), (65, 100), (80, 90), (80, 100)],
+    2: [(40, 50, 60), (40, 50, 80), (40, 50, 100), (65, 75, 85), (65, 75, 100), (75, 80, 85), (80, 90, 100)],
+    3: [
+        (40, 50, 60, 70), (40, 50, 80, 90), (40, 50, 80, 100), (40, 60, 80, 100),
+        (55, 65, 75, 95), (65, 75, 85, 95), (65, 75, 90, 100), (75, 80, 85, 90),
+    ],
+}
+"""Illuminant combinations of the paper's Tables 1–3 (CIE D-series, hundreds of K)."""
+
+PAPER_PATCH_SETS: list[tuple[int, ...]] = [
+    (0, 1, 2, 3, 4, 5),  # first row: natural colours
+    (6, 8, 11, 13, 15, 17),  # second/third rows: saturated
+    (1, 3, 7, 12, 18, 21),  # mixed with neutrals
+    (0, 5, 9, 14, 16, 22),
+]
+"""Which 6 ColorChecker patches (0-based, standard order) stand for the paper's unspecified 6 patches."""
+
+
+def paper_protocol(
+    camera: str, temps_hundreds: tuple[int, ...], patches: tuple[int, ...], *, noise: CameraNoise | None, seed: int = 0
+) -> SimulatedHistory:
+    """One case of the paper's protocol: CIE D illuminants (nominal temperatures × 1.4388/1.4380) on a ColorChecker."""
+    t = np.asarray(temps_hundreds, dtype=float) * 100 * 1.4388 / 1.4380
+    e = daylight_spectrum(daylight_locus_xy(t))
+    _, cc = colourchecker_reflectances("BabelColor Average")
+    return simulate_history(datasets.load_camera(camera), e, cc[list(patches)], noise=noise, rng=seed)
+
+
+def measured_daylight_history(
+    camera: str,
+    *,
+    frames: int = 30,
+    patches: int = 10,
+    seed: int = 0,
+    contiguous: bool = False,
+    noise: CameraNoise | None = DEFAULT_NOISE,
+    missing_fraction: float = 0.0,
+) -> SimulatedHistory:
+    """A fixed camera lit by measured Granada daylight with unseen patch reflectances.
+
+    ``contiguous`` takes a run of consecutive Granada spectra (the file is in acquisition order, so a run is
+    a stretch of days) instead of a random draw.
+    """
+    rng = np.random.default_rng(seed)
+    _, daylight = datasets.load_granada_daylight()
+    if contiguous:
+        start = int(rng.integers(0, daylight.shape[0] - frames))
+        e = daylight[start : start + frames]
+    else:
+        e = daylight[rng.choice(daylight.shape[0], frames, replace=False)]
+    _, refl = unseen_reflectances()
+    r = refl[rng.choice(refl.shape[0], patches, replace=False)]
+    return simulate_history(
+        datasets.load_camera(camera), e, r, noise=noise, rng=rng, missing_fraction=missing_fraction
+    )

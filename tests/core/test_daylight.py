@@ -1,0 +1,47 @@
+import colour
+import numpy as np
+from illumon import daylight
+
+
+def test_cie_d65_from_basis_matches_colour():
+    xy = daylight.daylight_locus_xy(6504)
+    spd = daylight.daylight_spectrum(xy)
+    ref = colour.SDS_ILLUMINANTS["D65"].copy().align(colour.SpectralShape(400, 700, 5)).values
+    ref = 100 * ref / ref[(560 - 400) // 5]
+    assert np.max(np.abs(spd - ref) / ref) < 0.01
+
+
+def test_cct_duv_round_trip_against_ohno():
+    cct = np.array([3000.0, 5000.0, 6500.0, 12000.0])
+    duv = np.array([0.004, -0.002, 0.0, 0.006])
+    xy = daylight.xy_from_cct_duv(cct, duv)
+    back_cct, back_duv = daylight.cct_duv_from_xy(xy)
+    assert np.max(np.abs(back_cct - cct) / cct) < 2e-4
+    assert np.max(np.abs(back_duv - duv)) < 2e-5
+    ohno = colour.temperature.uv_to_CCT_Ohno2013(colour.xy_to_UCS_uv(xy))
+    assert np.max(np.abs(ohno[:, 0] - cct) / cct) < 1e-3
+    assert np.max(np.abs(ohno[:, 1] - duv)) < 1e-4
+
+
+def test_daylight_locus_duv_positive_around_d65():
+    assert 0.002 < float(daylight.daylight_locus_duv(6500)) < 0.0045
+
+
+def test_theta_curve_passes_through_d_series():
+    curve = daylight.theta_curve()
+    t = np.array([4000, 6500, 10000]) * 1.4388 / 1.438
+    spd = daylight.daylight_spectrum(daylight.daylight_locus_xy(t))
+    theta = curve.theta_of(spd / np.linalg.norm(spd, axis=1, keepdims=True))
+    back = curve.spectrum(theta)
+    back = 100 * back / back[:, [(560 - 400) // 5]]
+    assert np.max(np.abs(back - spd) / spd) < 0.03
+
+
+def test_cie_model_prior_and_spectra():
+    m = daylight.CIEDaylight()
+    p = m.start(np.array([150.0, 200.0]))
+    s = m.spectra(p)
+    assert s.shape == (2, 61)
+    cct, _ = daylight.cct_duv_from_xy(daylight.spectrum_to_xy(s))
+    assert np.allclose(cct, [1e6 / 150, 1e6 / 200], rtol=0.01)
+    assert np.allclose(m.prior_residuals(p)[:, 1], 0)

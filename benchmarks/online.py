@@ -1,0 +1,78 @@
+"""Online estimation benchmark (issue 4): per-frame latency, fit time vs history length, accuracy vs visible patches.
+
+Run: ``python benchmarks/online.py [--long]`` (``--long`` adds a 100k-frame history). Writes
+``benchmarks/results/online.json``.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from illumon import datasets  # noqa: E402
+from illumon.camera import angular_error_deg  # noqa: E402
+from illumon.model import fit_scene_model  # noqa: E402
+from illumon.reflectance import colourchecker_reflectances  # noqa: E402
+from illumon.simulate import simulate_history  # noqa: E402
+
+
+def main() -> None:
+    warnings.simplefilter("ignore")
+    _, granada = datasets.load_granada_daylight()
+    css = datasets.load_camera("Nikon_D5100")
+    _, refl = colourchecker_reflectances()
+    out: dict = {"fit": [], "patches": []}
+    lengths = [1000, 10000] + ([100000] if "--long" in sys.argv else [])
+    for n in lengths:
+        idx = np.arange(n) % 2600
+        hist = simulate_history(css, granada[idx], refl[:18], rng=0, missing_fraction=0.1)
+        t = time.perf_counter()
+        model = fit_scene_model(hist.observations, css)
+        fit_s = time.perf_counter() - t
+        t = time.perf_counter()
+        res, _ = model.estimate(hist.observations)
+        est_s = time.perf_counter() - t
+        tw = hist.true_white / hist.true_white[:, 1:2]
+        ae = angular_error_deg(res.white, tw)
+        out["fit"].append({"frames": n, "fit_s": fit_s, "estimate_all_s": est_s, "median_deg": float(np.median(ae))})
+        print(f"history {n:6d}: fit {fit_s:6.2f} s, estimate all {est_s:6.2f} s, median {np.median(ae):.3f}°")
+    hist = simulate_history(css, granada[:600], refl[:18], rng=1, missing_fraction=0.0)
+    model = fit_scene_model(hist.observations.subset(slice(0, 200)), css)
+    rest = hist.observations.subset(slice(200, None))
+    tw = hist.true_white[200:] / hist.true_white[200:, 1:2]
+    solver = model.solver()
+    y = rest.values / model.noise["scale"]
+    present = np.all(np.isfinite(y), axis=-1)
+    times = []
+    for i in range(len(rest.frames)):
+        t = time.perf_counter()
+        solver.solve(y[i : i + 1], present[i : i + 1])
+        times.append(time.perf_counter() - t)
+    out["latency_ms"] = {"median": float(np.median(times) * 1e3), "p99": float(np.percentile(times, 99) * 1e3)}
+    print(f"per-frame latency: median {out['latency_ms']['median']:.3f} ms, p99 {out['latency_ms']['p99']:.3f} ms")
+    rng = np.random.default_rng(5)
+    print("visible patches | median angular error (°)")
+    for k in (2, 3, 4, 6, 9, 12, 18):
+        vals = rest.values.copy()
+        for f in range(vals.shape[0]):
+            hide = rng.choice(18, 18 - k, replace=False)
+            vals[f, hide] = np.nan
+        rest_k = type(rest)(rest.frames, rest.patches, vals, rest.times)
+        res, _ = model.estimate(rest_k)
+        med = float(np.median(angular_error_deg(res.white, tw)))
+        out["patches"].append({"visible": k, "median_deg": med})
+        print(f"{k:15d} | {med:.3f}")
+    path = Path(__file__).parent / "results" / "online.json"
+    path.write_text(json.dumps(out, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()

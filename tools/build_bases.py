@@ -10,7 +10,6 @@ import json
 from pathlib import Path
 
 import numpy as np
-
 from illumon import datasets
 from illumon.spectra import WAVELENGTHS, write_spectral_csv
 

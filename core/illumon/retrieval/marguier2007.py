@@ -45,12 +45,14 @@ def marguier_error(
     sigma = np.einsum("fjc,fpc->fpj", pinv, y)
     p65 = sigma @ m_d65.T  # F × P × 3
     f = len(theta)
-    total = 0.0
-    for j in range(1, f):
-        for i in range(f):
-            both = present[i] & present[j]
-            d = p65[i, both] - p65[j, both]
-            total += float((d * d).sum())
+    # Σ_{j≥2} Σ_i ‖p_i − p_j‖² over frames where the patch is present in both, in closed form per patch:
+    # Σ_{i,j∈S} ‖p_i − p_j‖² = 2|S| Σ_S ‖p_i‖² − 2‖Σ_S p_i‖², minus the j = 1 row of the literal double sum.
+    mask = present[..., None]
+    pm = np.where(mask, p65, 0.0)
+    n = present.sum(0)
+    full = 2 * n * (pm**2).sum((0, 2)) - 2 * (pm.sum(0) ** 2).sum(-1)
+    first = np.where(present[0], (np.where(mask, pm - pm[0:1], 0.0) ** 2).sum((0, 2)), 0.0)
+    total = float((full - first).sum())
     return float(np.sqrt(total) / (y.shape[1] * f))
 
 

@@ -75,8 +75,14 @@ def decode_image(data: bytes, *, max_pixels: int = 50_000_000) -> tuple[NDArray,
     """
     if not data:
         raise ImageError("image is empty (0 bytes)", 400)
-    if sniff_format(data) is None:
+    fmt = sniff_format(data)
+    if fmt is None:
         raise ImageError("image is not PNG, JPEG or TIFF (unrecognised file signature)", 415)
+    if fmt == "png" and len(data) >= 24 and data[12:16] == b"IHDR":
+        # Refuse decompression bombs before allocating: the PNG header states the size.
+        w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+        if w * h > max_pixels:
+            raise ImageError(f"image has {w}×{h} pixels; the limit is {max_pixels}", 413)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None or img.size == 0:
         raise ImageError("image could not be decoded (corrupt or truncated file)")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from functools import cached_property
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field
 from pydantic_settings import BaseSettings, SettingsConfigDict
@@ -33,7 +34,7 @@ class Settings(BaseSettings):
     """Keep uploaded images under ``data_dir/images``."""
     refit_max_frames: int = Field(default=300, ge=2)
     """A refit uses at most this many of the most recent frames."""
-    refit_method: str = "joint"
+    refit_method: Literal["joint", "marguier2007", "gray_world"] = "joint"
     """Retrieval method of the refit (``joint``, ``marguier2007``, ``gray_world``)."""
     refit_every_hours: float = Field(default=0.0, ge=0.0)
     """Refit every camera every N hours inside the service (0 = off; use ``illumon refit`` from cron instead)."""

@@ -89,3 +89,32 @@ def test_put_regions(client):
     r = client.put(f"/v1/cameras/{cam['id']}/regions", json={"regions": new}, headers=bearer(cam["token"]))
     assert r.status_code == 200
     assert [g["id"] for g in r.json()["regions"]] == [g["id"] for g in new]
+
+
+def test_bad_sensitivity_sampling(client):
+    """Too few samples, repeated wavelengths and irregular sampling are 422, never 500."""
+    regions = grid_regions()
+    cases = [
+        ([400, 700], [1, 1]),
+        ([400, 400, 500, 600, 650, 700], [1] * 6),
+        ([400, 430, 470, 520, 600, 640, 700], [1, 2, 3, 2, 1, 1, 1]),
+    ]
+    for wl, v in cases:
+        body = {"name": "x", "sensitivities": {"wavelength_nm": wl, "r": v, "g": v, "b": v}, "regions": regions}
+        r = client.post("/v1/cameras", json=body, headers=admin_headers())
+        assert r.status_code in (201, 422), (wl, r.text)
+        if r.status_code == 422:
+            assert r.json()["detail"]
+    body = {"name": "x", "sensitivities": {"wavelength_nm": [400, 700], "r": [1, 1], "g": [1, 1], "b": [1, 1]},
+            "regions": regions}
+    assert client.post("/v1/cameras", json=body, headers=admin_headers()).status_code == 422
+
+
+def test_malformed_json_and_multipart(client):
+    json_headers = {**admin_headers(), "content-type": "application/json"}
+    r = client.post("/v1/cameras", content=b"{not json", headers=json_headers)
+    assert r.status_code == 422 and r.json()["detail"]
+    cam = client.post("/v1/cameras", json=camera_body(_css(), grid_regions()), headers=admin_headers()).json()
+    h = {**bearer(cam["token"]), "content-type": "multipart/form-data; boundary=xyz"}
+    r = client.post(f"/v1/cameras/{cam['id']}/frames", content=b"garbage--xyz\r\nfoo", headers=h)
+    assert r.status_code == 400 and r.json()["detail"]

@@ -125,3 +125,10 @@ def test_keep_images(tmp_path):
 def test_camera_body_roundtrip():
     body = camera_body(_css(), grid_regions())
     assert len(body["sensitivities"]["wavelength_nm"]) == 61
+
+
+def test_too_many_pixels(tmp_path):
+    with TestClient(create_app(make_settings(tmp_path, max_image_pixels=1000))) as c:
+        cid, token = register(c, _css(), grid_regions())
+        r = post_image(c, cid, token, _image())
+        assert r.status_code == 413 and "pixels" in r.json()["detail"]

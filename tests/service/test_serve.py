@@ -68,6 +68,16 @@ def test_serve_durable(tmp_path):
                        data={"taken_at": "2025-06-01T10:00:00Z"}, headers={"Authorization": f"Bearer {cam['token']}"})
         assert r.status_code == 201, r.text
         frame_id = r.json()["frame_id"]
+        # A refit in the background thread: one frame is too few, so the job fails with a reason.
+        cam_auth = {"Authorization": f"Bearer {cam['token']}"}
+        job = http.post(f"{base}/v1/cameras/{cam['id']}/refit", headers=cam_auth)
+        assert job.status_code == 202
+        for _ in range(100):
+            state = http.get(f"{base}/v1/jobs/{job.json()['job_id']}", headers=cam_auth).json()
+            if state["state"] in ("done", "failed"):
+                break
+            time.sleep(0.1)
+        assert state["state"] == "failed" and "two frames" in state["summary"]["error"]
     finally:
         stderr = _kill(proc)
     assert token in stderr  # printed once on first start

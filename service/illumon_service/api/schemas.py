@@ -18,9 +18,12 @@ class _Strict(BaseModel):
 
 
 class SensitivitiesIn(_Strict):
-    """Camera spectral sensitivities: one wavelength (nm) and three values per sample; must cover 400–700 nm."""
+    """Camera spectral sensitivities: one wavelength (nm) and three values per sample; must cover 400–700 nm.
 
-    wavelength_nm: list[Finite] = Field(min_length=2, max_length=2000)
+    At least 6 samples (the spline interpolation onto the 5-nm grid needs them).
+    """
+
+    wavelength_nm: list[Finite] = Field(min_length=6, max_length=2000)
     r: list[NonNegative]
     g: list[NonNegative]
     b: list[NonNegative]

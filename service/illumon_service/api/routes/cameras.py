@@ -32,6 +32,8 @@ def register_camera(body: CameraIn, session: SessionDep, _admin: AdminDep) -> di
         css = sensitivities_from_arrays(s.wavelength_nm, np.column_stack([s.r, s.g, s.b]), source="sensitivities")
     except SpectralInputError as exc:
         raise HTTPException(422, str(exc)) from None
+    except (ValueError, AssertionError) as exc:  # colour-science's interpolators reject some samplings this way
+        raise HTTPException(422, f"sensitivities: cannot be resampled onto 400–700 nm at 5 nm ({exc})") from None
     token = new_token()
     cam = Camera(
         name=body.name,

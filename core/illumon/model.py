@@ -42,7 +42,7 @@ from .camera import gains_from_white
 from .daylight import MIRED_RANGE, CIEDaylight, _planck, cie_d_weights, daylight_locus_duv, xy_from_cct_duv
 from .observations import Observations
 from .reflectance import ReflectanceBasis, reflectance_basis
-from .retrieval.common import RetrievalResult, imaging_operators, make_result
+from .retrieval.common import RetrievalResult, imaging_operators
 from .spectra import GRID
 
 __all__ = [
@@ -94,7 +94,7 @@ class _WeightTable:
     def lookup(self, mired: NDArray[np.float64]) -> NDArray[np.float64]:
         """Interpolated table rows (…, 5): u0, v0, nu, nv, locus Duv."""
         x = (mired - self.m0) / self.dm
-        i = np.clip(x.astype(np.int64), 0, self.n - 2)
+        i = np.minimum(np.maximum(x.astype(np.int64), 0), self.n - 2)
         t = (x - i)[..., None]
         return self.table[i] * (1.0 - t) + self.table[i + 1] * t
 
@@ -107,9 +107,11 @@ class _WeightTable:
         den = 2 * u - 8 * v + 4
         x, y = 3 * u / den, 2 * v / den
         m = 0.0241 + 0.2562 * x - 0.7341 * y
-        m1 = (-1.3515 - 1.7703 * x + 5.9114 * y) / m
-        m2 = (0.0300 - 31.4424 * x + 30.0717 * y) / m
-        return np.stack([np.ones_like(m1), m1, m2], axis=-1)
+        out = np.empty(m.shape + (3,))
+        out[..., 0] = 1.0
+        out[..., 1] = (-1.3515 - 1.7703 * x + 5.9114 * y) / m
+        out[..., 2] = (0.0300 - 31.4424 * x + 30.0717 * y) / m
+        return out
 
 
 _TABLE: _WeightTable | None = None
@@ -122,21 +124,12 @@ def _table() -> _WeightTable:
     return _TABLE
 
 
-def _xy_from_m(m1: NDArray[np.float64], m2: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Invert CIE 015 eq. 4.8: chromaticity whose D-series weights are ``(M1, M2)`` (a 2 × 2 linear solve)."""
-    # M1·(0.0241 + 0.2562x − 0.7341y) = −1.3515 − 1.7703x + 5.9114y, same for M2.
-    a11 = 0.2562 * m1 + 1.7703
-    a12 = -0.7341 * m1 - 5.9114
-    b1 = -1.3515 - 0.0241 * m1
-    a21 = 0.2562 * m2 + 31.4424
-    a22 = -0.7341 * m2 - 30.0717
-    b2 = 0.0300 - 0.0241 * m2
-    det = a11 * a22 - a12 * a21
-    det = np.where(np.abs(det) < 1e-12, 1e-12, det)
-    return np.stack([(b1 * a22 - a12 * b2) / det, (a11 * b2 - b1 * a21) / det], axis=-1)
-
-
 # --- per-frame solver ----------------------------------------------------------------------------------------------
+
+
+_DIAG = np.arange(3)
+_MAX_STEP = np.array([40.0, 0.01, np.inf])
+_EPS3 = 1e-12 * np.eye(3)
 
 
 class FrameSolver:
@@ -174,7 +167,7 @@ class FrameSolver:
         absolute_error: float = 0.002,
         noise_scale: float = 1.0,
         scale: float = 1.0,
-        gn_iterations: int = 6,
+        gn_iterations: int = 3,
     ) -> None:
         self.daylight = daylight
         k, w = imaging_operators(sensitivities, daylight.basis, reflectance)  # nb×3×K, nb×3
@@ -196,6 +189,13 @@ class FrameSolver:
         self.hi = np.append(hi, np.inf)
         self.prior_mean = np.array([daylight.mired_mean, 0.0])
         self.prior_prec = np.array([1.0 / daylight.mired_sigma**2, 1.0 / daylight.duv_sigma**2])
+        # Coarse start grid over (mired, δ): unit-exposure b vectors and their prior cost.
+        gm, gd = np.meshgrid(
+            np.arange(lo[0], hi[0] + 1e-9, 3.0), np.linspace(-3, 3, 9) * daylight.duv_sigma, indexing="ij"
+        )
+        self.grid_theta = np.stack([gm.ravel(), gd.ravel()], axis=1)
+        self.grid_u = self._b(gm.ravel(), gd.ravel(), np.zeros(gm.size))
+        self.grid_prior = self.prior_prec[0] * (gm.ravel() - daylight.mired_mean) ** 2 + self.prior_prec[1] * gd.ravel() ** 2
 
     # b(θ) = exp(logk) · a(θ) / white_g(a(θ))
     def _b(self, mired: NDArray[np.float64], delta: NDArray[np.float64], logk: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -225,25 +225,27 @@ class FrameSolver:
                 gw = np.einsum("fpce,pek->fpck", cinv, self.G)
                 a = np.einsum("fpck,pcl->fkl", gw, self.G)
                 z = np.einsum("fpck,fpc->fk", gw, yy)
-            a = a + 1e-12 * np.eye(3)
+            a = a + _EPS3
             b = np.linalg.solve(a, z[..., None])[..., 0]
         return b, a
 
-    def start(self, b: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Starting ``(mired, δ, logk)`` (F × 3) from the linear solution, clipped into the daylight bounds."""
-        from .daylight import cct_duv_from_xy
-
-        ok = b[:, 0] > 0
-        b0 = np.where(ok, b[:, 0], 1.0)
-        xy = _xy_from_m(b[:, 1] / b0, b[:, 2] / b0)
-        xy = np.where(np.isfinite(xy) & ok[:, None], xy, np.array([0.3127, 0.3290]))
-        cct, duv = cct_duv_from_xy(xy)
-        mired = np.clip(1e6 / cct, self.lo[0] + 1e-6, self.hi[0] - 1e-6)
-        delta = np.clip(duv - self.table.lookup(mired)[:, 4], -3 * self.daylight.duv_sigma, 3 * self.daylight.duv_sigma)
-        a = self.table.weights(mired, delta)
-        pred = a / (a @ self.w[:, 1])[:, None]
-        logk = np.log(np.clip(b0 / np.where(pred[:, 0] > 0, pred[:, 0], 1.0), 1e-12, None))
-        return np.stack([mired, delta, logk], axis=1)
+    def start(self, b: NDArray[np.float64], a: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Starting ``(mired, δ, logk)`` (F × 3): the best point of a coarse (mired, δ) grid with the exposure
+        eliminated in closed form, ``k = uᵀAb̂ / uᵀAu`` for the unit-exposure ``u(θ)``."""
+        out = np.empty((b.shape[0], 3))
+        u = self.grid_u
+        for i in range(0, b.shape[0], 256):
+            ab = np.einsum("fij,fj->fi", a[i : i + 256], b[i : i + 256])  # F × 3
+            num = ab @ u.T  # F × n
+            au = np.einsum("fij,nj->fni", a[i : i + 256], u)
+            den = np.einsum("fni,ni->fn", au, u)
+            k = np.clip(num / np.maximum(den, 1e-300), 1e-12, None)
+            cost = den * k**2 - 2 * k * num + self.grid_prior
+            best = np.argmin(cost, axis=1)
+            rows = np.arange(best.size)
+            out[i : i + 256, :2] = self.grid_theta[best]
+            out[i : i + 256, 2] = np.log(k[rows, best])
+        return out
 
     def solve(
         self, y: NDArray[np.float64], present: NDArray[np.bool_]
@@ -253,7 +255,7 @@ class FrameSolver:
         Gauss–Newton with Levenberg damping on ``‖U(b(θ) − b̂)‖² + prior``, ``UᵀU = A``; all frames at once.
         """
         bhat, a = self.linear(y, present)
-        theta = self.start(bhat)
+        theta = self.start(bhat, a)
         f = theta.shape[0]
         h = np.array([1e-3, 1e-6])
         pm, pp = self.prior_mean, self.prior_prec
@@ -274,11 +276,10 @@ class FrameSolver:
             hess[:, 1, 1] += pp[1]
             grad[:, 0] += pp[0] * (mir - pm[0])
             grad[:, 1] += pp[1] * (dl - pm[1])
-            damp = hess + lam * hess[:, [0, 1, 2], [0, 1, 2]][:, :, None] * np.eye(3)
-            step = np.linalg.solve(damp, -grad[..., None])[..., 0]
-            step[:, 0] = np.clip(step[:, 0], -40.0, 40.0)
-            step[:, 1] = np.clip(step[:, 1], -0.01, 0.01)
-            theta = np.clip(theta + step, self.lo, self.hi)
+            hess[:, _DIAG, _DIAG] *= 1.0 + lam
+            step = np.linalg.solve(hess, -grad[..., None])[..., 0]
+            step = np.minimum(np.maximum(step, -_MAX_STEP), _MAX_STEP)
+            theta = np.minimum(np.maximum(theta + step, self.lo), self.hi)
         mir, dl, lk = theta[:, 0], theta[:, 1], theta[:, 2]
         mm = np.concatenate([mir, mir + h[0], mir])
         dd = np.concatenate([dl, dl, dl + h[1]])
@@ -288,7 +289,7 @@ class FrameSolver:
         hess = np.einsum("fij,fik,fkl->fjl", jac, a, jac)
         hess[:, 0, 0] += pp[0]
         hess[:, 1, 1] += pp[1]
-        cov = np.linalg.inv(hess + 1e-12 * np.eye(3))
+        cov = np.linalg.inv(hess + _EPS3)
         r = b - bhat
         cost = np.einsum("fi,fij,fj->f", r, a, r)
         return theta, cov, cost
@@ -453,6 +454,17 @@ class SceneModel:
         return _assemble(obs, self, theta, cov, few, solver, cost, len(shared))
 
 
+def _patch_reflectances(model: SceneModel, patches: list[str]) -> NDArray[np.float64]:
+    """Learned reflectance spectra (0…1) of ``patches``; NaN rows for patches the model does not know."""
+    spectra = np.clip(model.coefficients @ model.basis.T, 0.0, 1.0)
+    index = {p: i for i, p in enumerate(model.patches)}
+    out = np.full((len(patches), spectra.shape[1]), np.nan)
+    for j, p in enumerate(patches):
+        if p in index:
+            out[j] = spectra[index[p]]
+    return out
+
+
 def _assemble(
     obs: Observations, model: SceneModel, theta: NDArray[np.float64], cov: NDArray[np.float64],
     few: NDArray[np.bool_], solver: FrameSolver, cost: NDArray[np.float64], n_shared: int,
@@ -463,9 +475,15 @@ def _assemble(
     locus = solver.table.lookup(mired)[:, 4]
     duv = locus + delta
     xy = xy_from_cct_duv(cct, duv)
-    spectra = dm.spectra(theta[:, :2])
-    res = make_result(obs, model.sensitivities, spectra, "model", xy=xy, exposures=np.exp(theta[:, 2]) / model.noise["scale"])
-    res.cct, res.duv = cct, duv
+    a0 = solver.table.weights(mired, delta)
+    white = a0 @ solver.w
+    white = white / white[:, 1:2]
+    res = RetrievalResult(
+        frames=list(obs.frames), patches=list(obs.patches), spectra=dm.spectra(theta[:, :2]), xy=xy, cct=cct,
+        duv=duv, white=white, gains=gains_from_white(white), exposures=np.exp(theta[:, 2]) / model.noise["scale"],
+        reflectances=_patch_reflectances(model, obs.patches),
+        method="model", times=list(obs.times),
+    )
     me = model.noise.get("model_error", MODEL_ERROR)
     cov = cov.copy()
     cov[:, 1, 1] += me.get("common_duv", 0.0) ** 2  # the day's common offset from the locus (see MODEL_ERROR)
@@ -478,7 +496,6 @@ def _assemble(
     sduv = np.sqrt(np.clip(np.einsum("fi,fij,fj->f", g, cov[:, :2, :2], g), 0, None) + me["duv"] ** 2)
     # white, gains and their sensitivities to (mired, δ)
     h = np.array([0.5, 1e-4])
-    a0 = solver.table.weights(mired, delta)
     a1 = solver.table.weights(mired + h[0], delta)
     a2 = solver.table.weights(mired, delta + h[1])
     wh = [a @ solver.w for a in (a0, a1, a2)]

@@ -1,4 +1,5 @@
-"""Fixtures of the service tests: a TestClient on a temporary data dir and a camera with rendered frames.
+"""Helpers and fixtures of the service tests (imported by conftest.py): a TestClient on a temporary data dir and a camera
+with rendered frames.
 
 The scene: a measured camera (Nikon D5100), 8 measured reflectances as static regions on a grey background, 12 Granada
 daylight spectra, per-pixel noise and a moving clutter rectangle (a passer-by) that partly covers regions; frames are

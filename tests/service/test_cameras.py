@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from conftest import admin_headers, bearer, camera_body, grid_regions
+from svc_helpers import admin_headers, bearer, camera_body, grid_regions
 
 
 def _css() -> np.ndarray:

@@ -6,8 +6,8 @@ from datetime import timedelta
 
 import numpy as np
 import pytest
-from conftest import T0, bearer, post_image
 from illumon.camera import angular_error_deg
+from svc_helpers import T0, bearer, post_image
 
 
 def test_refit_job_done(populated):
@@ -53,7 +53,7 @@ def test_illuminant(populated):
 
 
 def test_no_estimate_yet_is_404(client):
-    from conftest import camera_body, grid_regions, register
+    from svc_helpers import camera_body, grid_regions, register
 
     css = np.ones((61, 3))
     cid, token = register(client, css, grid_regions())

@@ -6,9 +6,9 @@ import json
 
 import numpy as np
 import pytest
-from conftest import SIZE, bearer, camera_body, encode_png, grid_regions, make_settings, post_image, register
 from fastapi.testclient import TestClient
 from illumon_service.app import create_app
+from svc_helpers import SIZE, bearer, camera_body, encode_png, grid_regions, make_settings, post_image, register
 
 
 def _css() -> np.ndarray:

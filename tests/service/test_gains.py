@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import bearer
 from illumon.gains import all_conventions
+from svc_helpers import bearer
 
 
 def _check(g: dict, gains_rgb: list[float]) -> None:

@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import numpy as np
-from conftest import admin_headers, bearer, grid_regions, make_settings, register
 from fastapi.testclient import TestClient
 from illumon.cli import main
 from illumon_service.app import create_app
+from svc_helpers import admin_headers, bearer, grid_regions, make_settings, register
 
 
 def test_job_visibility(populated):

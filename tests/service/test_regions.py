@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-from conftest import encode_png
 from illumon.camera import ResponseCurve
 from illumon_service.regions import Region, decode_image, region_means, response_for
+from svc_helpers import encode_png
 
 
 def test_linear16_with_clutter_and_clipping():

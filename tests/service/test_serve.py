@@ -12,9 +12,9 @@ from pathlib import Path
 
 import httpx
 import numpy as np
-from conftest import encode_png, grid_regions
 from illumon_service.app import admin_token
 from illumon_service.settings import Settings
+from svc_helpers import encode_png, grid_regions
 
 ILLUMON = Path(sys.executable).with_name("illumon")
 

@@ -16,7 +16,6 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-
 from illumon import datasets  # noqa: E402
 from illumon.camera import angular_error_deg  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402

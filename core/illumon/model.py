@@ -486,6 +486,7 @@ def _assemble(
     )
     me = model.noise.get("model_error", MODEL_ERROR)
     cov = cov.copy()
+    cov[:, 0, 0] += me.get("common_mired", 0.0) ** 2  # shift common to the history (fit's Laplace posterior)
     cov[:, 1, 1] += me.get("common_duv", 0.0) ** 2  # the day's common offset from the locus (see MODEL_ERROR)
     sm = np.sqrt(np.clip(cov[:, 0, 0], 0, None) + me["mired"] ** 2)
     cct_lo = 1e6 / np.clip(mired + Z95 * sm, 1e-3, None)
@@ -630,13 +631,14 @@ def fit_scene_model(
         m = np.einsum("fk,kcj->fcj", a, k_ops) / (a @ w_ops)[:, 1, None, None]
         return np.exp(th[:, 2])[:, None, None] * m
 
-    def cost(th: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
-        """Joint MAP objective with the reflectances eliminated (their exact conditional posterior mean)."""
+    def cost(th: NDArray[np.float64], noise: float = 1.0) -> tuple[float, NDArray[np.float64]]:
+        """Joint MAP objective (−2 log posterior) with the reflectances eliminated (exact conditional mean)."""
         am = operators(th)
-        s, _ = _reflectance_posterior(am, yz, base_w2, lam, mu)
+        w2 = base_w2 / noise**2
+        s, _ = _reflectance_posterior(am, yz, w2, lam, mu)
         r = yz - np.einsum("fcj,pj->fpc", am, s)
         d = s - mu
-        c = (base_w2 * r**2).sum() + np.einsum("pi,ij,pj->", d, lam, d)
+        c = (w2 * r**2).sum() + np.einsum("pi,ij,pj->", d, lam, d)
         c += (daylight_prec[0] * (th[:, 0] - dm.mired_mean) ** 2 + daylight_prec[1] * th[:, 1] ** 2).sum()
         return float(c), s
 
@@ -684,6 +686,30 @@ def fit_scene_model(
     coef, prec = _reflectance_posterior(am, yz, base_w2 / noise_scale**2, lam, mu)
     cov = np.linalg.inv(prec)
     cov = 0.5 * (cov + cov.transpose(0, 2, 1))
+    # Laplace uncertainty of a shift common to every frame (reciprocal temperature, Duv offset): the direction static
+    # patches determine worst (profile curvature, reflectances re-solved; −2 log p → covariance 2 H⁻¹).
+    steps = np.array([1.0, 3e-4])
+    hc = np.empty((2, 2))
+    c0 = cost(theta, noise_scale)[0]
+    for i in range(2):
+        for j in range(2):
+            def shifted(si: float, sj: float, i: int = i, j: int = j) -> float:
+                d = np.zeros(3)
+                d[i] += si * steps[i]
+                d[j] += sj * steps[j]
+                return cost(theta + d, noise_scale)[0]
+
+            if i == j:
+                hc[i, i] = (shifted(1, 0) - 2 * c0 + shifted(-1, 0)) / steps[i] ** 2
+            else:
+                hc[i, j] = (shifted(1, 1) - shifted(1, -1) - shifted(-1, 1) + shifted(-1, -1)) / (
+                    4 * steps[i] * steps[j]
+                )
+    try:
+        common_cov = 2 * np.linalg.inv(0.5 * (hc + hc.T))
+        common = np.sqrt(np.clip(np.diag(common_cov), 0, None))
+    except np.linalg.LinAlgError:
+        common = np.array([dm.mired_sigma, dm.duv_sigma])
     fit_seconds = time.perf_counter() - t0
 
     model = SceneModel(
@@ -691,7 +717,9 @@ def fit_scene_model(
         grid=(float(GRID.start), float(GRID.end), float(GRID.interval)), basis=rb.functions,
         daylight={"name": "cie", "duv_sigma": dm.duv_sigma, "mired_mean": dm.mired_mean, "mired_sigma": dm.mired_sigma},
         noise={"relative_error": relative_error, "absolute_error": absolute_error, "noise_scale": noise_scale,
-               "scale": scale, "model_error": dict(MODEL_ERROR)},
+               "scale": scale,
+               "model_error": dict(MODEL_ERROR, common_mired=float(common[0]),
+                                   common_duv=float(max(common[1], MODEL_ERROR["common_duv"])))},
     )
     # Illuminants of every frame with the learned reflectances (the fast solver), for the training summary.
     res, _ = model.estimate(obs)

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 from fastapi.testclient import TestClient
 from illumon.cli import main
 from illumon_service.app import create_app
+from illumon_service.storage import Job
 from svc_helpers import admin_headers, bearer, grid_regions, make_settings, register
 
 
@@ -53,3 +56,18 @@ def test_refit_all_with_dask(tmp_path, scene, capsys):
     assert main(["refit", "--all", "--data-dir", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert out.count('"frames": 3') == 2
+
+
+def test_scheduled_refit(tmp_path):
+    """With refit_every_hours set, the service queues refits of every camera by itself."""
+    settings = make_settings(tmp_path, refit_every_hours=0.5 / 3600)  # every 0.5 s
+    with TestClient(create_app(settings)) as c:
+        cid, token = register(c, np.ones((61, 3)), grid_regions())
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline:
+            with c.app.state.sessions() as s:
+                jobs = s.query(Job).filter(Job.camera_id == cid).all()
+            if jobs and jobs[0].state in ("done", "failed"):
+                break
+            time.sleep(0.1)
+        assert jobs and jobs[0].state == "failed"  # no frames: fails with a reason, the schedule keeps running

@@ -14,7 +14,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from .api.routes import cameras, estimates, frames, gains, health, jobs
+from .api.routes import cameras, estimates, frames, gains, health, jobs, pages
 from .jobs import JobRunner
 from .metrics import Metrics
 from .settings import Settings
@@ -94,4 +94,5 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     for module in (cameras, frames, estimates, gains, jobs, health):
         app.include_router(module.router)
+    pages.install(app)  # status page: /, /cameras/{id}, /login, /static
     return app

@@ -1,0 +1,197 @@
+"""The operator status page: ``GET /`` (every visible camera) and ``GET /cameras/{id}`` (one camera's history).
+
+Server-rendered HTML (Jinja2 templates in ``illumon_service/templates``), one local stylesheet
+(``illumon_service/static``) and inline SVG charts drawn in Python (:mod:`illumon_service.charts`): no JavaScript, no
+build step, nothing fetched from elsewhere.
+
+Authentication is that of the JSON API. ``Authorization: Bearer <token>`` works as there; a browser logs in at
+``/login`` with the admin token or a camera token, which is kept in an HTTP-only, ``SameSite=Strict`` cookie (``Secure``
+when the page is served over HTTPS) and checked on every request like a bearer token, by its SHA-256 against the stored
+hashes. The admin sees every camera; a camera token sees only its own camera, and another camera's page answers 404 as
+an unknown one would. Without a valid token a page redirects to the login form.
+"""
+
+from __future__ import annotations
+
+import hmac
+from datetime import datetime
+from pathlib import Path
+from urllib.parse import quote
+
+from fastapi import APIRouter, FastAPI, Form, Query, Request
+from fastapi.responses import HTMLResponse, RedirectResponse, Response
+from fastapi.staticfiles import StaticFiles
+from fastapi.templating import Jinja2Templates
+from markupsafe import Markup
+from sqlalchemy.orm import Session
+
+from ...charts import Series, time_chart
+from ...deps import Principal, SessionDep
+from ...status import NON_DAYLIGHT_DUV, camera_history, camera_status, fleet_status
+from ...storage import Camera, camera_by_token, hash_token
+
+__all__ = ["router", "install", "COOKIE", "principal_from_token"]
+
+PACKAGE = Path(__file__).resolve().parents[2]
+TEMPLATES = Jinja2Templates(directory=str(PACKAGE / "templates"))
+STATIC = PACKAGE / "static"
+COOKIE = "illumon_token"
+"""Name of the login cookie (it carries the token; the server only ever compares its hash)."""
+COOKIE_MAX_AGE = 7 * 24 * 3600
+HEADERS = {
+    "Cache-Control": "no-store",
+    "Content-Security-Policy": "default-src 'none'; style-src 'self'; img-src 'self' data:; form-action 'self'; "
+                               "frame-ancestors 'none'; base-uri 'none'",
+    "X-Frame-Options": "DENY",
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+}
+
+router = APIRouter(tags=["pages"], include_in_schema=False)
+
+
+def _fmt_time(value: datetime | str | None) -> str:
+    """``YYYY-MM-DD HH:MM UTC`` (or an em dash)."""
+    if value is None:
+        return "—"
+    if isinstance(value, str):
+        value = datetime.fromisoformat(value)
+    return value.strftime("%Y-%m-%d %H:%M UTC")
+
+
+TEMPLATES.env.filters["utc"] = _fmt_time
+
+
+def principal_from_token(request: Request, session: Session, token: str) -> Principal | None:
+    """The admin or the camera whose token is ``token`` (compared by hash, as bearer tokens are), else ``None``."""
+    token = token.strip()
+    if not token:
+        return None
+    if hmac.compare_digest(hash_token(token), request.app.state.admin_token_hash):
+        return Principal(admin=True)
+    cam = camera_by_token(session, token)
+    return None if cam is None else Principal(admin=False, camera_id=cam.id)
+
+
+def _principal(request: Request, session: Session) -> Principal | None:
+    """Caller from ``Authorization: Bearer`` or, failing that, the login cookie."""
+    scheme, _, token = request.headers.get("authorization", "").partition(" ")
+    if scheme.lower() == "bearer" and token.strip():
+        return principal_from_token(request, session, token)
+    return principal_from_token(request, session, request.cookies.get(COOKIE, ""))
+
+
+def _safe_next(target: str | None) -> str:
+    """A local path to go to after login (never another site)."""
+    if not target or not target.startswith("/") or target.startswith("//") or "\\" in target:
+        return "/"
+    return target
+
+
+def _to_login(request: Request) -> RedirectResponse:
+    path = request.url.path + (f"?{request.url.query}" if request.url.query else "")
+    resp = RedirectResponse(f"/login?next={quote(path, safe='/')}", status_code=303)
+    if request.cookies.get(COOKIE):
+        resp.delete_cookie(COOKIE, path="/")
+    return resp
+
+
+def _render(request: Request, name: str, context: dict, status_code: int = 200) -> HTMLResponse:
+    resp = TEMPLATES.TemplateResponse(request, name, context, status_code=status_code)
+    resp.headers.update(HEADERS)
+    return resp
+
+
+@router.get("/login", response_class=HTMLResponse)
+def login_form(request: Request, next_: str = Query("/", alias="next")) -> HTMLResponse:
+    """The login form (admin token or camera token)."""
+    return _render(request, "login.html", {"next": _safe_next(next_), "error": None, "principal": None})
+
+
+@router.post("/login")
+def login(request: Request, session: SessionDep, token: str = Form(""),
+          next_: str = Form("/", alias="next")) -> Response:
+    """Check the token; on success set the HTTP-only login cookie and go to ``next``."""
+    principal = principal_from_token(request, session, token)
+    if principal is None:
+        return _render(request, "login.html", {"next": _safe_next(next_), "error": "Unknown token.", "principal": None},
+                       status_code=401)
+    resp = RedirectResponse(_safe_next(next_), status_code=303)
+    resp.set_cookie(COOKIE, token.strip(), max_age=COOKIE_MAX_AGE, path="/", httponly=True, samesite="strict",
+                    secure=request.url.scheme == "https")
+    return resp
+
+
+@router.post("/logout")
+def logout() -> RedirectResponse:
+    """Forget the login cookie."""
+    resp = RedirectResponse("/login", status_code=303)
+    resp.delete_cookie(COOKIE, path="/")
+    return resp
+
+
+@router.get("/", response_class=HTMLResponse)
+def index(request: Request, session: SessionDep) -> Response:
+    """Every camera the caller may see: latest CCT, Duv, gains, confidence, last frame and alerts."""
+    principal = _principal(request, session)
+    if principal is None:
+        return _to_login(request)
+    rows = fleet_status(session, principal, request.app.state.settings)
+    return _render(request, "index.html", {"rows": rows, "principal": principal})
+
+
+def _charts(history: list[dict]) -> dict[str, Markup]:
+    """CCT with its interval, Duv with its interval and the r/b gains (with intervals) over time, as SVG.
+
+    Each chart comes twice, wide (desktop) and compact (phone: a narrower viewBox keeps the text legible); the
+    stylesheet shows one of them.
+    """
+    times = [datetime.fromisoformat(e["taken_at"]) for e in history]
+
+    def iv(key: str, index: int | None = None) -> list[float | None]:
+        out: list[float | None] = []
+        for e in history:
+            v = (e.get("intervals") or {}).get(key)
+            out.append(v[index] if (v is not None and index is not None) else v)
+        return out
+
+    specs = {
+        "cct": ([Series("CCT", times, [e["cct_k"] for e in history], iv("cct_lo"), iv("cct_hi"))],
+                {"title": "Correlated colour temperature", "unit": "K"}),
+        "duv": ([Series("Duv", times, [e["duv"] for e in history], iv("duv_lo"), iv("duv_hi"), css="series-1",
+                        band_css="band-1")],
+                {"title": "Duv (distance from the Planckian locus)", "refs": (0.0, NON_DAYLIGHT_DUV, -NON_DAYLIGHT_DUV)}),
+        "gains": ([Series("R gain", times, [e["gains_rgb"][0] for e in history], iv("gain_lo", 0), iv("gain_hi", 0),
+                          css="series-r", band_css="band-r"),
+                   Series("B gain", times, [e["gains_rgb"][2] for e in history], iv("gain_lo", 2), iv("gain_hi", 2),
+                          css="series-b", band_css="band-b")],
+                  {"title": "White-balance gains (G = 1)", "refs": (1.0,)}),
+    }
+    out = {}
+    for key, (series, kw) in specs.items():
+        wide = time_chart(series, chart_id=f"chart-{key}", css_class="chart wide", **kw)
+        compact = time_chart(series, chart_id=f"chart-{key}-compact", css_class="chart compact", width=400, height=250, **kw)
+        out[key] = Markup(wide + compact)
+    return out
+
+
+@router.get("/cameras/{camera_id}", response_class=HTMLResponse)
+def camera_page(camera_id: int, request: Request, session: SessionDep, limit: int = 2000) -> Response:
+    """One camera: its status, CCT and Duv over time with their intervals, the gains over time, recent estimates."""
+    principal = _principal(request, session)
+    if principal is None:
+        return _to_login(request)
+    cam = session.get(Camera, camera_id) if (principal.admin or principal.camera_id == camera_id) else None
+    if cam is None:
+        return _render(request, "not_found.html", {"camera_id": camera_id, "principal": principal}, status_code=404)
+    status = camera_status(session, cam, request.app.state.settings)
+    history = camera_history(session, camera_id, limit=max(1, min(limit, 20000)))
+    recent = list(reversed(history[-24:]))
+    return _render(request, "camera.html", {"row": status, "charts": _charts(history), "recent": recent,
+                                            "count": len(history), "principal": principal})
+
+
+def install(app: FastAPI) -> None:
+    """Add the pages and their stylesheet (``/static``) to ``app``."""
+    app.include_router(router)
+    app.mount("/static", StaticFiles(directory=str(STATIC)), name="static")

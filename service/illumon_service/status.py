@@ -1,0 +1,209 @@
+"""What the status page shows: each camera's latest estimate, last frame and alerts, and one camera's history.
+
+Reads the same tables as the JSON API (:mod:`.storage`) and formats estimates with the API's own
+:func:`~.api.routes.estimates.estimate_out`, so the page and ``GET /v1/cameras/{id}/estimates`` cannot disagree.
+
+Alerts
+------
+An alert is a named condition the service can see in what it already stores. Each is produced by one *rule*, a
+function of an :class:`AlertContext` (the camera, its recent frames and its latest estimate) in :data:`ALERT_RULES`:
+
+* ``regions_missing`` — regions without a value (mostly occluded, shadowed or clipped pixels, or not sent) in at
+  least a quarter (and at least 3) of the recent frames: something covers, shadows or changed those static patches;
+* ``clipping`` — region values at or above the clip level (``ILLUMON_CLIP_FRACTION`` of white) in recent frames;
+* ``non_daylight`` — the latest estimate is more than 0.02 in Duv off the Planckian locus: not daylight (or a
+  wrong camera set-up);
+* ``low_confidence`` — the latest estimate's confidence is below 0.5;
+* ``no_estimate`` — frames are stored but none is estimated yet (no refit has run).
+
+A later diagnosis of the history (patch change, shadow, clipping, … from ``illumon.diagnosis``) is one more rule
+appended to :data:`ALERT_RULES` that turns stored diagnosis results into :class:`Alert` objects; nothing else in the
+page changes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from datetime import datetime
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from .api.routes.estimates import estimate_out
+from .deps import Principal
+from .settings import Settings
+from .storage import Camera, Estimate, Frame, as_utc
+
+__all__ = [
+    "Alert",
+    "AlertContext",
+    "ALERT_RULES",
+    "CameraStatus",
+    "RECENT_FRAMES",
+    "NON_DAYLIGHT_DUV",
+    "LOW_CONFIDENCE",
+    "MISSING_FRACTION",
+    "MISSING_MIN_FRAMES",
+    "visible_cameras",
+    "camera_status",
+    "fleet_status",
+    "camera_history",
+]
+
+RECENT_FRAMES = 12
+"""Alerts look at this many of a camera's most recent frames."""
+NON_DAYLIGHT_DUV = 0.02
+"""|Duv| above this is reported as non-daylight light."""
+LOW_CONFIDENCE = 0.5
+"""Confidence below this is reported."""
+MISSING_FRACTION = 0.25
+"""A region missing in at least this fraction of the recent frames (and in :data:`MISSING_MIN_FRAMES`) is reported."""
+MISSING_MIN_FRAMES = 3
+"""…and in at least this many of them (one passer-by is not an alert)."""
+
+
+@dataclass(frozen=True)
+class Alert:
+    """One alert of a camera: a stable ``kind``, a short ``label`` for the table, a sentence and a severity."""
+
+    kind: str
+    label: str
+    message: str
+    severity: str = "warning"  # "info" | "warning"
+
+
+@dataclass
+class AlertContext:
+    """What a rule may look at."""
+
+    camera: Camera
+    frames: list[Frame]
+    """Most recent frames, newest first (at most :data:`RECENT_FRAMES`)."""
+    latest: Estimate | None
+    settings: Settings
+    frame_count: int
+
+
+def _regions_missing(ctx: AlertContext) -> list[Alert]:
+    ids = [r["id"] for r in ctx.camera.regions]
+    n = len(ctx.frames)
+    if n == 0 or not ids:
+        return []
+    need = max(MISSING_MIN_FRAMES, math.ceil(MISSING_FRACTION * n))
+    counts = {rid: sum(1 for f in ctx.frames if f.patches.get(rid) is None) for rid in ids}
+    worst = sorted((rid for rid in ids if counts[rid] >= need), key=lambda rid: (-counts[rid], rid))
+    if not worst:
+        return []
+    names = ", ".join(worst[:4]) + (f" and {len(worst) - 4} more" if len(worst) > 4 else "")
+    return [Alert("regions_missing", "Regions missing",
+                  f"{len(worst)} of {len(ids)} regions missing in at least {need} of the last {n} frames ({names}): "
+                  "patch covered, shadowed or changed?")]
+
+
+def _clipping(ctx: AlertContext) -> list[Alert]:
+    level = ctx.settings.clip_fraction
+    hits: dict[str, int] = {}
+    for f in ctx.frames:
+        for rid, v in f.patches.items():
+            if v is not None and max(v) >= level:
+                hits[rid] = hits.get(rid, 0) + 1
+    if not hits:
+        return []
+    names = ", ".join(sorted(hits)[:3])
+    return [Alert("clipping", "Clipping", f"region values at the clip level in recent frames ({names})")]
+
+
+def _non_daylight(ctx: AlertContext) -> list[Alert]:
+    e = ctx.latest
+    if e is None or abs(e.duv) <= NON_DAYLIGHT_DUV:
+        return []
+    return [Alert("non_daylight", "Non-daylight light",
+                  f"latest Duv {e.duv:+.4f} is more than {NON_DAYLIGHT_DUV} off the Planckian locus")]
+
+
+def _low_confidence(ctx: AlertContext) -> list[Alert]:
+    e = ctx.latest
+    if e is None or e.confidence >= LOW_CONFIDENCE:
+        return []
+    return [Alert("low_confidence", "Low confidence", f"latest estimate's confidence is {e.confidence:.2f}")]
+
+
+def _no_estimate(ctx: AlertContext) -> list[Alert]:
+    if ctx.latest is not None or ctx.frame_count == 0:
+        return []
+    return [Alert("no_estimate", "No estimate yet",
+                  f"{ctx.frame_count} frames stored, none estimated: run a refit", severity="info")]
+
+
+ALERT_RULES: list[Callable[[AlertContext], list[Alert]]] = [
+    _regions_missing, _clipping, _non_daylight, _low_confidence, _no_estimate,
+]
+"""Rules producing a camera's alerts, in display order; append a rule to add a kind of alert."""
+
+
+@dataclass
+class CameraStatus:
+    """One camera's row of the status table."""
+
+    id: int
+    name: str
+    regions: int
+    frames: int
+    last_frame_at: datetime | None
+    latest: dict | None
+    """The latest estimate as the JSON API gives it (``estimate_out``), with ``intervals``."""
+    alerts: list[Alert] = field(default_factory=list)
+
+
+def visible_cameras(session: Session, principal: Principal) -> list[Camera]:
+    """The cameras the caller may see: every camera for the admin, its own for a camera token."""
+    q = select(Camera).order_by(Camera.id)
+    if not principal.admin:
+        q = q.where(Camera.id == principal.camera_id)
+    return list(session.scalars(q).all())
+
+
+def _latest_estimate(session: Session, camera_id: int) -> Estimate | None:
+    q = select(Estimate).where(Estimate.camera_id == camera_id)
+    return session.scalars(q.order_by(Estimate.taken_at.desc(), Estimate.frame_id.desc()).limit(1)).first()
+
+
+def camera_status(session: Session, cam: Camera, settings: Settings) -> CameraStatus:
+    """Latest estimate, last frame, frame count and alerts of ``cam``."""
+    frames = list(session.scalars(
+        select(Frame).where(Frame.camera_id == cam.id).order_by(Frame.taken_at.desc(), Frame.id.desc())
+        .limit(RECENT_FRAMES)
+    ).all())
+    count = session.scalar(select(func.count()).select_from(Frame).where(Frame.camera_id == cam.id)) or 0
+    latest = _latest_estimate(session, cam.id)
+    ctx = AlertContext(cam, frames, latest, settings, int(count))
+    alerts = [a for rule in ALERT_RULES for a in rule(ctx)]
+    out = None
+    if latest is not None:
+        out = estimate_out(latest)
+        out["intervals"] = latest.intervals
+    return CameraStatus(
+        id=cam.id, name=cam.name, regions=len(cam.regions), frames=int(count),
+        last_frame_at=as_utc(frames[0].taken_at) if frames else None, latest=out, alerts=alerts,
+    )
+
+
+def fleet_status(session: Session, principal: Principal, settings: Settings) -> list[CameraStatus]:
+    """A :class:`CameraStatus` for every camera the caller may see."""
+    return [camera_status(session, cam, settings) for cam in visible_cameras(session, principal)]
+
+
+def camera_history(session: Session, camera_id: int, limit: int = 2000) -> list[dict]:
+    """The camera's most recent ``limit`` estimates, oldest first, as the JSON API gives them plus ``intervals``."""
+    rows = session.scalars(
+        select(Estimate).where(Estimate.camera_id == camera_id)
+        .order_by(Estimate.taken_at.desc(), Estimate.frame_id.desc()).limit(max(1, limit))
+    ).all()
+    out = []
+    for e in reversed(rows):
+        d = estimate_out(e)
+        d["intervals"] = e.intervals
+        out.append(d)
+    return out

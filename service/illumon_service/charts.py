@@ -53,12 +53,12 @@ class _Frame:
 
 
 def nice_ticks(lo: float, hi: float, n: int = 5) -> list[float]:
-    """About ``n`` round tick values (1, 2 or 5 × 10^k apart) covering ``lo``…``hi``."""
+    """About ``n`` round tick values (1, 2, 2.5 or 5 × 10^k apart) covering ``lo``…``hi``."""
     if not (math.isfinite(lo) and math.isfinite(hi)) or hi <= lo:
         return [lo]
     raw = (hi - lo) / max(1, n)
     mag = 10 ** math.floor(math.log10(raw))
-    step = next(m * mag for m in (1, 2, 2.5, 5, 10) if m * mag >= raw)
+    step = mag * min((1, 2, 2.5, 5, 10), key=lambda m: abs(m * mag - raw))
     first = math.ceil(lo / step - 1e-9) * step
     out = []
     v = first

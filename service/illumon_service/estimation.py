@@ -3,11 +3,13 @@
 * :func:`estimate_frame` — per-frame estimate at ingest. Uses the learned scene model (:mod:`illumon.model`) when the
   module is importable and a model has been fitted for the camera (``<data dir>/models/camera-<id>.json``); otherwise
   returns ``None`` and the frame is estimated by the next refit.
-* :func:`refit_estimates` — multi-frame retrieval (:func:`illumon.retrieval.retrieve_illuminants`) over a camera's
-  stored history, returning one estimate per frame; it also tries to fit a scene model for fast per-frame estimates.
+* :func:`refit_estimates` — over a camera's stored history: by default fits the scene model
+  (:func:`illumon.model.fit_scene_model`), saves it for the per-frame estimates at ingest and estimates every stored
+  frame with it (``illumon fit`` + ``illumon estimate --model``); or multi-frame retrieval
+  (:func:`illumon.retrieval.retrieve_illuminants`, ``illumon estimate --method``) followed by a model fit.
 
 Confidence (0…1): with a scene model, its posterior probability that the camera white is within 1° of the truth
-(:mod:`illumon.model`); from a refit without a model, the fraction of the camera's regions seen in the frame (a
+(:mod:`illumon.model`); from a retrieval-method refit, the fraction of the camera's regions seen in the frame (a
 ranking aid, not a probability). Intervals (95 %: ``cct_lo/hi``, ``duv_lo/hi``, ``gain_lo/hi``) come from the model.
 """
 
@@ -139,26 +141,65 @@ def estimate_frame(
     return _row(result, 0, conf, "model", _intervals(result, extra, 0))
 
 
-def _fit_model(obs: Observations, css: NDArray[np.float64], path: Path) -> str:
+def _save_model(fitted: Any, path: Path) -> None:
+    """Write a fitted scene model atomically: readers see the old or the new model, never half of one."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(f".{os.getpid()}.{threading.get_ident()}.tmp")
+    fitted.save(tmp)
+    os.replace(tmp, path)
+
+
+def _seen_patches(obs: Observations) -> Observations:
+    """``obs`` without the patches never seen (a region always occluded or clipped cannot be fitted)."""
+    seen = obs.present.any(axis=0)
+    if seen.all():
+        return obs
+    keep = np.flatnonzero(seen)
+    return Observations(list(obs.frames), [obs.patches[j] for j in keep], obs.values[:, keep].copy(), list(obs.times))
+
+
+def _fit_model(obs: Observations, css: NDArray[np.float64], path: Path, max_fit_frames: int = 300) -> str:
     """Fit and save a scene model with :mod:`illumon.model` when available; returns a status string."""
     model = _model_module()
     if model is None:
         return "illumon.model not installed"
     try:
-        if hasattr(model, "fit_scene_model"):
-            fitted = model.fit_scene_model(obs, css)
-        elif hasattr(getattr(model, "SceneModel", None), "fit"):
-            fitted = model.SceneModel.fit(obs, css)
-        else:
-            return "illumon.model offers no fit"
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp")
-        fitted.save(tmp)
-        os.replace(tmp, path)  # atomic: readers see the old or the new model, never half of one
-    except Exception as exc:  # noqa: BLE001 - the model API is young; the refit's estimates still stand
+        fitted = model.fit_scene_model(_seen_patches(obs), css, max_fit_frames=max_fit_frames)
+        _save_model(fitted, path)
+    except Exception as exc:  # noqa: BLE001 - the retrieval's estimates still stand
         log.warning("scene model fit failed: %s", exc)
         return f"scene model fit failed: {exc}"
     return "fitted"
+
+
+def _refit_with_model(
+    obs: Observations, css: NDArray[np.float64], model_file: Path | None, max_fit_frames: int
+) -> tuple[dict[str, dict], dict]:
+    """Fit the scene model on the history (reflectances on ≤ ``max_fit_frames`` frames spread over the illuminant
+    range), save it, and estimate every frame with it: ``illumon fit`` then ``illumon estimate --model``."""
+    model = _model_module()
+    if model is None:
+        raise ValueError("refit method 'model' needs illumon.model")
+    fitted = model.fit_scene_model(_seen_patches(obs), css, max_fit_frames=max_fit_frames)
+    if model_file is not None:
+        _save_model(fitted, model_file)
+        _MODEL_CACHE.pop(str(model_file), None)
+    result, extra = fitted.estimate(obs)
+    ok = np.all(np.isfinite(result.white), axis=1)
+    conf = np.asarray(extra["confidence"], dtype=float)
+    out = {
+        fid: _row(result, i, conf[i], "refit:model", _intervals(result, extra, i))
+        for i, fid in enumerate(result.frames) if ok[i]
+    }
+    summary = {
+        "frames": len(out),
+        "method": "model",
+        "model": "fitted" if model_file is not None else "not saved",
+        "frames_used_for_reflectances": fitted.training.get("frames_used_for_reflectances"),
+        "cct_k_median": float(np.median(result.cct[ok])) if ok.any() else None,
+        "identifiability_warnings": list(fitted.identifiability.get("warnings", [])),
+    }
+    return out, summary
 
 
 def refit_estimates(
@@ -166,10 +207,18 @@ def refit_estimates(
     region_ids: Sequence[str],
     sensitivities: NDArray[np.float64],
     *,
-    method: str = "joint",
+    method: str = "model",
     model_file: Path | None = None,
+    max_fit_frames: int = 300,
 ) -> tuple[dict[str, dict], dict]:
-    """Estimates of the given frames by multi-frame retrieval: ``({frame id: estimate}, summary)``.
+    """Estimates of the given frames: ``({frame id: estimate}, summary)``.
+
+    ``method="model"`` (default) fits the learned scene model (:func:`illumon.model.fit_scene_model`, reflectances
+    on at most ``max_fit_frames`` frames spread over the illuminant range), saves it to ``model_file`` and estimates
+    every frame with it — the same numbers as ``illumon fit`` then ``illumon estimate --model``; its cost grows
+    linearly with the history. The retrieval methods (``joint``, ``marguier2007``, ``gray_world``) run
+    :func:`illumon.retrieval.retrieve_illuminants` over all the given frames (``illumon estimate --method``; the
+    joint fit grows faster than linearly: keep such histories to a few hundred frames) and then fit a model too.
 
     Frames with fewer than two regions seen are left out. Raises ``ValueError`` when fewer than two frames remain.
     """
@@ -177,20 +226,26 @@ def refit_estimates(
     usable = np.flatnonzero(obs.present.sum(axis=1) >= 2)
     if usable.size < 2:
         raise ValueError(f"refit needs at least two frames with two regions seen; {usable.size} available")
-    obs = obs.subset(usable)
+    if usable.size < len(frames):
+        obs = obs.subset(usable)
+    skipped = len(frames) - int(usable.size)
+    if method == "model":
+        out, summary = _refit_with_model(obs, sensitivities, model_file, max_fit_frames)
+        summary["skipped_frames"] = len(frames) - len(out)
+        return out, summary
     kwargs = {"daylight": "cie"} if method == "joint" else {}
     result = retrieve(obs, sensitivities, method, kwargs)
     frac = obs.present.mean(axis=1)
     out = {fid: _row(result, i, frac[i], f"refit:{method}") for i, fid in enumerate(result.frames)}
     summary = {
         "frames": len(result.frames),
-        "skipped_frames": len(frames) - len(result.frames),
+        "skipped_frames": skipped,
         "method": method,
         "cost": result.info.get("cost"),
         "cct_k_median": float(np.median(result.cct)),
     }
     if model_file is not None:
-        summary["model"] = _fit_model(obs, sensitivities, model_file)
+        summary["model"] = _fit_model(obs, sensitivities, model_file, max_fit_frames)
     return out, summary
 
 

@@ -32,10 +32,13 @@ class Settings(BaseSettings):
     """Largest accepted decoded image (width × height)."""
     keep_images: bool = False
     """Keep uploaded images under ``data_dir/images``."""
-    refit_max_frames: int = Field(default=300, ge=2)
-    """A refit uses at most this many of the most recent frames."""
-    refit_method: Literal["joint", "marguier2007", "gray_world"] = "joint"
-    """Retrieval method of the refit (``joint``, ``marguier2007``, ``gray_world``)."""
+    refit_max_frames: int = Field(default=100_000, ge=2)
+    """A refit re-estimates at most this many of the most recent frames."""
+    refit_method: Literal["model", "joint", "marguier2007", "gray_world"] = "model"
+    """``model``: fit the scene model and estimate every frame with it (linear in the history); or a multi-frame
+    retrieval method (``joint`` grows faster than linearly: set ``refit_max_frames`` to a few hundred with it)."""
+    refit_fit_frames: int = Field(default=300, ge=2)
+    """Frames the scene model's reflectances are fitted on (spread over the history's illuminant range)."""
     refit_every_hours: float = Field(default=0.0, ge=0.0)
     """Refit every camera every N hours inside the service (0 = off; use ``illumon refit`` from cron instead)."""
     jobs_inline: bool = False

@@ -8,6 +8,7 @@ out over a Dask cluster (a ``LocalCluster`` unless ``--dask-scheduler`` names on
 from __future__ import annotations
 
 import logging
+import os
 import threading
 import time
 import uuid
@@ -23,9 +24,23 @@ from .metrics import Metrics
 from .settings import Settings
 from .storage import Camera, Estimate, Frame, Job, as_utc, make_engine, make_session_factory, utcnow
 
-__all__ = ["refit_camera", "JobRunner", "run_batch"]
+__all__ = ["refit_camera", "JobRunner", "run_batch", "limit_blas_threads"]
 
 log = logging.getLogger("illumon_service.jobs")
+
+
+def limit_blas_threads() -> None:
+    """One BLAS/OpenMP thread per process (via threadpoolctl when installed; a no-op otherwise).
+
+    The service's numerics are many small matrices, run from request threads and the refit thread side by side: BLAS
+    threading gains nothing there and, on a busy machine, costs orders of magnitude (an SVD of the identifiability
+    check: 0.02 s with one thread, 4 s with two threads competing with other work on two cores).
+    """
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - optional
+        return
+    threadpool_limits(limits=1)
 
 
 WRITE_CHUNK = 2000
@@ -117,6 +132,7 @@ class JobRunner:
         self.sessions = sessions
         self.settings = settings
         self.metrics = metrics
+        limit_blas_threads()
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="illumon-refit")
         self._stop = threading.Event()
         self._scheduler: threading.Thread | None = None
@@ -187,6 +203,7 @@ def _refit_worker(
     database_url: str, camera_id: int, data_dir: str, max_frames: int, method: str, max_fit_frames: int = 300
 ) -> dict:
     """Dask task: refit one camera with its own engine (engines are not picklable)."""
+    limit_blas_threads()
     engine = make_engine(database_url)
     try:
         return refit_camera(
@@ -197,8 +214,26 @@ def _refit_worker(
         engine.dispose()
 
 
-def run_batch(settings: Settings, camera_ids: list[int] | None, dask_scheduler: str | None = None) -> list[dict]:
-    """Refit the given cameras (all when ``None``); more than one camera fans out over Dask. Returns summaries."""
+def run_batch(
+    settings: Settings, camera_ids: list[int] | None, dask_scheduler: str | None = None, *,
+    n_workers: int | None = None, progress: bool = True,
+) -> list[dict]:
+    """Refit the given cameras (all when ``None``); more than one camera fans out over Dask. Returns summaries.
+
+    Parameters
+    ----------
+    settings
+        Service settings (database, data dir, refit settings).
+    camera_ids
+        Cameras to refit; ``None`` for all.
+    dask_scheduler
+        Address of a Dask scheduler; a ``LocalCluster`` of ``n_workers`` processes (default: the CPU count, at most
+        the number of cameras) otherwise.
+    n_workers
+        Worker processes of the ``LocalCluster``.
+    progress
+        Show a tqdm progress bar on standard error.
+    """
     from tqdm import tqdm
 
     url = settings.resolved_database_url
@@ -214,7 +249,7 @@ def run_batch(settings: Settings, camera_ids: list[int] | None, dask_scheduler: 
     args = (str(settings.data_dir), settings.refit_max_frames, settings.refit_method, settings.refit_fit_frames)
     results: list[dict] = []
     if len(ids) <= 1 and dask_scheduler is None:
-        for cid in tqdm(ids, desc="refit", unit="camera"):
+        for cid in tqdm(ids, desc="refit", unit="camera", disable=not progress):
             results.append(_refit_worker(url, cid, *args))
         return results
     from dask.distributed import Client, LocalCluster, as_completed
@@ -223,11 +258,12 @@ def run_batch(settings: Settings, camera_ids: list[int] | None, dask_scheduler: 
     if dask_scheduler:
         client = Client(dask_scheduler)
     else:
-        cluster = LocalCluster(n_workers=min(len(ids), 2), threads_per_worker=1, processes=True, dashboard_address=None)
+        workers = max(1, min(len(ids), n_workers or os.cpu_count() or 2))
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
         client = Client(cluster)
     try:
         futures = [client.submit(_refit_worker, url, cid, *args, pure=False) for cid in ids]
-        for fut in tqdm(as_completed(futures), total=len(futures), desc="refit", unit="camera"):
+        for fut in tqdm(as_completed(futures), total=len(futures), desc="refit", unit="camera", disable=not progress):
             try:
                 results.append(fut.result())
             except Exception as exc:  # noqa: BLE001 - one camera's failure must not stop the others

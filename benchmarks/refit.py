@@ -1,0 +1,163 @@
+"""Refit benchmark (issue 9): one camera's history of 1k / 10k / 100k frames × 16 patches, and a fleet of cameras
+refitted through a Dask ``LocalCluster`` versus serially.
+
+Run: ``python benchmarks/refit.py [--quick] [--sizes 1000,10000,100000] [--cameras 200] [--fleet-frames 200]``.
+Prints a table and writes ``benchmarks/results/refit.json``.
+
+Each history is simulated from measured data (Nikon D5100 sensitivities, Granada daylight in sequence, 16 Munsell
+reflectances, 10 % of patches missing) when ``../shared/data`` is present, from synthetic spectra otherwise. Frames
+are stored straight into the service's SQLite database (not timed); the timed part is
+:func:`illumon_service.jobs.refit_camera` — read the history, fit the scene model (reflectances on 300 frames spread
+over the illuminant range), estimate every frame, write the estimates — with the service's default settings.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import tempfile
+import time
+import warnings
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+from illumon import datasets  # noqa: E402
+from illumon.camera import angular_error_deg  # noqa: E402
+from illumon.daylight import CIEDaylight  # noqa: E402
+from illumon.simulate import simulate_history  # noqa: E402
+from illumon_service.jobs import refit_camera, run_batch  # noqa: E402
+from illumon_service.settings import Settings  # noqa: E402
+from illumon_service.storage import Camera, Frame, make_engine, make_session_factory  # noqa: E402
+from sqlalchemy import insert  # noqa: E402
+
+RESULTS = Path(__file__).with_name("results")
+N_PATCHES = 16
+T0 = datetime(2025, 6, 1, tzinfo=timezone.utc)
+
+
+def spectra() -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """(sensitivities 61 × 3, daylight D × 61, reflectances 16 × 61, provenance)."""
+    rng = np.random.default_rng(0)
+    if datasets.shared_data_dir() is not None:
+        css = datasets.load_camera("Nikon_D5100")
+        _, day = datasets.load_granada_daylight()
+        _, refl = datasets.load_reflectance_set("munsell_matt_1269")
+        return css, day, refl[rng.choice(len(refl), N_PATCHES, replace=False)], "measured (Nikon D5100, Granada, Munsell)"
+    wl = np.arange(400, 701, 5)
+    css = np.column_stack([np.exp(-0.5 * ((wl - c) / 30) ** 2) for c in (600, 540, 460)])
+    mired = np.linspace(100, 250, 500)
+    day = CIEDaylight().spectra(np.column_stack([mired, np.zeros_like(mired)]))
+    refl = np.clip(0.2 + 0.6 * rng.random((N_PATCHES, 1)) * np.sin(wl / rng.uniform(40, 120, (N_PATCHES, 1))) ** 2, 0, 1)
+    return css, day, refl, "synthetic (Gaussian sensitivities, CIE D, smooth reflectances)"
+
+
+def store_camera(sessions, css: np.ndarray, day: np.ndarray, refl: np.ndarray, n: int, seed: int) -> tuple[int, np.ndarray]:
+    """Simulate ``n`` frames and store them as one camera; returns (camera id, true camera white F × 3)."""
+    idx = (np.arange(n) * 7 + seed * 131) % len(day)
+    hist = simulate_history(css, day[idx], refl, rng=seed, missing_fraction=0.1)
+    ids = [f"p{j:02d}" for j in range(N_PATCHES)]
+    with sessions() as s, s.begin():
+        cam = Camera(name=f"bench-{seed}", token_hash=f"{seed:064x}", sensitivities=css.tolist(),
+                     regions=[{"id": p, "x": 0, "y": 0, "width": 1, "height": 1} for p in ids],
+                     response={"encoding": "linear"})
+        s.add(cam)
+        s.flush()
+        cid = cam.id
+        vals = hist.observations.values
+        rows = []
+        for f in range(n):
+            patches = {p: (None if not np.isfinite(vals[f, j, 0]) else vals[f, j].tolist()) for j, p in enumerate(ids)}
+            rows.append({"camera_id": cid, "taken_at": T0 + timedelta(minutes=f), "patches": patches})
+        for k in range(0, n, 20000):
+            s.execute(insert(Frame), rows[k : k + 20000])
+    return cid, hist.true_white
+
+
+def one_camera(sizes: list[int], css, day, refl) -> list[dict]:
+    """Time refit_camera on histories of the given lengths."""
+    out = []
+    for n in sizes:
+        with tempfile.TemporaryDirectory() as tmp:
+            settings = Settings(data_dir=tmp, admin_token="x")
+            engine = make_engine(settings.resolved_database_url)
+            sessions = make_session_factory(engine)
+            cid, truth = store_camera(sessions, css, day, refl, n, seed=1)
+            t = time.perf_counter()
+            summary = refit_camera(sessions, cid, data_dir=Path(tmp), max_frames=settings.refit_max_frames,
+                                   method=settings.refit_method, max_fit_frames=settings.refit_fit_frames)
+            seconds = time.perf_counter() - t
+            with sessions() as s:
+                from illumon_service.storage import Estimate
+                from sqlalchemy import select
+
+                got = s.execute(select(Estimate.frame_id, Estimate.white_rgb).where(Estimate.camera_id == cid)
+                                .order_by(Estimate.frame_id)).all()
+            white = np.array([w for _, w in got])
+            err = angular_error_deg(white, truth[[fid - 1 for fid, _ in got]])
+            engine.dispose()
+        row = {"frames": n, "patches": N_PATCHES, "seconds": seconds, "read_s": summary["read_s"],
+               "fit_estimate_s": summary["fit_s"], "write_s": summary["write_s"], "estimated": summary["frames"],
+               "median_deg": float(np.median(err)), "p95_deg": float(np.percentile(err, 95))}
+        out.append(row)
+        print(f"{n:>7d} {seconds:8.2f} {row['read_s']:7.2f} {row['fit_estimate_s']:9.2f} {row['write_s']:7.2f} "
+              f"{row['median_deg']:7.3f} {row['p95_deg']:7.3f}", flush=True)
+    return out
+
+
+def fleet(cameras: int, frames: int, workers: int, css, day, refl) -> dict:
+    """Refit ``cameras`` cameras of ``frames`` frames each serially, then through a Dask LocalCluster."""
+    out: dict = {"cameras": cameras, "frames_per_camera": frames, "dask_workers": workers}
+    with tempfile.TemporaryDirectory() as tmp:
+        settings = Settings(data_dir=tmp, admin_token="x")
+        engine = make_engine(settings.resolved_database_url)
+        sessions = make_session_factory(engine)
+        ids = [store_camera(sessions, css, day, refl, frames, seed=s)[0] for s in range(cameras)]
+        engine.dispose()
+        t = time.perf_counter()
+        for cid in ids:
+            engine = make_engine(settings.resolved_database_url)
+            refit_camera(make_session_factory(engine), cid, data_dir=Path(tmp), max_fit_frames=settings.refit_fit_frames)
+            engine.dispose()
+        out["serial_s"] = time.perf_counter() - t
+        t = time.perf_counter()
+        results = run_batch(settings, ids, n_workers=workers, progress=False)
+        out["dask_s"] = time.perf_counter() - t
+        out["dask_failures"] = sum("error" in r for r in results)
+    out["speedup"] = out["serial_s"] / out["dask_s"]
+    return out
+
+
+def main() -> None:
+    """Run the benchmark; print the tables; write the JSON."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="1k and 10k frames; 20 cameras × 100 frames")
+    parser.add_argument("--sizes", help="comma-separated history lengths (1000,10000,100000)")
+    parser.add_argument("--cameras", type=int, help="fleet size (200)")
+    parser.add_argument("--fleet-frames", type=int, help="frames per fleet camera (200)")
+    parser.add_argument("--workers", type=int, default=os.cpu_count() or 2, help="Dask worker processes (CPU count)")
+    args = parser.parse_args()
+    warnings.simplefilter("ignore")
+    sizes = [int(v) for v in args.sizes.split(",")] if args.sizes else ([1000, 10000] if args.quick else [1000, 10000, 100000])
+    cameras = args.cameras or (20 if args.quick else 200)
+    fleet_frames = args.fleet_frames or (100 if args.quick else 200)
+    css, day, refl, provenance = spectra()
+    print(f"data: {provenance}; CPUs: {os.cpu_count()}")
+    print("\none camera, 16 patches: refit (read + scene model fit + estimate every frame + write)")
+    print(f"{'frames':>7} {'total s':>8} {'read s':>7} {'fit+est s':>9} {'write s':>7} {'med °':>7} {'p95 °':>7}")
+    single = one_camera(sizes, css, day, refl)
+    print(f"\nfleet: {cameras} cameras × {fleet_frames} frames × 16 patches")
+    fl = fleet(cameras, fleet_frames, args.workers, css, day, refl)
+    print(f"{'serial s':>9} {'Dask s':>8} {'workers':>8} {'speed-up':>9} {'failures':>9}")
+    print(f"{fl['serial_s']:9.1f} {fl['dask_s']:8.1f} {fl['dask_workers']:8d} {fl['speedup']:9.2f} {fl['dask_failures']:9d}")
+    RESULTS.mkdir(exist_ok=True)
+    out = {"data": provenance, "cpus": os.cpu_count(), "one_camera": single, "fleet": fl}
+    (RESULTS / "refit.json").write_text(json.dumps(out, indent=1) + "\n")
+    print(f"\nwrote {RESULTS / 'refit.json'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,406 @@
+"""The camera-agnostic linear model of a history and its extensions, fitted by weighted alternating least squares.
+
+Under the linear model every value is ``y_fpc = k_f Σλ C_c(λ) E_f(λ) R_p(λ)``. Daylight spectra lie close to a
+low-dimensional space (Judd, MacAdam & Wyszecki 1964; three CIE components, a fourth for measured skies), so with
+``E_f = Σ_i a_fi B_i`` the frames × (patches·channels) matrix factors as ``Y = U V`` with ``U_f = k_f a_f`` and
+``V_i,(p,c) = Σλ C_c B_i R_p``: rank ``r`` whatever the camera, reflectances and exposures. The diagnosis fits this
+bilinear model (no camera, reflectance basis or daylight model enters, so neither adds model error) and tests each
+effect as an explicit change of it:
+
+* tone curve ``y = x^(1/γ)``: the factorisation holds for ``y^γ``;
+* black offset: ``Y = U V + 1 bᵀ`` (``b`` one value per channel, repeated over patches);
+* clipping: values at the clip level are censored (only ``U V ≥ level`` is known);
+* patch change: the patch's columns before and after the onset are two patches;
+* shadow: the patch's values in a run of frames are ``diag(s) · (U_f V_p)`` (skylight only: dimmer, bluer);
+* off-locus light: the frames lit by a lamp get one more component, ``U_f V + m_f v'`` (the lamp's patch responses).
+
+Residuals are weighted by the noise of a patch mean, ``σ² = shot · y + read²`` with the values of
+:class:`illumon.simulate.CameraNoise`; the overall scale of σ is profiled out by the criterion (:mod:`.fit`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..simulate import DEFAULT_NOISE
+
+__all__ = [
+    "LowRankFit",
+    "noise_weights",
+    "wals",
+    "fit_gamma",
+    "fit_offset",
+    "fit_clipping",
+    "scan_patch_effects",
+    "fit_patch_change",
+    "fit_shadow",
+    "fit_off_locus",
+]
+
+
+@dataclass
+class LowRankFit:
+    """A weighted low-rank fit ``Y ≈ U V`` (plus an extension).
+
+    Attributes
+    ----------
+    U, V
+        Frame factors (F × r′) and column factors (r′ × m).
+    wrss
+        Weighted residual sum of squares.
+    n
+        Number of observed values.
+    k
+        Number of free parameters (factors, minus the gauge, plus the extension's).
+    pred
+        Fitted values in the data's domain (F × m).
+    """
+
+    U: NDArray[np.float64]
+    V: NDArray[np.float64]
+    wrss: float
+    n: int
+    k: int
+    pred: NDArray[np.float64]
+
+
+def noise_weights(
+    y: NDArray[np.float64], shot: float = DEFAULT_NOISE.shot, read: float = DEFAULT_NOISE.read
+) -> NDArray[np.float64]:
+    """Inverse noise variance ``1 / (shot · y + read²)`` of values on a 0…1 scale; 0 where missing."""
+    w = 1.0 / (shot * np.clip(np.nan_to_num(y), 0, None) + read**2)
+    return np.where(np.isfinite(y), w, 0.0)
+
+
+def _init(y: NDArray[np.float64], w: NDArray[np.float64], rank: int) -> NDArray[np.float64]:
+    col = (w * y).sum(0) / np.maximum(w.sum(0), 1e-300)
+    filled = np.where(w > 0, y, col[None, :])
+    u, s, _ = np.linalg.svd(filled, full_matrices=False)
+    return u[:, :rank] * s[:rank]
+
+
+def _solve(g: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
+    d = np.einsum("...ii->...i", g)
+    ridge = 1e-10 * np.maximum(d.max(-1), 1e-300)
+    g = g + ridge[..., None, None] * np.eye(g.shape[-1])
+    return np.linalg.solve(g, b[..., None])[..., 0]
+
+
+def wals(
+    y: NDArray[np.float64],
+    w: NDArray[np.float64],
+    rank: int,
+    *,
+    U: NDArray[np.float64] | None = None,
+    extra_rows: NDArray[np.bool_] | None = None,
+    iters: int = 80,
+    tol: float = 1e-7,
+) -> LowRankFit:
+    """Weighted low-rank approximation by alternating least squares (missing values have weight 0).
+
+    Parameters
+    ----------
+    y, w
+        Data (F × m, NaN or anything where ``w == 0``) and weights (inverse variances).
+    rank
+        Rank ``r``.
+    U
+        Start for the frame factors (F × r, or F × (r+1) with ``extra_rows``).
+    extra_rows
+        If given, one extra component that only these rows use (off-locus frames: ``U_f V + m_f v'``).
+    iters, tol
+        Iteration cap and relative-decrease stopping rule.
+    """
+    y0 = np.where(w > 0, np.nan_to_num(y), 0.0)
+    r = rank + (1 if extra_rows is not None else 0)
+    if U is None:
+        U = _init(y0, w, rank)
+    if extra_rows is not None and U.shape[1] == rank:
+        V0 = _solve(np.einsum("fj,fa,fb->jab", w, U, U), np.einsum("fj,fa->ja", w * y0, U)).T
+        res = np.where(w > 0, y0 - U @ V0, 0.0)
+        U = np.column_stack([U, np.where(extra_rows, np.sqrt((res**2).sum(1)), 0.0)])
+    U = U.copy()
+    wy = w * y0
+    last = np.inf
+    V = np.zeros((r, y.shape[1]))
+    for _ in range(iters):
+        V = _solve(np.einsum("fj,fa,fb->jab", w, U, U), np.einsum("fj,fa->ja", wy, U)).T
+        g = np.einsum("fj,aj,bj->fab", w, V, V)
+        b = np.einsum("fj,aj->fa", wy, V)
+        if extra_rows is not None:
+            off = ~extra_rows
+            g[off, -1, :] = 0.0
+            g[off, :, -1] = 0.0
+            g[off, -1, -1] = 1.0
+            b[off, -1] = 0.0
+        U = _solve(g, b)
+        pred = U @ V
+        wrss = float((w * (y0 - pred) ** 2).sum())
+        if last - wrss <= tol * wrss:
+            break
+        last = wrss
+    pred = U @ V
+    wrss = float((w * (y0 - pred) ** 2).sum())
+    f, m = y.shape
+    k = rank * (f + m - rank)
+    if extra_rows is not None:
+        k += int(extra_rows.sum()) + m - 1
+    return LowRankFit(U, V, wrss, int((w > 0).sum()), k, pred)
+
+
+def fit_gamma(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: NDArray[np.float64]) -> tuple[LowRankFit, float]:
+    """Tone curve ``y = x^(1/γ)``: the low-rank fit of ``y^γ`` with weights carried through the curve; γ by a bounded
+    scalar search. Returns the fit (its ``pred`` in the observed domain) and γ."""
+    from scipy.optimize import minimize_scalar
+
+    yc = np.clip(np.nan_to_num(y), 1e-3, None)
+    state = {"U": U0}
+
+    def fit(lg: float) -> LowRankFit:
+        g = float(np.exp(lg))
+        wt = w / (g**2 * yc ** (2 * g - 2))
+        res = wals(yc**g, wt, rank, U=state["U"], iters=40)
+        state["U"] = res.U
+        return res
+
+    opt = minimize_scalar(lambda lg: fit(lg).wrss, bounds=(np.log(0.3), np.log(4.0)), method="bounded",
+                          options={"xatol": 2e-3})
+    g = float(np.exp(opt.x))
+    res = fit(opt.x)
+    res.pred = np.clip(res.pred, 0, None) ** (1.0 / g)
+    res.k += 1
+    return res, g
+
+
+def fit_offset(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: NDArray[np.float64],
+               iters: int = 150) -> tuple[LowRankFit, NDArray[np.float64]]:
+    """Black offset ``Y = U V + 1 bᵀ`` (one pedestal per channel): alternating least squares where the V-step solves
+    V and b jointly (Schur complement over the patches of each channel). Returns the fit and ``b`` (3,)."""
+    y0 = np.where(w > 0, np.nan_to_num(y), 0.0)
+    f, m = y.shape
+    chan = np.arange(m) % 3
+    U = U0.copy()
+    b = np.zeros(3)
+    last = np.inf
+    wrss = np.inf
+    for _ in range(iters):
+        # V-step with b: per column G V + g b_c = h ; Σ_j (gᵀ V_j + s_j b_c) = t_c
+        G = np.einsum("fj,fa,fb->jab", w, U, U)
+        G += 1e-10 * np.einsum("jaa->j", G).max() * np.eye(U.shape[1])
+        h = np.einsum("fj,fa->ja", w * y0, U)
+        gv = np.einsum("fj,fa->ja", w, U)
+        s = w.sum(0)
+        t = (w * y0).sum(0)
+        Gi_h = np.linalg.solve(G, h[..., None])[..., 0]
+        Gi_g = np.linalg.solve(G, gv[..., None])[..., 0]
+        for c in range(3):
+            j = chan == c
+            num = t[j].sum() - np.einsum("ja,ja->", gv[j], Gi_h[j])
+            den = s[j].sum() - np.einsum("ja,ja->", gv[j], Gi_g[j])
+            b[c] = num / den if den > 0 else 0.0
+        V = (Gi_h - Gi_g * b[chan][:, None]).T
+        yb = y0 - b[chan][None, :]
+        U = _solve(np.einsum("fj,aj,bj->fab", w, V, V), np.einsum("fj,aj->fa", w * yb, V))
+        pred = U @ V + b[chan][None, :]
+        wrss = float((w * (y0 - pred) ** 2).sum())
+        if last - wrss <= 1e-8 * wrss:
+            break
+        last = wrss
+    pred = U @ V + b[chan][None, :]
+    k = rank * (f + m - rank) + 3
+    return LowRankFit(U, V, wrss, int((w > 0).sum()), k, pred), b
+
+
+def fit_clipping(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: NDArray[np.float64],
+                 level: float, censored: NDArray[np.bool_], iters: int = 80) -> LowRankFit:
+    """Values at the clip ``level`` are censored: only ``U V ≥ level`` is known (a one-sided residual). Fitted by
+    alternating least squares where censored targets are ``max(level, prediction)`` (EM for a censored Gaussian in the
+    limit of small noise)."""
+    y0 = np.where(w > 0, np.nan_to_num(y), 0.0)
+    U = U0.copy()
+    target = y0.copy()
+    last = np.inf
+    fit = None
+    for _ in range(iters):
+        fit = wals(target, w, rank, U=U, iters=3)
+        U = fit.U
+        target = np.where(censored, np.maximum(level, fit.pred), y0)
+        res = np.where(censored, np.clip(level - fit.pred, 0, None), y0 - fit.pred)
+        wrss = float((w * res**2).sum())
+        if last - wrss <= 1e-8 * wrss:
+            break
+        last = wrss
+    assert fit is not None
+    res = np.where(censored, np.clip(level - fit.pred, 0, None), y0 - fit.pred)
+    fit.wrss = float((w * res**2).sum())
+    fit.k += 1
+    return fit
+
+
+def _cum(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.concatenate([np.zeros((1,) + a.shape[1:]), np.cumsum(a, axis=0)], axis=0)
+
+
+def column_prior(V: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Gaussian prior precision of each component of a column factor, ``1 / mean_j V_aj²`` (empirical Bayes): column
+    factors fitted from a subset of frames are shrunk along components those frames barely excite."""
+    return 1.0 / np.maximum((V**2).mean(1), 1e-300)
+
+
+def scan_patch_effects(y: NDArray[np.float64], w: NDArray[np.float64], U: NDArray[np.float64], min_out: int = 3,
+                       prior: NDArray[np.float64] | None = None) -> dict:
+    """For every patch, the best patch change (onset) and the best shadow run, with the frame factors ``U`` fixed.
+
+    Closed form through cumulative sums over frames of ``Uᵀ W U``, ``Uᵀ W y`` and ``yᵀ W y`` per column: the residual
+    of a least-squares fit on any run of frames is ``c − bᵀ A⁻¹ b``.
+
+    Returns
+    -------
+    dict
+        ``{"base": (P,), "change": (P,) best RSS, "change_onset": (P,), "shadow": (P,), "shadow_run": (P, 2)}``.
+    """
+    f, m = y.shape
+    p = m // 3
+    r = U.shape[1]
+    y0 = np.where(w > 0, np.nan_to_num(y), 0.0)
+    A = _cum(np.einsum("fj,fa,fb->fjab", w, U, U))  # (F+1) × m × r × r
+    B = _cum(np.einsum("fj,fa->fja", w * y0, U))
+    C = _cum(w * y0**2)
+    nobs = _cum((w > 0).astype(float))
+    eye = np.eye(r)
+    lam = np.diag(prior) if prior is not None else 0.0
+
+    def rss(a, b, c):
+        ridge = 1e-9 * np.maximum(np.einsum("...ii->...", a), 1e-300)[..., None, None] * eye + lam
+        v = np.linalg.solve(a + ridge, b[..., None])[..., 0]
+        return c - np.einsum("...a,...a->...", b, v), v
+
+    base, _ = rss(A[-1], B[-1], C[-1])  # (m,)
+    out = {"base": base.reshape(p, 3).sum(1)}
+    # patch change at onset t: two fits, frames [0, t) and [t, F)
+    ts = np.arange(1, f)
+    r1, _ = rss(A[ts], B[ts], C[ts])
+    r2, _ = rss(A[-1] - A[ts], B[-1] - B[ts], C[-1] - C[ts])
+    n1 = nobs[ts]
+    n2 = nobs[-1] - nobs[ts]
+    ok = (n1 >= r) & (n2 >= r)
+    ch = np.where(ok, r1 + r2, np.inf).reshape(f - 1, p, 3).sum(2)  # (F−1) × P
+    out["change"] = ch.min(0)
+    out["change_onset"] = ts[np.argmin(ch, axis=0)]
+    # shadow on run [t0, t1): V from the other frames, then a per-channel scale s ≤ 1 on the run
+    t0, t1 = np.triu_indices(f + 1, 1)
+    keep = (t1 < f) | ((t1 == f) & (t0 > 0))
+    keep &= t1 <= f - 1  # the run ends inside the history
+    t0, t1 = t0[keep], t1[keep]
+    a_run, b_run, c_run = A[t1] - A[t0], B[t1] - B[t0], C[t1] - C[t0]
+    a_out, b_out, c_out = A[-1] - a_run, B[-1] - b_run, C[-1] - c_run
+    r_out, v = rss(a_out, b_out, c_out)
+    n_out = nobs[-1] - (nobs[t1] - nobs[t0])
+    valid = (n_out >= min_out) & (nobs[t1] - nobs[t0] >= 1)
+    best_tot = None
+    for variant in ("kries", "sky"):
+        if variant == "sky":  # shaded colour fixed: every channel follows the patch's unshaded green, s_c · (U_f V_p)_g
+            vg = v.reshape(len(t0), p, 3, r)[:, :, 1:2, :].repeat(3, axis=2).reshape(v.shape)
+        else:  # von Kries: s_c · (U_f V_p)_c
+            vg = v
+        p2 = np.einsum("kja,kjab,kjb->kj", vg, a_run, vg)
+        yp = np.einsum("kja,kja->kj", b_run, vg)
+        s = np.clip(yp / np.maximum(p2, 1e-300), 0.0, None if variant == "sky" else 1.0)
+        r_run = c_run - 2 * s * yp + s**2 * p2
+        tot = np.where(valid, r_out + r_run, np.inf).reshape(len(t0), p, 3).sum(2)
+        if best_tot is None:
+            best_tot, which = tot, np.zeros_like(tot, dtype=int)
+        else:
+            better = tot < best_tot
+            best_tot = np.where(better, tot, best_tot)
+            which = np.where(better, 1, which)
+    best = np.argmin(best_tot, axis=0)
+    out["shadow"] = best_tot.min(0)
+    out["shadow_run"] = np.stack([t0[best], t1[best]], axis=1)
+    out["shadow_variant"] = np.asarray(["kries", "sky"])[which[best, np.arange(p)]]
+    return out
+
+
+def _split_patch(y: NDArray[np.float64], w: NDArray[np.float64], patch: int, onset: int):
+    cols = slice(3 * patch, 3 * patch + 3)
+    y2 = np.concatenate([y, np.full((y.shape[0], 3), np.nan)], axis=1)
+    w2 = np.concatenate([w, np.zeros((w.shape[0], 3))], axis=1)
+    y2[onset:, -3:] = y[onset:, cols]
+    w2[onset:, -3:] = w[onset:, cols]
+    w2[onset:, cols] = 0.0
+    return y2, w2
+
+
+def fit_patch_change(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: NDArray[np.float64],
+                     patch: int, onset: int) -> LowRankFit:
+    """Patch change: the patch's columns from ``onset`` on become a new patch (full re-fit)."""
+    y2, w2 = _split_patch(y, w, patch, onset)
+    fit = wals(y2, w2, rank, U=U0)
+    fit.k += 2  # which patch, which onset
+    return fit
+
+
+def fit_shadow(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: NDArray[np.float64],
+               patch: int, run: tuple[int, int], variant: str = "kries") -> tuple[LowRankFit, NDArray[np.float64]]:
+    """Shadow: the patch's values in frames ``run[0] … run[1]−1`` are ``s_c · (U_f V_p)_c`` (``"kries"``, s ≤ 1: the
+    frame's daylight filtered per channel) or ``s_c · (U_f V_p)_g`` (``"sky"``: a fixed skylight colour that follows
+    the frame's brightness). The shaded values are left out of the factorisation, then ``s`` is fitted in closed form."""
+    y0 = np.where(w > 0, np.nan_to_num(y), 0.0)
+    cols = np.arange(3 * patch, 3 * patch + 3)
+    rows = np.arange(run[0], run[1])
+    w_out = w.copy()
+    w_out[np.ix_(rows, cols)] = 0.0
+    fit = wals(y0, w_out, rank, U=U0)
+    # the patch's column factors from its unshaded frames, under the column prior
+    U = fit.U
+    lam = np.diag(column_prior(fit.V))
+    for j in cols:
+        g = (U * w_out[:, j : j + 1]).T @ U + lam
+        fit.V[:, j] = np.linalg.solve(g, (U * (w_out[:, j] * y0[:, j])[:, None]).sum(0))
+    fit.pred = U @ fit.V
+    pr = fit.pred[np.ix_(rows, cols)]
+    if variant == "sky":
+        pr = np.repeat(pr[:, 1:2], 3, axis=1)
+    ww = w[np.ix_(rows, cols)]
+    yy = y0[np.ix_(rows, cols)]
+    s = (ww * yy * pr).sum(0) / np.maximum((ww * pr**2).sum(0), 1e-300)
+    s = np.clip(s, 0.0, 1.0 if variant == "kries" else None)
+    pred = fit.pred.copy()
+    pred[np.ix_(rows, cols)] = pr * s[None, :]
+    fit.pred = pred
+    fit.wrss = float((w * (y0 - pred) ** 2).sum())
+    fit.n = int((w > 0).sum())
+    fit.k += 3 + 4  # s, and which patch / start / end / variant
+    return fit, s
+
+
+def fit_off_locus(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, base: LowRankFit,
+                  max_frames: int | None = None) -> tuple[LowRankFit, NDArray[np.bool_], list[tuple[int, float]]]:
+    """Off-locus light: frames lit by a lamp get one more component (the lamp's patch responses, shared).
+
+    Frames are added in order of their excess residual under the base fit; each set is re-fitted and scored by BIC
+    (each frame's membership counts as a parameter). Returns the best fit, its frame mask and the path
+    ``[(n_frames, bic), …]``.
+    """
+    y0 = np.where(w > 0, np.nan_to_num(y), 0.0)
+    per_frame = (w * (y0 - base.pred) ** 2).sum(1) / np.maximum((w > 0).sum(1), 1)
+    order = np.argsort(-per_frame)
+    f = y.shape[0]
+    max_frames = max_frames or max(3, f // 3)
+    n = base.n
+    best = None
+    path = []
+    for k in range(1, max_frames + 1):
+        mask = np.zeros(f, bool)
+        mask[order[:k]] = True
+        fit = wals(y0, w, rank, U=base.U, extra_rows=mask, iters=60)
+        fit.k += k
+        bic = n * np.log(fit.wrss / n) + fit.k * np.log(n)
+        path.append((k, float(bic)))
+        if best is None or bic < best[0]:
+            best = (bic, fit, mask)
+    assert best is not None
+    return best[1], best[2], path

@@ -1,0 +1,380 @@
+"""Diagnose a history: fit the linear model, fit every effect as an explicit physical extension, select by BIC.
+
+Two stages, each a penalised-likelihood comparison against its own base model (Schwarz 1978):
+
+1. **Bilinear stage** (:mod:`.bilinear`): the camera-agnostic rank-4 factorisation of frames × (patches·channels),
+   Gaussian noise of a patch mean (σ² = φ·(shot·y + read²) in linear light, φ profiled), ``BIC = 2·NLL + k·ln n``.
+   Extensions: tone curve (γ), black offset (3 pedestals), clipping (censored values at the clip level), patch change
+   (patch, onset), shadow (patch, run, per-channel scale). The tone curve's likelihood carries the Jacobian of the
+   curve, so γ is judged in linear light, where the noise model holds.
+2. **Spectral stage** (:mod:`.spectral`), only when no bilinear extension is supported: off-locus light and
+   fluorescence, which the bilinear model cannot see, against the joint spectral fit.
+
+An extension is chosen when its BIC beats the base by more than :data:`NONE_MARGIN` (evidence "very strong" on the
+Kass & Raftery 1995 scale is ΔBIC > 10; the margins were set on the development cameras and seeds, see
+:mod:`.effects`); otherwise the answer is ``none``. The illuminants are then re-estimated with the chosen extension
+(:func:`corrected_observations`, :func:`estimate_with_effect`) and the change is reported.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..camera import angular_error_deg
+from ..observations import Observations
+from . import bilinear as bl
+from .spectral import fit_spectral_base, fluorescence_gains, off_locus_gains
+
+__all__ = ["RANK", "NONE_MARGIN", "Candidate", "Diagnosis", "diagnose", "corrected_observations", "estimate_with_effect"]
+
+RANK = 4
+"""Rank of the bilinear model: measured daylight seen by three channels needs four components above the noise."""
+
+NONE_MARGIN = {
+    "nonlinear_response": 15.0,
+    "black_offset": 10.0,
+    "clipping": 10.0,
+    "patch_change": 10.0,
+    "shadow": 10.0,
+    "off_locus_illuminant": 10.0,
+    "fluorescence": 10.0,
+}
+"""How much an extension's BIC must beat the base model's for the effect to be reported."""
+
+
+@dataclass
+class Candidate:
+    """One extension tried: its ΔBIC against the base (negative favours the extension) and fitted parameters."""
+
+    effect: str
+    score: float
+    parameters: dict = field(default_factory=dict)
+    patch: int | None = None
+    frame: int | None = None
+    residual: float | None = None
+
+
+@dataclass
+class Diagnosis:
+    """The diagnosis of a history (see :func:`diagnose`)."""
+
+    effect: str
+    patch: str | None
+    frame: str | None
+    parameters: dict
+    candidates: list[Candidate]
+    residual_base: float
+    residual_extended: float
+    illuminant_change_deg: float | None
+    patch_index: int | None = None
+    frame_index: int | None = None
+    info: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        """The ``REPORT.json`` form."""
+        return {
+            "effect": self.effect,
+            "patch": self.patch,
+            "frame": self.frame,
+            "parameters": self.parameters,
+            "candidates": [
+                {"effect": c.effect, "score": round(float(c.score), 3), "parameters": c.parameters} for c in self.candidates
+            ],
+            "score": "ΔBIC of each extension against the base model (negative favours the extension)",
+            "residual_base": self.residual_base,
+            "residual_extended": self.residual_extended,
+            "illuminant_change_deg": self.illuminant_change_deg,
+        }
+
+
+def _nll(wrss: float, n: int, log_sigma: float = 0.0, log_jac: float = 0.0) -> float:
+    """Gaussian negative log-likelihood with the noise scale profiled out (constants dropped)."""
+    return 0.5 * n * np.log(wrss / n) + log_sigma - log_jac
+
+
+def _bic(nll: float, k: int, n: int) -> float:
+    return 2.0 * nll + k * np.log(n)
+
+
+def _patch_candidates(y: NDArray[np.float64], w: NDArray[np.float64], base: bl.LowRankFit, rank: int, n: int,
+                      rms0: float, fits: dict) -> list[Candidate]:
+    """Patch change and shadow: each patch against frame factors fitted without it (so the factorisation's spare
+    components cannot absorb the patch's anomaly), closed-form scans over onsets and runs, scored against the
+    patches' median residual variance."""
+    m = y.shape[1]
+    cands: list[Candidate] = []
+    P = m // 3
+    per = []
+    for q in range(P):
+        cols = slice(3 * q, 3 * q + 3)
+        w_q = w.copy()
+        w_q[:, cols] = 0.0
+        fq = bl.wals(y, w_q, rank, U=base.U, iters=30)
+        sc = bl.scan_patch_effects(y[:, cols], w[:, cols], fq.U, prior=bl.column_prior(fq.V))
+        per.append(sc)
+    rss_base = np.array([sc["base"][0] for sc in per])
+    dof = np.array([max(int((w[:, 3 * q : 3 * q + 3] > 0).sum()) - 3 * rank, 1) for q in range(P)])
+    phi = float(np.median(rss_base / dof))
+    fits["phi_patch"] = phi
+    change = np.array([sc["change"][0] for sc in per])
+    shadow = np.array([sc["shadow"][0] for sc in per])
+    d_change = (change - rss_base) / phi + (3 * rank + 2) * np.log(n)
+    d_shadow = (shadow - rss_base) / phi + (3 + 4) * np.log(n)
+    p = int(np.argmin(d_change))
+    onset = int(per[p]["change_onset"][0])
+    cands.append(Candidate("patch_change", float(d_change[p]), {"onset_frame_index": onset}, patch=p, frame=onset,
+                           residual=rms0 * float(np.sqrt((rss_base.sum() - rss_base[p] + change[p]) / rss_base.sum()))))
+    fits["patch_change"] = {"patch": p, "onset": onset}
+    ps = int(np.argmin(d_shadow))
+    run = (int(per[ps]["shadow_run"][0, 0]), int(per[ps]["shadow_run"][0, 1]))
+    cands.append(Candidate("shadow", float(d_shadow[ps]),
+                           {"first_frame_index": run[0], "last_frame_index": run[1] - 1,
+                            "model": str(per[ps]["shadow_variant"][0])}, patch=ps, frame=run[0],
+                           residual=rms0 * float(np.sqrt((rss_base.sum() - rss_base[ps] + shadow[ps]) / rss_base.sum()))))
+    fits["shadow"] = {"patch": ps, "run": run}
+    return cands
+
+
+def _bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float) -> tuple[bl.LowRankFit, list[Candidate], dict]:
+    f, m = y.shape
+    w = bl.noise_weights(y)
+    present = w > 0
+    half_log_var = 0.5 * float(np.log(1.0 / w[present]).sum())
+    base = bl.wals(y, w, rank)
+    n = base.n
+    bic0 = _bic(_nll(base.wrss, n, half_log_var), base.k, n)
+    rms0 = float(np.sqrt(base.wrss / max(n - base.k, 1)))
+    cands: list[Candidate] = []
+    fits: dict = {}
+
+    # tone curve, judged in linear light
+    yc = np.clip(np.nan_to_num(y), 1e-3, None)
+
+    def gamma_nll(g: float) -> tuple[float, bl.LowRankFit]:
+        x = yc**g
+        wx = np.where(present, bl.noise_weights(x), 0.0)
+        fit = bl.wals(x, wx, rank, U=base.U, iters=40)
+        log_sig = 0.5 * float(np.log(1.0 / wx[present]).sum())
+        log_jac = float(np.log(g * yc[present] ** (g - 1.0)).sum())
+        return _nll(fit.wrss, n, log_sig, log_jac), fit
+
+    from scipy.optimize import minimize_scalar
+
+    opt = minimize_scalar(lambda lg: gamma_nll(float(np.exp(lg)))[0], bounds=(np.log(0.4), np.log(3.5)),
+                          method="bounded", options={"xatol": 3e-3})
+    g = float(np.exp(opt.x))
+    nll_g, fit_g = gamma_nll(g)
+    cands.append(Candidate("nonlinear_response", _bic(nll_g, base.k + 1, n) - bic0, {"gamma": round(g, 4)},
+                           residual=float(np.sqrt(fit_g.wrss / max(n - fit_g.k, 1)))))
+    fits["nonlinear_response"] = {"gamma": g}
+
+    # black offset
+    fit_o, b = bl.fit_offset(y, w, rank, base.U)
+    chan = np.arange(m) % 3
+    wb = np.where(present, bl.noise_weights(np.clip(y - b[chan][None, :], 0, None)), 0.0)
+    fit_o, b = bl.fit_offset(y, wb, rank, fit_o.U)
+    log_sig_b = 0.5 * float(np.log(1.0 / wb[present]).sum())
+    cands.append(Candidate("black_offset", _bic(_nll(fit_o.wrss, n, log_sig_b), fit_o.k, n) - bic0,
+                           {"offsets": [round(float(v), 5) for v in b]},
+                           residual=float(np.sqrt(fit_o.wrss / max(n - fit_o.k, 1)))))
+    fits["black_offset"] = {"offsets": b}
+
+    # clipping: values at the highest level, if several share it
+    vmax = float(np.nanmax(y))
+    censored = present & (y >= vmax - max(2e-3 * vmax, 1e-6))
+    if censored.sum() >= 2:
+        fit_c = bl.fit_clipping(y, w, rank, base.U, vmax, censored)
+        cands.append(Candidate("clipping", _bic(_nll(fit_c.wrss, n, half_log_var), fit_c.k, n) - bic0,
+                               {"clip_level": round(vmax, 5), "clipped_values": int(censored.sum())},
+                               residual=float(np.sqrt(fit_c.wrss / max(n - fit_c.k, 1)))))
+        fits["clipping"] = {"level": vmax, "censored": censored}
+    else:
+        cands.append(Candidate("clipping", float("inf"), {"clip_level": None, "clipped_values": int(censored.sum())}))
+
+    # patch change and shadow; when clipping is supported, on the unclipped values only
+    w_patch = w
+    if "clipping" in fits and cands[-1].score < -clip_margin:
+        w_patch = np.where(fits["clipping"]["censored"], 0.0, w)
+    cands += _patch_candidates(y, w_patch, base, rank, n, rms0, fits)
+    return base, cands, {"fits": fits, "rms_base": rms0}
+
+
+def _spectral_stage(obs: Observations, sensitivities: NDArray[np.float64]) -> tuple[list[Candidate], dict]:
+    base = fit_spectral_base(obs, sensitivities)
+    n = int(base.prob.present.sum()) * 3
+    f = base.prob.F
+    cands = []
+    # off-locus light: frames whose free-illuminant gain is an outlier of the history's own gain distribution
+    gains, kx = off_locus_gains(base)
+    from scipy.stats import chi2
+
+    scale = max(float(np.median(gains)) / chi2.median(kx), 1e-9)
+    z = gains / scale
+    order = np.argsort(-z)
+    n_f = 3 * int(base.prob.present.sum(1).mean())
+    per_frame_pen = (kx + 1) * np.log(n_f)
+    best_k, best_score = 0, 0.0
+    for k in range(1, max(2, f // 3) + 1):
+        score = -float(z[order[:k]].sum()) + k * per_frame_pen
+        if score < best_score:
+            best_k, best_score = k, score
+    frames = sorted(int(i) for i in order[:best_k])
+    cands.append(Candidate("off_locus_illuminant", best_score if best_k else float(per_frame_pen - z.max()),
+                           {"frame_indices": frames if best_k else [], "gain_scale": round(scale, 3)},
+                           frame=frames[0] if frames else None))
+    # fluorescence: the patch whose reflectance + emission beats reflectance alone the most
+    fg, fb, strength, names = fluorescence_gains(base)
+    p = int(np.argmax(fg))
+    rest = np.delete(fg, p)
+    fscale = max(float(np.median(rest)) / chi2.median(1), 1.0) if rest.size else 1.0
+    cands.append(Candidate("fluorescence", -float(fg[p] / fscale) + 2 * np.log(n),
+                           {"fluorophore": names[int(fb[p])], "emission_strength": round(float(strength[p]), 4),
+                            "gain_scale": round(fscale, 3)}, patch=p))
+    return cands, {"off_locus_frames": frames, "phi_spectral": base.phi}
+
+
+def diagnose(
+    obs: Observations,
+    sensitivities: NDArray[np.float64],
+    *,
+    rank: int = RANK,
+    reestimate: bool = True,
+    margins: dict[str, float] | None = None,
+) -> Diagnosis:
+    """Name the effect that breaks the linear model in a history, where it is, and what modelling it changes.
+
+    Parameters
+    ----------
+    obs
+        Observations (values on a 0…1 scale, NaN where missing), at least ``rank + 2`` frames.
+    sensitivities
+        Camera sensitivities on the grid (61 × 3).
+    rank
+        Rank of the bilinear model.
+    reestimate
+        Re-estimate the illuminants with the chosen extension and report the change (two joint fits).
+    margins
+        ΔBIC margins per effect (default :data:`NONE_MARGIN`).
+
+    Returns
+    -------
+    Diagnosis
+    """
+    margins = {**NONE_MARGIN, **(margins or {})}
+    f, p, _ = obs.values.shape
+    if f < rank + 2:
+        raise ValueError(f"diagnosis needs at least {rank + 2} frames, got {f}")
+    if p < 3:
+        raise ValueError(f"diagnosis needs at least 3 patches, got {p}")
+    y = obs.values.reshape(f, 3 * p)
+    base, cands, info = _bilinear_stage(y, rank, margins["clipping"])
+    spectral, sinfo = _spectral_stage(obs, np.asarray(sensitivities, dtype=float))
+    info.update(sinfo)
+    cands += spectral
+    chosen: Candidate | None = None
+    bil = [c for c in cands if c.effect not in ("off_locus_illuminant", "fluorescence")]
+    ok = [c for c in bil if c.score < -margins[c.effect]]
+    if ok:
+        chosen = min(ok, key=lambda c: c.score)
+    else:
+        # off-locus frames first: their misfit can make a patch look fluorescent, not the reverse
+        ok = [c for c in spectral if c.score < -margins[c.effect]]
+        if ok:
+            chosen = ok[0]
+    effect = chosen.effect if chosen else "none"
+    params = dict(chosen.parameters) if chosen else {}
+    patch_i = chosen.patch if chosen and effect in ("patch_change", "shadow", "fluorescence") else None
+    frame_i = chosen.frame if chosen and effect in ("patch_change", "shadow") else None
+    if effect == "off_locus_illuminant":
+        params["frames"] = [obs.frames[i] for i in params["frame_indices"]]
+    if effect == "shadow":
+        params["shaded_frames"] = [obs.frames[i] for i in range(params["first_frame_index"], params["last_frame_index"] + 1)]
+    diag = Diagnosis(
+        effect=effect,
+        patch=obs.patches[patch_i] if patch_i is not None else None,
+        frame=obs.frames[frame_i] if frame_i is not None else None,
+        parameters=params,
+        candidates=cands,
+        residual_base=round(info["rms_base"], 4),
+        residual_extended=round(chosen.residual, 4) if chosen and chosen.residual is not None else round(info["rms_base"], 4),
+        illuminant_change_deg=None,
+        patch_index=patch_i,
+        frame_index=frame_i,
+        info={k: v for k, v in info.items() if k != "fits"},
+    )
+    if reestimate:
+        if effect == "none":
+            diag.illuminant_change_deg = 0.0
+        else:
+            fast = {"start_offsets": (0.0,), "polish_max_frames": 0}
+            from ..retrieval import retrieve_illuminants
+
+            before = retrieve_illuminants(obs, sensitivities, **fast)
+            after = estimate_with_effect(obs, sensitivities, diag, base_result=before, **fast)
+            diag.illuminant_change_deg = round(float(np.median(angular_error_deg(before.white, after.white))), 4)
+            diag.info["before"] = before
+            diag.info["after"] = after
+    return diag
+
+
+def corrected_observations(obs: Observations, diag: Diagnosis) -> Observations:
+    """Observations with the diagnosed effect modelled out: linearised (γ, offsets), clipped values dropped, the
+    changed patch split into two patches, the shaded values or the fluorescent patch dropped. Off-locus frames are
+    handled by :func:`estimate_with_effect`."""
+    v = obs.values.copy()
+    patches = list(obs.patches)
+    e = diag.effect
+    prm = diag.parameters
+    if e == "nonlinear_response":
+        v = np.clip(v, 0, None) ** prm["gamma"]
+    elif e == "black_offset":
+        v = np.clip(v - np.asarray(prm["offsets"])[None, None, :], 1e-6, None)
+    elif e == "clipping":
+        level = prm["clip_level"]
+        v[np.any(v >= level - max(2e-3 * level, 1e-6), axis=-1)] = np.nan
+    elif e == "patch_change" and diag.patch_index is not None and diag.frame_index is not None:
+        new = np.full((v.shape[0], 1, 3), np.nan)
+        new[diag.frame_index :, 0] = v[diag.frame_index :, diag.patch_index]
+        v[diag.frame_index :, diag.patch_index] = np.nan
+        v = np.concatenate([v, new], axis=1)
+        patches.append(f"{obs.patches[diag.patch_index]}@{obs.frames[diag.frame_index]}")
+    elif e == "shadow" and diag.patch_index is not None:
+        v[prm["first_frame_index"] : prm["last_frame_index"] + 1, diag.patch_index] = np.nan
+    elif e == "fluorescence" and diag.patch_index is not None:
+        v[:, diag.patch_index] = np.nan
+    return Observations(list(obs.frames), patches, v, list(obs.times))
+
+
+def estimate_with_effect(obs: Observations, sensitivities: NDArray[np.float64], diag: Diagnosis, *, base_result=None,
+                         **kwargs):
+    """Illuminants re-estimated with the diagnosed effect modelled (joint retrieval on :func:`corrected_observations`).
+
+    Off-locus frames are left out of the joint fit (their light is not daylight and would bias the patches'
+    reflectances); their rows keep the estimate of the fit over all frames (``base_result`` or a new one).
+    """
+    from ..retrieval import retrieve_illuminants
+
+    if diag.effect == "off_locus_illuminant" and diag.parameters.get("frame_indices"):
+        off = np.asarray(diag.parameters["frame_indices"], dtype=int)
+        day = np.setdiff1d(np.arange(len(obs.frames)), off)
+        if day.size < 2:
+            return base_result if base_result is not None else retrieve_illuminants(obs, sensitivities, **kwargs)
+        res_all = base_result if base_result is not None else retrieve_illuminants(obs, sensitivities, **kwargs)
+        res_day = retrieve_illuminants(obs.subset(day), sensitivities, **kwargs)
+        import copy
+
+        out = copy.deepcopy(res_all)
+        for name in ("spectra", "xy", "cct", "duv", "white", "gains", "exposures"):
+            arr = getattr(out, name)
+            arr[day] = getattr(res_day, name)
+        out.reflectances = res_day.reflectances
+        out.info = {**res_all.info, "off_locus_frames": [int(i) for i in off]}
+        return out
+    corr = corrected_observations(obs, diag)
+    res = retrieve_illuminants(corr, sensitivities, **kwargs)
+    if len(corr.patches) != len(obs.patches):
+        res.patches = list(corr.patches)
+    return res

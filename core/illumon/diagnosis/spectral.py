@@ -1,0 +1,162 @@
+"""Tests that need the spectral model: off-locus light and fluorescence.
+
+Both effects leave the camera-agnostic bilinear model intact (:mod:`.bilinear`): a lamp-lit frame is still some
+combination of patch responses, and a fluorophore's emission ``(Σλ' a(λ') E(λ')) e(λ)`` is linear in the illuminant,
+so a fluorescent patch behaves like a patch with another (non-physical) reflectance. They show only against what is
+known of daylight, cameras and surfaces, i.e. against the joint spectral fit of :mod:`illumon.retrieval.joint`:
+
+* **off-locus light**: with the reflectances of the joint fit held, each frame is re-fitted with a free illuminant
+  (a smooth 10-function basis, no daylight prior). A daylight frame gains little (its spectrum is already within the
+  daylight model and prior); a lamp-lit frame gains much.
+* **fluorescence** (Han, Matsushita, Sato, Okabe & Sato, CVPR 2012, eqs. 1–2): with the frames' illuminants and
+  exposures of the joint fit held, each patch is re-fitted with its reflectance (Gaussian prior) plus the emission of a
+  fluorophore, ``k_f s (Σλ a(λ) E_f(λ)) Cᵀe`` with ``s ≥ 0``, for each of the 21 fluorophores shipped in
+  ``illumon/data/fluorophores.csv``.
+
+Both gains are in the whitened units of the joint fit, whose noise scale is profiled from its data residuals.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from ..daylight import daylight_model
+from ..observations import Observations
+from ..reflectance import reflectance_basis
+from ..retrieval.common import imaging_operators
+from ..retrieval.joint import JointProblem, _gray_world_mired
+from ..spectra import WAVELENGTHS
+
+__all__ = ["SpectralBase", "fit_spectral_base", "off_locus_gains", "fluorescence_gains"]
+
+
+@dataclass
+class SpectralBase:
+    """The joint spectral fit of a history (one start, projected reflectances), with its residuals."""
+
+    prob: JointProblem
+    params: NDArray[np.float64]
+    logk: NDArray[np.float64]
+    sigma: NDArray[np.float64]
+    data_res: NDArray[np.float64]  # F × P × 3 whitened
+    prior_res: NDArray[np.float64]  # F × nd whitened daylight prior
+    phi: float  # noise scale of the whitened data residuals
+    sensitivities: NDArray[np.float64]
+
+
+def fit_spectral_base(obs: Observations, sensitivities: NDArray[np.float64], max_nfev: int = 100,
+                      daylight: str = "cie") -> SpectralBase:
+    """Fit the joint model (CIE daylight with its prior, reflectance basis with its prior) from a gray-world start."""
+    model = daylight_model(daylight)
+    rb = reflectance_basis()
+    c = np.asarray(sensitivities, dtype=float)
+    prob = JointProblem(obs, c, model, rb)
+    lo, hi = prob.bounds()
+    nfr = prob.F * prob.nf
+    x0 = np.clip(prob.start(_gray_world_mired(obs, c, model)), lo + 1e-9, hi - 1e-9)
+    sol = least_squares(prob.projected_residuals, x0[:nfr], bounds=(lo[:nfr], hi[:nfr]), x_scale=prob.frame_scale(),
+                        max_nfev=max_nfev, method="trf")
+    fr = sol.x.reshape(prob.F, prob.nf)
+    params, logk = fr[:, : prob.np], fr[:, prob.np]
+    sigma = prob.solve_reflectances(params, logk)
+    m, _ = prob.operators(params)
+    pred = np.exp(logk)[:, None, None] * np.einsum("fcj,pj->fpc", m, sigma)
+    data = prob.W * (prob.Y - pred)
+    prior = model.prior_residuals(params)
+    n = int(prob.present.sum()) * 3
+    k = prob.F * prob.nf + prob.P * prob.nk
+    phi = float((data**2).sum() / max(n - k, 1))
+    return SpectralBase(prob, params, logk, sigma, data, prior, phi, c)
+
+
+def _generic_basis(n: int = 10, width_nm: float = 30.0) -> NDArray[np.float64]:
+    centres = np.linspace(400.0, 700.0, n)
+    return np.exp(-0.5 * ((WAVELENGTHS[:, None] - centres[None, :]) / width_nm) ** 2)
+
+
+def off_locus_gains(base: SpectralBase) -> tuple[NDArray[np.float64], int]:
+    """Per frame, the drop of whitened misfit (data + daylight prior) when its illuminant is free (reflectances held).
+
+    Returns the gains (F,), in units of the noise variance ``phi``, and the number of extra parameters per frame.
+    """
+    prob = base.prob
+    g = _generic_basis()
+    kb, _ = imaging_operators(base.sensitivities, g, prob.rb)  # nb × 3 × K
+    design = np.einsum("bcj,pj->pcb", kb, base.sigma)  # P × 3 × nb
+    gains = np.zeros(prob.F)
+    for f in range(prob.F):
+        w = prob.W[f]  # P × 3
+        a = (w[..., None] * design).reshape(-1, g.shape[1])
+        b = (w * prob.Y[f]).ravel()
+        coef, *_ = np.linalg.lstsq(a, b, rcond=None)
+        free = float(((b - a @ coef) ** 2).sum())
+        day = float((base.data_res[f] ** 2).sum() + (base.prior_res[f] ** 2).sum())
+        gains[f] = (day - free) / base.phi
+    return gains, g.shape[1] - prob.np - 1
+
+
+def shipped_fluorophores() -> tuple[list[str], NDArray[np.float64], NDArray[np.float64]]:
+    """The 21 fluorophores shipped with illumon: names, excitation (21 × 61) and emission (21 × 61), peak-normalised."""
+    from importlib import resources
+
+    from ..spectra import read_spectral_csv
+
+    text = (resources.files("illumon") / "data" / "fluorophores.csv").read_text()
+    wl, values, names = read_spectral_csv("fluorophores.csv", text=text)
+    cols = {n: values[:, i] for i, n in enumerate(names)}
+    ids = sorted({n[2:] for n in names if n.startswith("ex")})
+    labels = {}
+    for line in text.splitlines():
+        if line.startswith("# f") and ":" in line:
+            key, rest = line[2:].split(":", 1)
+            labels[key.strip()[1:]] = rest.strip().split(",")[0]
+    ex = np.asarray([cols[f"ex{i}"] for i in ids])
+    em = np.asarray([cols[f"em{i}"] for i in ids])
+    return [labels.get(i, f"f{i}") for i in ids], ex, em
+
+
+def fluorescence_gains(base: SpectralBase) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], list[str]]:
+    """Per patch, the best drop of whitened misfit (units of ``phi``) when the patch fluoresces, over the shipped
+    fluorophores; with the index of the best fluorophore, its strength (relative to the patch's reflected green) and
+    the fluorophore names."""
+    prob = base.prob
+    names, ex, em = shipped_fluorophores()
+    m, white = prob.operators(base.params)
+    spectra = prob.model.weights(base.params) @ prob.model.basis.T / white[:, 1:2]  # F × 61, camera white_g = 1
+    k = np.exp(base.logk)
+    q = spectra @ ex.T  # F × J: absorbed light (Han et al. eq. 1)
+    wcol = em @ base.sensitivities  # J × 3: camera response to each emission spectrum (eq. 2)
+    a_all = k[:, None, None] * m  # F × 3 × K
+    lam, mu = prob.Lambda, prob.mu
+    P = prob.P
+    J = len(names)
+    gains = np.zeros(P)
+    best = np.zeros(P, dtype=np.int64)
+    strength = np.zeros(P)
+    for p in range(P):
+        w = prob.W[:, p]  # F × 3
+        d = (w[..., None] * a_all).reshape(-1, a_all.shape[-1])  # 3F × K
+        y = (w * prob.Y[:, p]).ravel()
+        nmat = d.T @ d + lam
+        rhs = d.T @ y + lam @ mu
+        sig = np.linalg.solve(nmat, rhs)
+        r0 = float(((y - d @ sig) ** 2).sum() + (sig - mu) @ lam @ (sig - mu))
+        g = (w[:, None, :] * (k[:, None, None] * q[:, :, None] * wcol[None, :, :])).transpose(1, 0, 2).reshape(J, -1)
+        # eliminate σ: the gain of one extra column g is (gᵀ r)² / (gᵀ g − gᵀ D N⁻¹ Dᵀ g) with r the base residual
+        res = y - d @ sig
+        ninv_dg = np.linalg.solve(nmat, d.T @ g.T)  # K × J
+        denom = (g**2).sum(1) - np.einsum("jk,kj->j", g @ d, ninv_dg)
+        num = g @ res
+        s = num / np.maximum(denom, 1e-300)
+        gain = np.where(s > 0, num**2 / np.maximum(denom, 1e-300), 0.0)
+        j = int(np.argmax(gain))
+        gains[p] = gain[j] / base.phi
+        best[p] = j
+        green = np.median(prob.Y[:, p, 1]) if prob.present[:, p].any() else 1.0
+        strength[p] = float(s[j] * np.median(k * q[:, j] * wcol[j, 1]) / max(green, 1e-9)) if s[j] > 0 else 0.0
+        _ = r0
+    return gains, best, strength, names

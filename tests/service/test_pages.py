@@ -81,6 +81,15 @@ def test_login_rejects_unknown_token_and_foreign_next(day: Day) -> None:
     assert r.status_code == 401 and "Unknown token." in r.text and "set-cookie" not in r.headers
     for target in ("//evil.example/", "https://evil.example/", "/\\evil.example"):
         assert _login(c, ADMIN, target).headers["location"] == "/"
+    # A form posted from another site neither logs in nor out.
+    c.cookies.clear()
+    r = c.post("/login", data={"token": ADMIN}, headers={"Origin": "https://evil.example"}, follow_redirects=False)
+    assert r.status_code == 403 and "set-cookie" not in r.headers
+    r = c.post("/login", data={"token": ADMIN}, headers={"Origin": "http://testserver"}, follow_redirects=False)
+    assert r.status_code == 303 and "illumon_token=" in r.headers["set-cookie"]
+    assert c.post("/logout", headers={"Origin": "https://evil.example"}, follow_redirects=False).status_code == 403
+    proxied = {"Origin": "https://cams.example", "X-Forwarded-Host": "cams.example"}
+    assert c.post("/login", data={"token": ADMIN}, headers=proxied, follow_redirects=False).status_code == 303
 
 
 def test_fleet_table_matches_api(day: Day) -> None:

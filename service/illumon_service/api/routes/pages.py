@@ -8,7 +8,8 @@ Authentication is that of the JSON API. ``Authorization: Bearer <token>`` works 
 ``/login`` with the admin token or a camera token, which is kept in an HTTP-only, ``SameSite=Strict`` cookie (``Secure``
 when the page is served over HTTPS) and checked on every request like a bearer token, by its SHA-256 against the stored
 hashes. The admin sees every camera; a camera token sees only its own camera, and another camera's page answers 404 as
-an unknown one would. Without a valid token a page redirects to the login form.
+an unknown one would. Without a valid token a page redirects to the login form. Login and logout forms sent from
+another site (by their ``Origin``) are refused.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from __future__ import annotations
 import hmac
 from datetime import datetime
 from pathlib import Path
-from urllib.parse import quote
+from urllib.parse import quote, urlsplit
 
 from fastapi import APIRouter, FastAPI, Form, Query, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
@@ -44,7 +45,7 @@ HEADERS = {
                                "frame-ancestors 'none'; base-uri 'none'",
     "X-Frame-Options": "DENY",
     "X-Content-Type-Options": "nosniff",
-    "Referrer-Policy": "no-referrer",
+    "Referrer-Policy": "same-origin",  # "no-referrer" would make browsers send "Origin: null" with the login form
 }
 
 router = APIRouter(tags=["pages"], include_in_schema=False)
@@ -88,6 +89,16 @@ def _safe_next(target: str | None) -> str:
     return target
 
 
+def _same_origin(request: Request) -> bool:
+    """False when a browser says the form was sent from another site: ``Origin`` names neither ``Host`` nor, behind a
+    reverse proxy, ``X-Forwarded-Host`` (``Origin: null`` is refused too; no ``Origin`` at all is not a browser's form)."""
+    origin = request.headers.get("origin")
+    if not origin or origin == "null":
+        return origin is None
+    hosts = {request.headers.get("host", "")} | {h.strip() for h in request.headers.get("x-forwarded-host", "").split(",")}
+    return urlsplit(origin).netloc in hosts - {""}
+
+
 def _to_login(request: Request) -> RedirectResponse:
     path = request.url.path + (f"?{request.url.query}" if request.url.query else "")
     resp = RedirectResponse(f"/login?next={quote(path, safe='/')}", status_code=303)
@@ -111,7 +122,10 @@ def login_form(request: Request, next_: str = Query("/", alias="next")) -> HTMLR
 @router.post("/login")
 def login(request: Request, session: SessionDep, token: str = Form(""),
           next_: str = Form("/", alias="next")) -> Response:
-    """Check the token; on success set the HTTP-only login cookie and go to ``next``."""
+    """Check the token; on success set the HTTP-only login cookie and go to ``next``. Forms from other sites: 403."""
+    if not _same_origin(request):
+        return _render(request, "login.html", {"next": "/", "error": "Log in from this site's own form.", "principal": None},
+                       status_code=403)
     principal = principal_from_token(request, session, token)
     if principal is None:
         return _render(request, "login.html", {"next": _safe_next(next_), "error": "Unknown token.", "principal": None},
@@ -123,8 +137,10 @@ def login(request: Request, session: SessionDep, token: str = Form(""),
 
 
 @router.post("/logout")
-def logout() -> RedirectResponse:
-    """Forget the login cookie."""
+def logout(request: Request) -> Response:
+    """Forget the login cookie (forms from other sites: 403)."""
+    if not _same_origin(request):
+        return Response("cross-site logout refused", status_code=403, headers=HEADERS)
     resp = RedirectResponse("/login", status_code=303)
     resp.delete_cookie(COOKIE, path="/")
     return resp

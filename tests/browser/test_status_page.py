@@ -130,11 +130,14 @@ def _utc(iso: str) -> str:
     return datetime.fromisoformat(iso).strftime("%Y-%m-%d %H:%M UTC")
 
 
-def test_admin_sees_both_cameras_with_api_values(browser, fleet: Fleet) -> None:
+def test_admin_sees_both_cameras_with_api_values(browser, fleet: Fleet, tmp_path: Path) -> None:
     ctx = browser.new_context(viewport=DESKTOP)
     page = ctx.new_page()
     page.goto(fleet.base + "/")
     assert page.url.startswith(fleet.base + "/login")  # unauthenticated: redirected to the form
+    shot = tmp_path / "login-desktop.png"
+    page.screenshot(path=str(shot))
+    _keep(shot)
     page.fill("#token", "not-a-token")
     page.click("#login-form button[type=submit]")
     assert page.locator(".error").inner_text() == "Unknown token."
@@ -166,6 +169,9 @@ def test_admin_sees_both_cameras_with_api_values(browser, fleet: Fleet) -> None:
             assert set(kinds) >= {"regions_missing", "clipping"}
         else:
             assert kinds == [] and cell("alerts").inner_text() == "OK"
+    shot = tmp_path / "index-desktop.png"
+    page.screenshot(path=str(shot), full_page=True)
+    _keep(shot)
     ctx.close()
 
 

@@ -72,7 +72,11 @@ _TIME_STEPS = [m * 60 for m in (5, 10, 15, 30, 60, 120, 180, 360, 720, 1440, 288
 
 
 def time_ticks(t0: float, t1: float, n: int = 6) -> tuple[list[float], Callable[[float], str]]:
-    """Round UTC tick positions (POSIX seconds) over ``t0``…``t1`` and a label formatter (``HH:MM`` or ``MM-DD``)."""
+    """Round UTC tick positions (POSIX seconds) over ``t0``…``t1`` and a label formatter.
+
+    Labels are ``HH:MM`` with ``MM-DD`` at midnight for steps under a day, ``MM-DD`` for steps of days, and
+    ``YYYY-MM-DD`` when the span exceeds half a year.
+    """
     span = max(t1 - t0, 1.0)
     step = next((s for s in _TIME_STEPS if span / s <= n), _TIME_STEPS[-1] * math.ceil(span / n / _TIME_STEPS[-1]))
     first = math.ceil(t0 / step) * step
@@ -81,11 +85,15 @@ def time_ticks(t0: float, t1: float, n: int = 6) -> tuple[list[float], Callable[
     while t <= t1:
         ticks.append(float(t))
         t += step
-    multi_day = span > 86400 * 1.5 or step >= 1440 * 60
+    day = 86400
 
     def label(v: float) -> str:
         d = datetime.fromtimestamp(v, tz=timezone.utc)
-        return d.strftime("%m-%d") if multi_day else d.strftime("%H:%M")
+        if span > 183 * day:
+            return d.strftime("%Y-%m-%d")
+        if step >= day or (d.hour == 0 and d.minute == 0):
+            return d.strftime("%m-%d")
+        return d.strftime("%H:%M")
 
     return ticks, label
 

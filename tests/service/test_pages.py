@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import pytest
 from fastapi.testclient import TestClient
 from illumon_service.app import create_app
-from illumon_service.charts import Series, nice_ticks, time_chart
+from illumon_service.charts import Series, nice_ticks, time_chart, time_ticks
 from illumon_service.demo import demo_cameras
 from illumon_service.status import ALERT_RULES, AlertContext
 from svc_helpers import ADMIN, admin_headers, bearer, make_settings
@@ -191,3 +191,5 @@ def test_time_chart() -> None:
     assert "&lt;b&gt;" in svg and "T &amp; U (K)" in svg and "<b>" not in svg
     assert svg.count("<polygon") == 1 and ">06:00<" in svg and ">10:00<" in svg
     assert "no estimates yet" in str(time_chart([], title="CCT"))
+    ticks, label = time_ticks(t0.timestamp(), (t0 + timedelta(days=1)).timestamp())
+    assert [label(t) for t in ticks] == ["12:00", "18:00", "06-22", "06:00"]  # midnight shows the date

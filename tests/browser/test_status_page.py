@@ -165,10 +165,12 @@ def test_admin_sees_both_cameras_with_api_values(browser, fleet: Fleet, tmp_path
         assert len(day) == len(frames) == 28
         assert max(day) > latest["cct_k"] + 500
         kinds = cell("alerts").locator("[data-kind]").evaluate_all("els => els.map(e => e.dataset.kind)")
-        if name == "yard":
-            assert set(kinds) >= {"regions_missing", "clipping"}
-        else:
-            assert kinds == [] and cell("alerts").inner_text() == "OK"
+        expected = {"regions_missing", "clipping"} if name == "yard" else set()  # the yard's late frames: see demo
+        expected |= {"non_daylight"} if abs(latest["duv"]) > 0.02 else set()
+        expected |= {"low_confidence"} if latest["confidence"] < 0.5 else set()
+        assert set(kinds) == expected
+        if not expected:
+            assert cell("alerts").inner_text() == "OK"
     shot = tmp_path / "index-desktop.png"
     page.screenshot(path=str(shot), full_page=True)
     _keep(shot)

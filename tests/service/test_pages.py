@@ -135,7 +135,7 @@ def test_camera_page_has_charts_with_intervals(day: Day) -> None:
             assert 'viewBox="0 0 ' in svg and "<polygon" in svg  # model estimates after the refit carry intervals
             lines = re.findall(r'<polyline class="[^"]*" points="([^"]*)"', svg)
             assert [len(p.split()) for p in lines] == [n] * (2 if key == "gains" else 1)
-    assert "Recent estimates" in r.text and "model" in r.text and "refit:gray_world" in r.text
+    assert "Recent estimates" in r.text and "refit:" in r.text
     assert c.get("/static/style.css").status_code == 200
 
 

@@ -5,7 +5,7 @@ A frame's region value is the mean linear camera value of its pixels after remov
 * clipped pixels (any channel at or above ``clip_fraction`` of the white level), whose true value is unknown, and
 * outliers — passers-by, vehicles, birds — found by median / MAD trimming: pixels more than ``k`` robust standard
   deviations (1.4826 · MAD, floored at a small fraction of the median) from the per-channel median in any channel are
-  dropped, twice (median and MAD from at most ~2048 strided pixels of the region).
+  dropped, twice (median and MAD from at most ~1024 strided pixels of the region).
 
 A region is missing for the frame (``None``) when fewer than ``min_fraction`` of its pixels survive: mostly clipped or
 mostly occluded. Images are PNG, JPEG or TIFF, 8- or 16-bit, decoded by OpenCV; black and white levels of the camera's
@@ -33,8 +33,9 @@ MAGIC = {
 }
 
 
-MEDIAN_SAMPLES = 2048
-"""Pixels used for a region's median and MAD (an even stride over the region; the mean uses every kept pixel)."""
+MEDIAN_SAMPLES = 1024
+"""Pixels used for a region's median and MAD (an even stride over the region; the mean uses every kept pixel). The
+median of 1024 samples is within ~0.04 σ of the region's: plenty for thresholds at 3.5 σ."""
 
 
 class ImageError(ValueError):
@@ -127,13 +128,16 @@ def _lut(response: ResponseCurve, size: int) -> NDArray[np.float64]:
 
 
 def _robust_mean(lin: NDArray[np.float64], k: float, min_keep: int) -> NDArray[np.float64] | None:
-    """Mean of the pixels (3 × N, channel-major for fast medians) within ``k`` robust σ of the median, trimmed twice."""
+    """Mean of the pixels (3 × N, channel-major for fast medians) within ``k`` robust σ of the median, trimmed twice.
+
+    The general path, for float images; integer images take :func:`_robust_mean_codes` (same result).
+    """
     keep = np.ones(lin.shape[1], dtype=bool)
     for _ in range(2):
         if keep.sum() < min_keep:
             return None
         sub = lin if keep.all() else lin[:, keep]
-        # Median and MAD from at most ~2048 evenly strided pixels: as robust, and regions can be large.
+        # Median and MAD from at most ~1024 evenly strided pixels: as robust, and regions can be large.
         sub = np.ascontiguousarray(sub[:, :: max(1, sub.shape[1] // MEDIAN_SAMPLES)])
         med = np.median(sub, axis=1, keepdims=True)
         mad = np.median(np.abs(sub - med), axis=1, keepdims=True)
@@ -142,6 +146,58 @@ def _robust_mean(lin: NDArray[np.float64], k: float, min_keep: int) -> NDArray[n
     if keep.sum() < min_keep:
         return None
     return lin[:, keep].mean(axis=1)
+
+
+def _mad_8bit(codes: NDArray[np.uint8], lut: NDArray[np.float64], med: NDArray[np.float64], half: int) -> NDArray[np.float64]:
+    """Upper median of ``|lut[codes] − med|`` per channel (3 × m codes) from a 256-bin histogram.
+
+    8-bit samples hold few distinct values, on which ``np.partition`` is slow; sorting 256 deviations is not.
+    """
+    counts = np.bincount((codes.astype(np.intp) + (np.arange(3) * 256)[:, None]).ravel(), minlength=768).reshape(3, 256)
+    dev = np.abs(lut[None, :] - med[:, None])  # 3 × 256
+    order = np.argsort(dev, axis=1, kind="stable")
+    cum = np.cumsum(np.take_along_axis(counts, order, axis=1), axis=1)
+    pos = np.minimum((cum <= half).sum(axis=1), 255)  # first sorted deviation whose cumulative count exceeds half
+    return np.take_along_axis(dev, np.take_along_axis(order, pos[:, None], axis=1), axis=1)[:, 0]
+
+
+def _robust_mean_codes(codes: NDArray, lut: NDArray[np.float64], k: float, min_keep: int) -> NDArray[np.float64] | None:
+    """:func:`_robust_mean` on integer codes (3 × N, channel-major) of an image linearised by the monotone ``lut``.
+
+    Only the ≤ 1024 sampled pixels are linearised for the median and MAD; the interval ``median ± k·scale`` in linear
+    light becomes an interval of codes (the lookup table is non-decreasing), so the trimming compares small integers
+    and only the kept pixels are linearised for the mean. Channel-major layout keeps every test elementwise.
+    """
+    n = codes.shape[1]
+    keep: NDArray[np.bool_] | None = None  # None: every pixel
+    top = np.iinfo(codes.dtype).max
+    for _ in range(2):
+        idx = None if keep is None else np.flatnonzero(keep)
+        nk = n if idx is None else idx.size
+        if nk < min_keep:
+            return None
+        step = max(1, nk // MEDIAN_SAMPLES)
+        sample = codes[:, ::step] if idx is None else np.take(codes, idx[::step], axis=1)  # 3 × m codes
+        # (Upper) medians: the codes sorted (radix sort of small integers), the median code linearised (the table is
+        # monotone); the MAD by one partition of the linear deviations. Several times cheaper than np.median.
+        ordered = np.sort(sample, axis=1, kind="stable")
+        half = ordered.shape[1] // 2
+        med = lut[ordered[:, half]]
+        if lut.size <= 256:
+            mad = _mad_8bit(ordered, lut, med, half)
+        else:
+            mad = np.partition(np.abs(np.take(lut, ordered) - med[:, None]), half, axis=1)[:, half]
+        scale = np.maximum(1.4826 * mad, 0.02 * np.abs(med) + 1e-4)
+        lo = np.searchsorted(lut, med - k * scale, side="left")  # first code with lut ≥ med − kσ
+        hi = np.searchsorted(lut, med + k * scale, side="right") - 1  # last code with lut ≤ med + kσ
+        if np.any(lo > hi) or np.any(lo > top) or np.any(hi < 0):
+            return None
+        keep = (codes[0] >= lo[0]) & (codes[0] <= hi[0])
+        for c in (1, 2):
+            keep &= (codes[c] >= codes.dtype.type(lo[c])) & (codes[c] <= codes.dtype.type(hi[c]))
+    if np.count_nonzero(keep) < min_keep:
+        return None
+    return np.take(lut, codes.compress(keep, axis=1)).mean(axis=1)  # compress/take: ~4× faster than [:, mask]
 
 
 def region_means(
@@ -158,23 +214,40 @@ def region_means(
     Raises :class:`RegionError` if a region extends beyond the image.
     """
     h, w = image.shape[:2]
-    lut = _lut(response, 256 if image.dtype == np.uint8 else 65536) if image.dtype in (np.uint8, np.uint16) else None
+    integer = image.dtype in (np.uint8, np.uint16)
+    lut = _lut(response, 256 if image.dtype == np.uint8 else 65536) if integer else None
     clip_at = response.black_level + clip_fraction * (response.white_level - response.black_level)
-    out: dict[str, list[float] | None] = {}
+    regions = list(regions)
     for r in regions:
         if r.x < 0 or r.y < 0 or r.x + r.width > w or r.y + r.height > h:
             raise RegionError(
                 f"region {r.id!r} ({r.x},{r.y} {r.width}×{r.height}) lies outside the {w}×{h} image"
             )
-        px = image[r.y : r.y + r.height, r.x : r.x + r.width].reshape(-1, 3)
-        n = len(px)
-        ok = ~np.any(px >= clip_at, axis=1)
+    out: dict[str, list[float] | None] = {}
+    for r in regions:
+        block = image[r.y : r.y + r.height, r.x : r.x + r.width]
+        n = r.width * r.height
         min_keep = max(1, int(np.ceil(min_fraction * n)))
-        if ok.sum() < min_keep:
-            out[r.id] = None
-            continue
-        codes = np.ascontiguousarray(px[ok].T)
-        lin = lut[codes] if lut is not None else response.linearise(codes)
-        m = _robust_mean(lin, k, min_keep)
+        if integer:
+            codes = np.moveaxis(block, 2, 0).reshape(3, n)  # channel-major copy: elementwise tests, no axis-1 reductions
+            # Integer codes: a pixel is clipped when any channel reaches ceil(clip_at).
+            limit = min(int(np.ceil(clip_at)), np.iinfo(image.dtype).max + 1)
+            if limit <= np.iinfo(image.dtype).max:
+                c = image.dtype.type(limit)
+                ok = (codes[0] < c) & (codes[1] < c) & (codes[2] < c)
+                n_ok = int(np.count_nonzero(ok))
+                if n_ok < min_keep:
+                    out[r.id] = None
+                    continue
+                if n_ok < n:
+                    codes = codes.compress(ok, axis=1)
+            m = _robust_mean_codes(codes, lut, k, min_keep)
+        else:
+            px = block.reshape(-1, 3)
+            ok = ~np.any(px >= clip_at, axis=1)
+            if ok.sum() < min_keep:
+                out[r.id] = None
+                continue
+            m = _robust_mean(response.linearise(np.ascontiguousarray(px[ok].T)), k, min_keep)
         out[r.id] = None if m is None else [float(v) for v in m]
     return out

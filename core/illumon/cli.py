@@ -92,7 +92,17 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
         kwargs = {}
         if args.method == "joint":
             kwargs["daylight"] = args.daylight_model
-        result = retrieve_illuminants(obs, css, method=args.method, **kwargs)
+        if args.model_effects == "auto":
+            from .diagnosis.cli import run_diagnosis
+            from .diagnosis.fit import estimate_with_effect
+
+            diag = run_diagnosis(args.observations, obs, css, reestimate=False)
+            result = estimate_with_effect(obs, css, diag, method=args.method, **kwargs)
+            print(f"illumon: model effects: {diag.effect}"
+                  + (f" (patch {diag.patch})" if diag.patch else "") + (f" (frame {diag.frame})" if diag.frame else ""),
+                  file=sys.stderr)
+        else:
+            result = retrieve_illuminants(obs, css, method=args.method, **kwargs)
         extra = None
     write_estimates(args.out, result, extra)
     if args.reflectances:
@@ -116,6 +126,8 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--daylight-model", default="cie", choices=["cie", "measured"])
     est.add_argument("--white-level", type=_white_level, default=255.0, help="value of a saturated pixel (255)")
     est.add_argument("--reflectances", help="also write the recovered patch reflectances to this CSV")
+    est.add_argument("--model-effects", default="none", choices=["none", "auto"],
+                     help="auto: diagnose the history (`illumon diagnose`) and estimate with the effect modelled")
     est.set_defaults(func=_cmd_estimate)
 
     for module, fn in (

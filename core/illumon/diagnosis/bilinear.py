@@ -178,9 +178,29 @@ def fit_gamma(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: NDA
 def fit_offset(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: NDArray[np.float64],
                iters: int = 150) -> tuple[LowRankFit, NDArray[np.float64]]:
     """Black offset ``Y = U V + 1 bᵀ`` (one pedestal per channel): alternating least squares where the V-step solves
-    V and b jointly (Schur complement over the patches of each channel). Returns the fit and ``b`` (3,)."""
+    V and b jointly (Schur complement over the patches of each channel), from several starts (no offset, and half and
+    all of each channel's darkest value, the factorisation re-fitted to the values minus the start). Returns the best
+    fit and ``b`` (3,)."""
     y0 = np.where(w > 0, np.nan_to_num(y), 0.0)
-    f, m = y.shape
+    chan = np.arange(y.shape[1]) % 3
+    low = np.array([np.min(np.where(w[:, chan == c] > 0, y0[:, chan == c], np.inf)) for c in range(3)])
+    low = np.where(np.isfinite(low), low, 0.0)
+    best = None
+    for frac in (0.0, 0.5, 0.9):
+        if frac == 0.0:
+            U = U0
+        else:
+            U = wals(np.clip(y0 - frac * low[chan][None, :], 0, None), w, rank, U=U0, iters=20).U
+        fit, b = _fit_offset_from(y0, w, rank, U, iters)
+        if best is None or fit.wrss < best[0].wrss:
+            best = (fit, b)
+    assert best is not None
+    return best
+
+
+def _fit_offset_from(y0: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: NDArray[np.float64],
+                     iters: int) -> tuple[LowRankFit, NDArray[np.float64]]:
+    f, m = y0.shape
     chan = np.arange(m) % 3
     U = U0.copy()
     b = np.zeros(3)
@@ -292,8 +312,9 @@ def scan_patch_effects(y: NDArray[np.float64], w: NDArray[np.float64], U: NDArra
     out["change_onset"] = ts[np.argmin(ch, axis=0)]
     # shadow on run [t0, t1): V from the other frames, then a per-channel scale s ≤ 1 on the run
     t0, t1 = np.triu_indices(f + 1, 1)
-    keep = (t1 < f) | ((t1 == f) & (t0 > 0))
-    keep &= t1 <= f - 1  # the run ends inside the history
+    # a shadow begins and ends inside the history: one that covers the first or the last frame cannot be told from a
+    # patch change (the surface is seen in only one state at that end), so it is left to the patch-change model
+    keep = (t0 >= 1) & (t1 <= f - 1)
     t0, t1 = t0[keep], t1[keep]
     a_run, b_run, c_run = A[t1] - A[t0], B[t1] - B[t0], C[t1] - C[t0]
     a_out, b_out, c_out = A[-1] - a_run, B[-1] - b_run, C[-1] - c_run

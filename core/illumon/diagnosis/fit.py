@@ -81,9 +81,10 @@ class Diagnosis:
             "frame": self.frame,
             "parameters": self.parameters,
             "candidates": [
-                {"effect": c.effect, "score": round(float(c.score), 3), "parameters": c.parameters} for c in self.candidates
+                {"effect": c.effect, "score": round(float(c.score), 3) if np.isfinite(c.score) else None,
+                 "parameters": c.parameters}
+                for c in self.candidates
             ],
-            "score": "ΔBIC of each extension against the base model (negative favours the extension)",
             "residual_base": self.residual_base,
             "residual_extended": self.residual_extended,
             "illuminant_change_deg": self.illuminant_change_deg,
@@ -274,6 +275,11 @@ def diagnose(
     spectral, sinfo = _spectral_stage(obs, np.asarray(sensitivities, dtype=float))
     info.update(sinfo)
     cands += spectral
+    for c in cands:
+        if c.patch is not None:
+            c.parameters["patch"] = obs.patches[c.patch]
+        if c.frame is not None and c.effect in ("patch_change", "shadow"):
+            c.parameters["frame"] = obs.frames[c.frame]
     chosen: Candidate | None = None
     bil = [c for c in cands if c.effect not in ("off_locus_illuminant", "fluorescence")]
     ok = [c for c in bil if c.score < -margins[c.effect]]

@@ -1,0 +1,63 @@
+"""``illumon diagnose OBSERVATIONS.csv --sensitivities SENSITIVITIES.csv --out REPORT.json [--white-level 255]``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from typing import Any
+
+__all__ = ["add_diagnose_command", "run_diagnosis"]
+
+
+def _white_level(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"white level must be a number, got {text!r}") from None
+    if not (v > 0 and math.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"white level must be positive, got {text!r}")
+    return v
+
+
+def run_diagnosis(observations_path: str, obs, sensitivities, *, reestimate: bool = True):
+    """Diagnose ``obs`` with input checks whose messages name the file (raises ``ValueError``)."""
+    from .fit import RANK, diagnose
+
+    f, p = len(obs.frames), len(obs.patches)
+    if f < RANK + 2:
+        raise ValueError(f"{observations_path}: only {f} frame(s); diagnosis needs at least {RANK + 2}")
+    if p < 3:
+        raise ValueError(f"{observations_path}: only {p} patch(es); diagnosis needs at least 3")
+    if (obs.present.sum(axis=1) < 2).any():
+        bad = obs.frames[int((obs.present.sum(axis=1) < 2).argmax())]
+        raise ValueError(f"{observations_path}: frame {bad!r} has fewer than two patches")
+    return diagnose(obs, sensitivities, reestimate=reestimate)
+
+
+def _cmd_diagnose(args: argparse.Namespace) -> int:
+    from ..observations import read_observations
+    from ..spectra import read_sensitivities
+
+    obs = read_observations(args.observations, white_level=args.white_level)
+    css = read_sensitivities(args.sensitivities)
+    diag = run_diagnosis(args.observations, obs, css)
+    report = diag.to_json()
+    if report["parameters"].get("clip_level") is not None:
+        report["parameters"]["clip_level_value"] = round(report["parameters"]["clip_level"] * args.white_level, 4)
+    if "offsets" in report["parameters"]:
+        report["parameters"]["offsets_value"] = [round(v * args.white_level, 4) for v in report["parameters"]["offsets"]]
+    with open(args.out, "w") as fh:
+        json.dump(report, fh, indent=1, allow_nan=False, default=float)
+        fh.write("\n")
+    return 0
+
+
+def add_diagnose_command(subparsers: Any) -> None:
+    """Register ``illumon diagnose``."""
+    p = subparsers.add_parser("diagnose", help="name the effect that breaks the linear model in a history")
+    p.add_argument("observations", help="OBSERVATIONS.csv with columns frame,time,patch,r,g,b")
+    p.add_argument("--sensitivities", required=True, help="camera sensitivities CSV wavelength_nm,r,g,b")
+    p.add_argument("--out", required=True, help="REPORT.json to write")
+    p.add_argument("--white-level", type=_white_level, default=255.0, help="value of a saturated pixel (255)")
+    p.set_defaults(func=_cmd_diagnose)

@@ -1,0 +1,79 @@
+import csv
+import json
+
+import numpy as np
+import pytest
+from illumon.cli import main
+from illumon.diagnosis.effects import hide_effect
+from illumon.observations import write_observations
+
+KEYS = {"effect", "patch", "frame", "parameters", "candidates", "residual_base", "residual_extended", "illuminant_change_deg"}
+EFFECT_NAMES = {"none", "nonlinear_response", "black_offset", "clipping", "patch_change", "shadow", "off_locus_illuminant",
+                "fluorescence"}
+
+
+def _write_css(path, css):
+    rows = ["wavelength_nm,r,g,b"] + [f"{400 + 5 * i},{a:.6f},{b:.6f},{c:.6f}" for i, (a, b, c) in enumerate(css)]
+    path.write_text("\n".join(rows) + "\n")
+
+
+def test_diagnose_contract(shared_data, tmp_path):
+    h = hide_effect("patch_change", "Nikon_D3X", 15_000, frames=24, patches=8)
+    obs, css, out = tmp_path / "o.csv", tmp_path / "c.csv", tmp_path / "r.json"
+    write_observations(obs, h.observations)
+    _write_css(css, h.history.sensitivities)
+    assert main(["diagnose", str(obs), "--sensitivities", str(css), "--out", str(out)]) == 0
+    rep = json.loads(out.read_text())
+    assert KEYS <= set(rep)
+    assert rep["effect"] == "patch_change"
+    assert rep["patch"] == h.observations.patches[h.patch]
+    assert abs(h.observations.frames.index(rep["frame"]) - h.frame) <= 2
+    assert {c["effect"] for c in rep["candidates"]} == EFFECT_NAMES - {"none"}
+    assert all(c["score"] is None or isinstance(c["score"], float) for c in rep["candidates"])
+    assert rep["residual_extended"] < rep["residual_base"]
+    assert rep["illuminant_change_deg"] >= 0.0
+
+
+def test_diagnose_white_level_and_estimate_model_effects(shared_data, tmp_path):
+    h = hide_effect("black_offset", "Canon_50D", 15_001, frames=24, patches=8)
+    obs, css, out, est = tmp_path / "o.csv", tmp_path / "c.csv", tmp_path / "r.json", tmp_path / "e.csv"
+    write_observations(obs, h.observations, white_level=4095)
+    _write_css(css, h.history.sensitivities)
+    assert main(["diagnose", str(obs), "--sensitivities", str(css), "--out", str(out), "--white-level", "4095"]) == 0
+    rep = json.loads(out.read_text())
+    assert rep["effect"] == "black_offset"
+    np.testing.assert_allclose(rep["parameters"]["offsets_value"], np.asarray(h.parameters["offsets"]) * 4095, atol=25)
+    args = ["estimate", str(obs), "--sensitivities", str(css), "--out", str(est), "--white-level", "4095",
+            "--model-effects", "auto"]
+    assert main(args) == 0
+    rows = list(csv.DictReader(est.open()))
+    assert len(rows) == 24
+    assert list(rows[0]) == ["frame", "time", "cct_k", "duv", "x", "y", "white_r", "white_g", "white_b", "gain_r", "gain_g",
+                             "gain_b"]
+
+
+@pytest.mark.parametrize(
+    "obs_body, message",
+    [
+        ("frame,patch,r,g,b\na,p,1,2,3\n", "missing column"),
+        ("frame,time,patch,r,g,b\na,,p,1,2,x\n", "row 2"),
+        ("frame,time,patch,r,g,b\n" + "".join(f"f{i},,p{j},1,2,3\n" for i in range(3) for j in range(4)), "at least 6"),
+        ("frame,time,patch,r,g,b\n" + "".join(f"f{i},,p{j},1,2,3\n" for i in range(8) for j in range(2)), "at least 3"),
+    ],
+)
+def test_diagnose_bad_input_one_line_exit_2(tmp_path, capsys, obs_body, message):
+    obs, css = tmp_path / "o.csv", tmp_path / "c.csv"
+    obs.write_text(obs_body)
+    _write_css(css, np.ones((61, 3)))
+    code = main(["diagnose", str(obs), "--sensitivities", str(css), "--out", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert message in err and str(obs) in err and "\n" not in err
+
+
+def test_diagnose_rejects_short_sensitivities(tmp_path, capsys):
+    obs, css = tmp_path / "o.csv", tmp_path / "c.csv"
+    obs.write_text("frame,time,patch,r,g,b\n" + "".join(f"f{i},,p{j},1,2,3\n" for i in range(8) for j in range(4)))
+    css.write_text("wavelength_nm,r,g,b\n420,1,1,1\n680,1,1,1\n")
+    assert main(["diagnose", str(obs), "--sensitivities", str(css), "--out", str(tmp_path / "r.json")]) == 2
+    assert "400–700" in capsys.readouterr().err

@@ -15,6 +15,8 @@ class Metrics:
         "illumon_frames_ingested_total": ("counter", "Frames stored (images and JSON observations)."),
         "illumon_estimate_seconds": ("summary", "Per-frame estimation latency at ingest."),
         "illumon_ingest_seconds": ("summary", "Whole ingest latency: decode, region statistics, estimate, commit."),
+        "illumon_ingest_stage_seconds": ("summary", "Ingest stages: receive (upload and multipart), decode, regions, "
+                                                    "estimate, commit."),
         "illumon_refit_seconds": ("summary", "Refit job durations."),
         "illumon_refit_total": ("counter", "Refit jobs by outcome."),
         "illumon_http_errors_total": ("counter", "Error responses by status code."),

@@ -1,0 +1,254 @@
+"""Ingest benchmark (issue 9): frames/s and p50/p99 latency of ``POST /v1/cameras/{id}/frames`` for 1920×1080
+8-bit JPEG and 16-bit PNG frames with 16 regions, next to ``cv2.imdecode`` alone on the same bytes in the same run.
+
+Run: ``python benchmarks/ingest.py [--quick] [--frames N] [--concurrency 1,4]``. Prints a table and writes
+``benchmarks/results/ingest.json``.
+
+The service is a real ``illumon serve`` process on a free loopback port (SQLite in a temporary folder, WAL,
+``synchronous=FULL``: every 201 is on disk). Each camera first gets 12 frames and a refit, so every timed frame goes
+through the whole path: multipart upload, decode, robust means of 16 regions of 120×120, per-frame estimate with the
+scene model, commit. Clients are threads of this process posting over HTTP/1.1 keep-alive; with concurrency ``c``
+the decode-only rate is measured with ``c`` threads as well (``cv2.imdecode`` releases the GIL).
+Frames: a gradient background, 16 patches rendered with measured spectra (Nikon D5100, Granada daylight, Munsell)
+where ``../shared/data`` exists (synthetic spectra otherwise), noise and a moving clutter rectangle.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
+from datetime import datetime, timedelta, timezone
+from pathlib import Path
+
+import cv2
+import httpx
+import numpy as np
+from illumon import datasets
+from illumon.camera import ResponseCurve, render
+from illumon.daylight import CIEDaylight
+
+RESULTS = Path(__file__).with_name("results")
+W, H = 1920, 1080
+REGION = 120
+T0 = datetime(2025, 6, 1, 5, 0, tzinfo=timezone.utc)
+ADMIN = "bench-admin-token"
+
+
+def regions() -> list[dict]:
+    """16 regions of 120×120 on a 4×4 grid."""
+    return [{"id": f"r{i:02d}", "x": 240 + 400 * (i % 4), "y": 120 + 240 * (i // 4), "width": REGION, "height": REGION}
+            for i in range(16)]
+
+
+def spectra(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, str]:
+    """(sensitivities 61 × 3, n daylight spectra, 17 reflectances (16 patches + background), provenance)."""
+    rng = np.random.default_rng(0)
+    if datasets.shared_data_dir() is not None:
+        css = datasets.load_camera("Nikon_D5100")
+        _, day = datasets.load_granada_daylight()
+        _, refl = datasets.load_reflectance_set("munsell_matt_1269")
+        return (css, day[np.linspace(200, 2400, n).astype(int)], refl[rng.choice(len(refl), 17, replace=False)],
+                "measured (Nikon D5100, Granada, Munsell)")
+    wl = np.arange(400, 701, 5)
+    css = np.column_stack([np.exp(-0.5 * ((wl - c) / 30) ** 2) for c in (600, 540, 460)])
+    mired = np.linspace(110, 250, n)
+    day = CIEDaylight().spectra(np.column_stack([mired, np.zeros_like(mired)]))
+    refl = np.clip(0.2 + 0.6 * rng.random((17, 1)) * np.sin(wl / rng.uniform(40, 120, (17, 1))) ** 2, 0, 1)
+    return css, day, refl, "synthetic (Gaussian sensitivities, CIE D, smooth reflectances)"
+
+
+def render_frames(n: int, kind: str) -> tuple[list[bytes], np.ndarray, str]:
+    """``n`` encoded frames (``jpeg``: 8-bit sRGB quality 90; ``png16``: 16-bit linear) and the sensitivities."""
+    css, day, refl, provenance = spectra(n)
+    rng = np.random.default_rng(1)
+    lin = render(css, day, refl)  # n × 17 × 3
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+    shade = (0.7 + 0.3 * xx / W)[..., None] * (0.8 + 0.2 * yy / H)[..., None]
+    out = []
+    for f in range(n):
+        k = 0.7 / lin[f].max()
+        img = (shade * (lin[f, 16] * k)).astype(np.float32)
+        for r, v in zip(regions(), lin[f, :16] * k, strict=True):
+            img[r["y"] : r["y"] + REGION, r["x"] : r["x"] + REGION] = v
+        img *= 1 + 0.02 * rng.standard_normal(img.shape, dtype=np.float32)
+        x = (f * 97) % (W - 200)
+        img[100:700, x : x + 150] = [0.5, 0.1, 0.05]  # a passer-by
+        img = np.clip(img, 0, 1)
+        if kind == "jpeg":
+            enc = np.round(ResponseCurve("srgb", white_level=255).encode(img)).astype(np.uint8)
+            ok, buf = cv2.imencode(".jpg", enc[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 90])
+        else:
+            ok, buf = cv2.imencode(".png", np.round(img * 65535).astype(np.uint16)[:, :, ::-1])
+        assert ok
+        out.append(buf.tobytes())
+    return out, css, provenance
+
+
+def free_port() -> int:
+    """A free loopback port."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start_server(data_dir: str, port: int) -> subprocess.Popen:
+    """``illumon serve`` on ``port``; returns once /healthz answers."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ILLUMON_")}
+    env["ILLUMON_ADMIN_TOKEN"] = ADMIN
+    exe = Path(sys.executable).with_name("illumon")
+    proc = subprocess.Popen([str(exe), "serve", "--host", "127.0.0.1", "--port", str(port), "--data-dir", data_dir,
+                             "--log-level", "warning"], env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise RuntimeError(f"serve exited: {proc.stderr.read().decode()}")
+        try:
+            if httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1, trust_env=False).status_code == 200:
+                return proc
+        except httpx.TransportError:
+            time.sleep(0.2)
+    proc.kill()
+    raise RuntimeError("serve did not start")
+
+
+def register(http: httpx.Client, css: np.ndarray, encoding: str) -> tuple[int, dict]:
+    """Register a camera; returns its id and auth header."""
+    body = {"name": f"bench {encoding}",
+            "sensitivities": {"wavelength_nm": list(range(400, 701, 5)), "r": css[:, 0].tolist(),
+                              "g": css[:, 1].tolist(), "b": css[:, 2].tolist()},
+            "regions": regions(), "response": {"encoding": encoding}}
+    r = http.post("/v1/cameras", json=body, headers={"Authorization": f"Bearer {ADMIN}"})
+    r.raise_for_status()
+    return r.json()["id"], {"Authorization": f"Bearer {r.json()['token']}"}
+
+
+def post(http: httpx.Client, cam: int, auth: dict, data: bytes, ctype: str, t: datetime) -> float:
+    """POST one frame; returns the latency in seconds."""
+    t0 = time.perf_counter()
+    r = http.post(f"/v1/cameras/{cam}/frames", files={"image": ("frame", data, ctype)},
+                  data={"taken_at": t.isoformat()}, headers=auth)
+    dt = time.perf_counter() - t0
+    if r.status_code != 201:
+        raise RuntimeError(f"{r.status_code}: {r.text}")
+    return dt
+
+
+def run_parallel(fn, items: list, concurrency: int) -> tuple[float, list[float]]:
+    """Apply ``fn`` to every item with ``concurrency`` threads; (wall seconds, per-item seconds)."""
+    t0 = time.perf_counter()
+    if concurrency == 1:
+        lat = [fn(x) for x in items]
+    else:
+        with ThreadPoolExecutor(concurrency) as pool:
+            lat = list(pool.map(fn, items))
+    return time.perf_counter() - t0, lat
+
+
+def decode_once(data: bytes) -> float:
+    """Seconds of ``cv2.imdecode`` alone."""
+    t0 = time.perf_counter()
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    assert img is not None
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    """Run the benchmark; print the table; write the JSON."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true", help="20 frames per run")
+    parser.add_argument("--frames", type=int, help="timed frames per run (60)")
+    parser.add_argument("--concurrency", default="1,4", help="client threads per run, comma-separated (1,4)")
+    args = parser.parse_args()
+    n = args.frames or (20 if args.quick else 60)
+    levels = [int(v) for v in args.concurrency.split(",")]
+    cv2.setNumThreads(1)
+    rows = []
+    print(f"1920×1080, 16 regions of 120×120, {n} frames per run; CPUs: {os.cpu_count()}")
+    print(f"{'format':>6} {'MB':>5} {'clients':>7} {'ingest f/s':>10} {'decode f/s':>10} {'ratio':>6} "
+          f"{'p50 ms':>7} {'p99 ms':>7} {'dec p50':>7} {'srv ms':>7}  server stages ms: " + " ".join(STAGES))
+    with tempfile.TemporaryDirectory() as tmp:
+        port = free_port()
+        proc = start_server(tmp, port)
+        lock = threading.Lock()
+        clock = [T0]
+
+        def next_time() -> datetime:
+            with lock:
+                clock[0] += timedelta(seconds=10)
+                return clock[0]
+
+        try:
+            limits = httpx.Limits(max_connections=max(levels), max_keepalive_connections=max(levels))
+            with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=120, trust_env=False, limits=limits) as http:
+                for kind, ctype, encoding in (("jpeg", "image/jpeg", "srgb"), ("png16", "image/png", "linear")):
+                    frames, css, provenance = render_frames(12 + n, kind)
+                    cam, auth = register(http, css, encoding)
+                    for i in range(12):  # history, then a refit: later frames are estimated with the scene model
+                        post(http, cam, auth, frames[i], ctype, next_time())
+                    job = http.post(f"/v1/cameras/{cam}/refit", headers=auth).json()["job_id"]
+                    while http.get(f"/v1/jobs/{job}", headers=auth).json()["state"] not in ("done", "failed"):
+                        time.sleep(0.2)
+                    timed = frames[12:]
+                    mb = float(np.mean([len(f) for f in timed]) / 1e6)
+                    for c in levels:
+                        dec_wall, dec_lat = run_parallel(decode_once, timed, c)
+                        m0 = _server_ingest(http)
+                        wall, lat = run_parallel(
+                            lambda d, cam=cam, auth=auth, ctype=ctype: post(http, cam, auth, d, ctype, next_time()), timed, c
+                        )
+                        m1 = _server_ingest(http)
+                        row = {"format": kind, "mb": mb, "clients": c, "frames": n, "ingest_fps": n / wall,
+                               "decode_fps": n / dec_wall, "ratio": dec_wall / wall,
+                               "p50_ms": 1e3 * float(np.percentile(lat, 50)), "p99_ms": 1e3 * float(np.percentile(lat, 99)),
+                               "decode_p50_ms": 1e3 * float(np.percentile(dec_lat, 50)),
+                               "decode_p99_ms": 1e3 * float(np.percentile(dec_lat, 99)),
+                               "server_mean_ms": _mean_ms(m0, m1, "total"),
+                               "server_stage_ms": {st: _mean_ms(m0, m1, st) for st in STAGES}}
+                        rows.append(row)
+                        print(f"{kind:>6} {mb:5.2f} {c:7d} {row['ingest_fps']:10.1f} {row['decode_fps']:10.1f} "
+                              f"{row['ratio']:6.2f} {row['p50_ms']:7.1f} {row['p99_ms']:7.1f} "
+                              f"{row['decode_p50_ms']:7.1f} {row['server_mean_ms']:7.1f}  "
+                              + " ".join(f"{row['server_stage_ms'][st]:5.1f}" for st in STAGES), flush=True)
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            try:
+                proc.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+    RESULTS.mkdir(exist_ok=True)
+    out = {"width": W, "height": H, "regions": 16, "data": provenance, "cpus": os.cpu_count(), "runs": rows}
+    (RESULTS / "ingest.json").write_text(json.dumps(out, indent=1) + "\n")
+    print(f"ratio = ingest f/s ÷ decode-only f/s; srv ms = server-side mean per frame, then its stages\n"
+          f"wrote {RESULTS / 'ingest.json'}")
+
+
+STAGES = ("receive", "decode", "regions", "estimate", "commit")
+
+
+def _server_ingest(http: httpx.Client) -> dict[str, tuple[float, float]]:
+    """(sum, count) of the service's ``illumon_ingest_seconds`` summary (key ``total``) and of each ingest stage."""
+    text = http.get("/metrics").text
+    vals = {ln.split()[0]: float(ln.split()[1]) for ln in text.splitlines() if ln.startswith("illumon_ingest_")}
+    out = {"total": (vals.get("illumon_ingest_seconds_sum", 0.0), vals.get("illumon_ingest_seconds_count", 0.0))}
+    for st in STAGES:
+        key = f'illumon_ingest_stage_seconds_%s{{stage="{st}"}}'
+        out[st] = (vals.get(key % "sum", 0.0), vals.get(key % "count", 0.0))
+    return out
+
+
+def _mean_ms(m0: dict, m1: dict, key: str) -> float:
+    """Mean milliseconds of ``key`` between two :func:`_server_ingest` snapshots."""
+    return 1e3 * (m1[key][0] - m0[key][0]) / max(1.0, m1[key][1] - m0[key][1])
+
+
+if __name__ == "__main__":
+    main()

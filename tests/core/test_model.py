@@ -14,6 +14,7 @@ from illumon.daylight import cct_duv_from_xy, spectrum_to_xy
 from illumon.model import MODEL_VERSION, IdentifiabilityWarning, SceneModel, fit_scene_model
 from illumon.observations import Observations
 from illumon.reflectance import colourchecker_reflectances
+from illumon.scenarios import measured_daylight_history
 from illumon.simulate import simulate_history
 
 pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="measured data (shared/data) not available")
@@ -56,20 +57,40 @@ def test_save_load_roundtrip(day: dict) -> None:
     np.testing.assert_array_equal(r1.cct, r2.cct)
 
 
-def test_per_frame_accuracy_and_coverage(day: dict) -> None:
+def test_per_frame_accuracy(day: dict) -> None:
     res, extra = SceneModel.load(day["path"]).estimate(day["rest"])
     ae = angular_error_deg(res.white, day["white"])
     assert np.median(ae) <= 1.0
-    cct, duv = cct_duv_from_xy(spectrum_to_xy(day["e"]))
-    cov_cct = np.mean((cct >= extra["cct_lo"]) & (cct <= extra["cct_hi"]))
-    cov_duv = np.mean((duv >= extra["duv_lo"]) & (duv <= extra["duv_hi"]))
-    gains = day["white"][:, 1:2] / day["white"]
-    cov_gain = np.mean((gains >= res.info["gain_lo"]) & (gains <= res.info["gain_hi"]), axis=0)
-    for c in (cov_cct, cov_duv):
-        assert 0.90 <= c <= 0.99, (cov_cct, cov_duv, cov_gain)
-    # gain intervals are dominated by the day's common Duv offset (systematic), so they tend to over-cover
-    assert np.all(cov_gain >= 0.90), cov_gain
+    assert np.all(extra["cct_lo"] < res.cct) and np.all(res.cct < extra["cct_hi"])
     assert np.all((extra["confidence"] >= 0) & (extra["confidence"] <= 1))
+
+
+HELD_OUT = ("Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf", "Phase_One")
+
+
+def test_interval_calibration_over_many_histories() -> None:
+    """95 % intervals cover the truth 90–99 % of the time, pooled over histories.
+
+    The reciprocal-temperature shift common to a history is set by the reflectance prior, so coverage is a property of
+    many histories (patch sets), not of many frames of one: 24 histories of cameras and seeds not used to calibrate
+    ``MODEL_ERROR``, patches the reflectance basis never saw, fit on 60 frames, estimate the next 60.
+    """
+    hits: dict[str, list] = {"cct": [], "duv": []}
+    ae = []
+    for i in range(24):
+        h = measured_daylight_history(HELD_OUT[i % 6], frames=120, patches=10, seed=3000 + i, contiguous=True)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", IdentifiabilityWarning)
+            model = fit_scene_model(h.observations.subset(slice(0, 60)), h.sensitivities)
+        res, extra = model.estimate(h.observations.subset(slice(60, None)))
+        cct, duv = cct_duv_from_xy(spectrum_to_xy(h.illuminants[60:]))
+        hits["cct"] += list((cct >= extra["cct_lo"]) & (cct <= extra["cct_hi"]))
+        hits["duv"] += list((duv >= extra["duv_lo"]) & (duv <= extra["duv_hi"]))
+        ae += list(angular_error_deg(res.white, h.true_white[60:]))
+    coverage = {k: float(np.mean(v)) for k, v in hits.items()}
+    assert 0.90 <= coverage["cct"] <= 0.99, coverage
+    assert 0.90 <= coverage["duv"] <= 0.99, coverage
+    assert np.median(ae) <= 1.0
 
 
 def test_missing_patches_and_partial_overlap(day: dict) -> None:

@@ -826,13 +826,19 @@ def estimate_with_model(obs: Observations, model_path: str | Path) -> tuple[Retr
     """Per-frame estimates of ``obs`` with the model in ``model_path`` (``illumon estimate --model``).
 
     Returns the result and the extra columns ``cct_lo, cct_hi, duv_lo, duv_hi, confidence`` (95 % intervals; see the
-    module docstring for ``confidence``).
+    module docstring for ``confidence``), then ``gain_r_lo, gain_r_hi, gain_b_lo, gain_b_hi`` (95 % intervals of the
+    red and blue gains; the green gain is 1 by definition).
     """
     model = SceneModel.load(model_path)
     try:
-        return model.estimate(obs)
+        res, extra = model.estimate(obs)
     except ValueError as exc:
         raise ValueError(f"{model_path}: {exc}") from None
+    extra = dict(extra)
+    for c, name in ((0, "r"), (2, "b")):
+        extra[f"gain_{name}_lo"] = res.info["gain_lo"][:, c]
+        extra[f"gain_{name}_hi"] = res.info["gain_hi"][:, c]
+    return res, extra
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:

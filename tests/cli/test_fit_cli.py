@@ -44,9 +44,13 @@ def test_fit_then_estimate(files: dict) -> None:
     with open(d / "est.csv") as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == 60
-    assert list(rows[0])[-5:] == ["cct_lo", "cct_hi", "duv_lo", "duv_hi", "confidence"]
+    assert list(rows[0])[12:] == [
+        "cct_lo", "cct_hi", "duv_lo", "duv_hi", "confidence", "gain_r_lo", "gain_r_hi", "gain_b_lo", "gain_b_hi"
+    ]
     for r in rows:
         assert float(r["cct_lo"]) < float(r["cct_k"]) < float(r["cct_hi"])
+        assert float(r["gain_r_lo"]) < float(r["gain_r"]) < float(r["gain_r_hi"])
+        assert float(r["gain_b_lo"]) < float(r["gain_b"]) < float(r["gain_b_hi"])
         assert 0.0 <= float(r["confidence"]) <= 1.0
 
 

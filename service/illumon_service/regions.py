@@ -23,7 +23,9 @@ import numpy as np
 from illumon.camera import ResponseCurve
 from numpy.typing import NDArray
 
-__all__ = ["ImageError", "RegionError", "Region", "sniff_format", "decode_image", "region_means", "response_for"]
+__all__ = [
+    "ImageError", "RegionError", "Region", "sniff_format", "declared_size", "decode_image", "region_means", "response_for",
+]
 
 MAGIC = {
     b"\x89PNG\r\n\x1a\n": "png",
@@ -69,6 +71,51 @@ def sniff_format(data: bytes) -> str | None:
     return None
 
 
+def declared_size(data: bytes, fmt: str) -> tuple[int, int] | None:
+    """Width and height stated by a PNG (IHDR), JPEG (first SOF marker) or TIFF (first IFD) header; ``None`` when the
+    header is too short or malformed to say (the decoder then decides)."""
+    try:
+        if fmt == "png":
+            if len(data) >= 24 and data[12:16] == b"IHDR":
+                return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+            return None
+        if fmt == "jpeg":
+            i = 2
+            while i + 9 < len(data):
+                if data[i] != 0xFF:
+                    return None
+                marker = data[i + 1]
+                if marker == 0xFF:
+                    i += 1
+                    continue
+                if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+                    i += 2
+                    continue
+                seg = int.from_bytes(data[i + 2 : i + 4], "big")
+                if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+                    h = int.from_bytes(data[i + 5 : i + 7], "big")
+                    w = int.from_bytes(data[i + 7 : i + 9], "big")
+                    return w, h
+                if seg < 2:
+                    return None
+                i += 2 + seg
+            return None
+        if fmt == "tiff":
+            order = "little" if data[:2] == b"II" else "big"
+            off = int.from_bytes(data[4:8], order)
+            n = int.from_bytes(data[off : off + 2], order)
+            dims: dict[int, int] = {}
+            for k in range(min(n, 512)):
+                e = off + 2 + 12 * k
+                tag, typ = int.from_bytes(data[e : e + 2], order), int.from_bytes(data[e + 2 : e + 4], order)
+                if tag in (256, 257):
+                    dims[tag] = int.from_bytes(data[e + 8 : e + (10 if typ == 3 else 12)], order)
+            return (dims[256], dims[257]) if len(dims) == 2 else None
+    except (IndexError, ValueError):
+        return None
+    return None
+
+
 def decode_image(data: bytes, *, max_pixels: int = 50_000_000) -> tuple[NDArray, float]:
     """Decode ``data`` to an RGB array (H × W × 3, uint8 or uint16) and its full-scale value (255 or 65535).
 
@@ -79,11 +126,10 @@ def decode_image(data: bytes, *, max_pixels: int = 50_000_000) -> tuple[NDArray,
     fmt = sniff_format(data)
     if fmt is None:
         raise ImageError("image is not PNG, JPEG or TIFF (unrecognised file signature)", 415)
-    if fmt == "png" and len(data) >= 24 and data[12:16] == b"IHDR":
-        # Refuse decompression bombs before allocating: the PNG header states the size.
-        w, h = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
-        if w * h > max_pixels:
-            raise ImageError(f"image has {w}×{h} pixels; the limit is {max_pixels}", 413)
+    size = declared_size(data, fmt)
+    if size is not None and size[0] * size[1] > max_pixels:
+        # Refuse decompression bombs before allocating: the header states the size.
+        raise ImageError(f"image has {size[0]}×{size[1]} pixels; the limit is {max_pixels}", 413)
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None or img.size == 0:
         raise ImageError("image could not be decoded (corrupt or truncated file)")

@@ -60,7 +60,7 @@ MODEL_FORMAT = "illumon-scene-model"
 MODEL_VERSION = 1
 Z95 = 1.959963984540054
 
-MODEL_ERROR = {"mired": 0.8, "duv": 0.001, "log_gain": 0.002, "common_duv": 0.0015, "common_mired": 7.0}
+MODEL_ERROR = {"mired": 0.8, "duv": 0.001, "log_gain": 0.002, "common_duv": 0.0015, "common_mired": 7.5}
 """Standard deviations of the CIE D-series' mismatch to measured daylight as a camera sees it, added in quadrature to
 the Laplace intervals: for Granada spectra 1000–2599 and four measured cameras (Nikon D5100, D3X, Canon 5D Mark II,
 600D), the CIE daylight with the same camera white differs from the measured spectrum by 0.6–0.9 MK⁻¹ (σ), −0.0006 ±
@@ -74,7 +74,8 @@ Laplace curvature trusts the prior as if a scene's patches were drawn from it; a
 that bias does not shrink with more frames. Calibrated on 80 histories (Granada runs, 10 patches the basis never saw,
 fit on 40 or 80 frames, estimate as many) from eight cameras used nowhere else (Canon 20D, 40D, 5D Mark II, Nikon
 D3X, D700, D80, D7000, Hasselblad H2; seeds 1000–1039, 2000–2039): the common error has RMS 6.8 MK⁻¹ (80-frame fits,
-Laplace ≈ 1.9) and 8.8 MK⁻¹ (40-frame fits, Laplace ≈ 2.7), mean −1.6 and −0.6."""
+Laplace ≈ 1.9) and 8.8 MK⁻¹ (40-frame fits, Laplace ≈ 2.7), mean −1.6 and −0.6; pooled RMS 7.9 MK⁻¹ with Laplace
+≈ 2.4 leaves 7.5 MK⁻¹ for the prior's bias."""
 
 
 class IdentifiabilityWarning(UserWarning):

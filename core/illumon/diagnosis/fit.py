@@ -28,7 +28,10 @@ from ..observations import Observations
 from . import bilinear as bl
 from .spectral import fit_spectral_base, fluorescence_gains, off_locus_gains
 
-__all__ = ["RANK", "NONE_MARGIN", "Candidate", "Diagnosis", "diagnose", "corrected_observations", "estimate_with_effect"]
+__all__ = [
+    "RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "Candidate", "Diagnosis", "diagnose", "corrected_observations",
+    "estimate_with_effect",
+]
 
 RANK = 4
 """Rank of the bilinear model: measured daylight seen by three channels needs four components above the noise."""
@@ -39,9 +42,12 @@ NONE_MARGIN = {
     "clipping": 10.0,
     "patch_change": 10.0,
     "shadow": 10.0,
-    "off_locus_illuminant": 10.0,
-    "fluorescence": 10.0,
+    "off_locus_illuminant": 20.0,
+    "fluorescence": 5.0,
 }
+
+MIN_OFF_LOCUS_FRAMES = 2
+"""Fewest frames reported as lit by off-locus light."""
 """How much an extension's BIC must beat the base model's for the effect to be reported."""
 
 
@@ -178,7 +184,10 @@ def _bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float) -> tu
     wb = np.where(present, bl.noise_weights(np.clip(y - b[chan][None, :], 0, None)), 0.0)
     fit_o, b = bl.fit_offset(y, wb, rank, fit_o.U)
     log_sig_b = 0.5 * float(np.log(1.0 / wb[present]).sum())
-    cands.append(Candidate("black_offset", _bic(_nll(fit_o.wrss, n, log_sig_b), fit_o.k, n) - bic0,
+    score_b = _bic(_nll(fit_o.wrss, n, log_sig_b), fit_o.k, n) - bic0
+    if score_b > 3 * np.log(n):  # the models are nested: a worse fit is a local optimum, b = 0 does as well
+        score_b, b = 3 * np.log(n), np.zeros(3)
+    cands.append(Candidate("black_offset", score_b,
                            {"offsets": [round(float(v), 5) for v in b]},
                            residual=float(np.sqrt(fit_o.wrss / max(n - fit_o.k, 1)))))
     fits["black_offset"] = {"offsets": b}
@@ -217,13 +226,16 @@ def _spectral_stage(obs: Observations, sensitivities: NDArray[np.float64]) -> tu
     order = np.argsort(-z)
     n_f = 3 * int(base.prob.present.sum(1).mean())
     per_frame_pen = (kx + 1) * np.log(n_f)
+    # at least two frames: measured skies include rare spectra (twilight, haze; Duv down to −0.014) that the daylight
+    # model misses, so one odd frame is no evidence of a lamp
     best_k, best_score = 0, 0.0
-    for k in range(1, max(2, f // 3) + 1):
+    for k in range(MIN_OFF_LOCUS_FRAMES, max(MIN_OFF_LOCUS_FRAMES, f // 3) + 1):
         score = -float(z[order[:k]].sum()) + k * per_frame_pen
         if score < best_score:
             best_k, best_score = k, score
     frames = sorted(int(i) for i in order[:best_k])
-    cands.append(Candidate("off_locus_illuminant", best_score if best_k else float(per_frame_pen - z.max()),
+    fallback = float(MIN_OFF_LOCUS_FRAMES * per_frame_pen - z[order[:MIN_OFF_LOCUS_FRAMES]].sum())
+    cands.append(Candidate("off_locus_illuminant", best_score if best_k else fallback,
                            {"frame_indices": frames if best_k else [], "gain_scale": round(scale, 3)},
                            frame=frames[0] if frames else None))
     # fluorescence: the patch whose reflectance + emission beats reflectance alone the most

@@ -70,6 +70,8 @@ def camera_for(session: Session, principal: Principal, camera_id: int) -> Camera
     """The camera if the caller may use it; another camera's resources answer 404, as unknown ones."""
     if not principal.admin and principal.camera_id != camera_id:
         raise not_found(camera_id)
+    if not 0 < camera_id < 2**63:  # beyond a 64-bit integer column: no such camera (not a database error)
+        raise not_found(camera_id)
     cam = session.get(Camera, camera_id)
     if cam is None:
         raise not_found(camera_id)

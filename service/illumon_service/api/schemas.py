@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
-__all__ = ["SensitivitiesIn", "RegionIn", "ResponseIn", "CameraIn", "RegionsIn", "ObservationIn"]
+__all__ = [
+    "SensitivitiesIn", "RegionIn", "ResponseIn", "CameraIn", "RegionsIn", "ObservationIn", "ErrorOut", "ERROR_RESPONSES",
+    "FRAME_UPLOAD",
+]
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
 NonNegative = Annotated[float, Field(allow_inf_nan=False, ge=0)]
@@ -93,3 +96,43 @@ class ObservationIn(_Strict):
     taken_at: datetime | None = None
     patches: dict[str, Annotated[list[NonNegative], Field(min_length=3, max_length=3)] | None] = Field(min_length=1)
     white_level: float = Field(default=1.0, gt=0, allow_inf_nan=False)
+
+
+class ErrorOut(BaseModel):
+    """Every 4xx/5xx answer: ``{"detail": ...}`` — a sentence, or for malformed bodies a list of
+    ``{"loc", "msg", "type"}`` items."""
+
+    detail: str | list[dict[str, Any]]
+
+
+ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
+    400: {"model": ErrorOut, "description": "Malformed request (e.g. a body that is not valid multipart)"},
+    401: {"model": ErrorOut, "description": "Missing or unknown bearer token"},
+    403: {"model": ErrorOut, "description": "Admin token required"},
+    404: {"model": ErrorOut, "description": "Unknown resource, or another camera's"},
+    413: {"model": ErrorOut, "description": "Upload or image too large"},
+    415: {"model": ErrorOut, "description": "Unsupported content type or image format"},
+    422: {"model": ErrorOut, "description": "Invalid values (schema, NaN/infinite/negative numbers, regions, images)"},
+}
+"""Error answers documented on every ``/v1`` route (the OpenAPI schema lists what the routes really answer)."""
+
+FRAME_UPLOAD: dict[str, Any] = {
+    "requestBody": {
+        "required": True,
+        "content": {
+            "multipart/form-data": {
+                "schema": {
+                    "type": "object",
+                    "required": ["image"],
+                    "properties": {
+                        "image": {"type": "string", "format": "binary",
+                                  "description": "PNG, JPEG or TIFF, 8- or 16-bit, RGB or grey"},
+                        "taken_at": {"type": "string", "format": "date-time",
+                                     "description": "ISO 8601; naive means UTC; now when absent"},
+                    },
+                }
+            }
+        },
+    }
+}
+"""OpenAPI request body of ``POST /v1/cameras/{id}/frames`` (parsed by hand, so FastAPI cannot infer it)."""

@@ -8,9 +8,9 @@ from illumon.spectra import SpectralInputError, sensitivities_from_arrays
 
 from ...deps import AdminDep, PrincipalDep, SessionDep, camera_for
 from ...storage import Camera, as_utc, hash_token, new_token
-from ..schemas import CameraIn, RegionsIn
+from ..schemas import ERROR_RESPONSES, CameraIn, RegionsIn
 
-router = APIRouter(prefix="/v1/cameras", tags=["cameras"])
+router = APIRouter(prefix="/v1/cameras", tags=["cameras"], responses=ERROR_RESPONSES)
 
 
 def camera_out(cam: Camera) -> dict:

@@ -11,8 +11,9 @@ from sqlalchemy.orm import Session
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import GRID_WAVELENGTHS
 from ...storage import Estimate, as_utc
+from ..schemas import ERROR_RESPONSES
 
-router = APIRouter(prefix="/v1/cameras", tags=["estimates"])
+router = APIRouter(prefix="/v1/cameras", tags=["estimates"], responses=ERROR_RESPONSES)
 
 
 def estimate_out(e: Estimate) -> dict:

@@ -14,10 +14,10 @@ from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import estimate_frame
 from ...regions import ImageError, Region, RegionError, decode_image, region_means, response_for, sniff_format
 from ...storage import Camera, Estimate, Frame, as_utc
-from ..schemas import ObservationIn
+from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, ObservationIn
 from .estimates import estimate_out
 
-router = APIRouter(prefix="/v1/cameras", tags=["frames"])
+router = APIRouter(prefix="/v1/cameras", tags=["frames"], responses=ERROR_RESPONSES)
 
 IMAGE_TYPES = {"image/png", "image/jpeg", "image/jpg", "image/tiff", "application/octet-stream", ""}
 
@@ -140,7 +140,7 @@ def _store(
     }
 
 
-@router.post("/{camera_id}/frames", status_code=status.HTTP_201_CREATED)
+@router.post("/{camera_id}/frames", status_code=status.HTTP_201_CREATED, openapi_extra=FRAME_UPLOAD)
 async def post_frame(camera_id: int, request: Request, session: SessionDep, principal: PrincipalDep) -> dict:
     """Ingest one image (multipart ``image`` and optional ``taken_at``): robust region means, then an estimate."""
     t_start = time.perf_counter()

@@ -9,9 +9,10 @@ from illumon.gains import all_conventions
 
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...storage import as_utc
+from ..schemas import ERROR_RESPONSES
 from .estimates import nearest_estimate
 
-router = APIRouter(prefix="/v1/cameras", tags=["gains"])
+router = APIRouter(prefix="/v1/cameras", tags=["gains"], responses=ERROR_RESPONSES)
 
 
 def parse_range(text: str | None) -> tuple[float, float] | None:

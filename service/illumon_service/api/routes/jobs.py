@@ -6,8 +6,9 @@ from fastapi import APIRouter, HTTPException, Request, status
 
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...storage import Job, as_utc
+from ..schemas import ERROR_RESPONSES
 
-router = APIRouter(tags=["jobs"])
+router = APIRouter(tags=["jobs"], responses=ERROR_RESPONSES)
 
 
 @router.post("/v1/cameras/{camera_id}/refit", status_code=status.HTTP_202_ACCEPTED)

@@ -13,8 +13,8 @@ Two stages, each a penalised-likelihood comparison against its own base model (S
 An extension is chosen when its BIC beats the base by more than :data:`NONE_MARGIN` (evidence "very strong" on the
 Kass & Raftery 1995 scale is ΔBIC > 10; 15 for the tone curve and 20 for off-locus light, whose tests see more model
 error, 5 for fluorescence, whose penalty already counts the search over patches; set on the development cameras and
-seeds only, see :mod:`.effects`); otherwise the answer is ``none``. The illuminants are then re-estimated with the chosen extension
-(:func:`corrected_observations`, :func:`estimate_with_effect`) and the change is reported.
+seeds only, see :mod:`.effects`); otherwise the answer is ``none``. The illuminants are then re-estimated with the
+chosen extension (:func:`corrected_observations`, :func:`estimate_with_effect`) and the change is reported.
 """
 
 from __future__ import annotations

@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._blas import single_blas_thread
 from .camera import gains_from_white
 from .daylight import MIRED_RANGE, CIEDaylight, _planck, cie_d_weights, daylight_locus_duv, xy_from_cct_duv
 from .observations import Observations
@@ -437,6 +438,7 @@ class SceneModel:
             noise_scale=n["noise_scale"], scale=n["scale"],
         )
 
+    @single_blas_thread
     def estimate(self, obs: Observations, solver: FrameSolver | None = None) -> tuple[RetrievalResult, dict]:
         """Per-frame estimates with 95 % intervals for ``obs`` (patches matched by name; at least two shared).
 
@@ -571,6 +573,7 @@ def _reflectance_posterior(
     return np.linalg.solve(prec, rhs[..., None])[..., 0], prec
 
 
+@single_blas_thread
 def fit_scene_model(
     obs: Observations,
     sensitivities: NDArray[np.float64],

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from .._blas import single_blas_thread
 from ..daylight import (
     CIE_D_BASIS,
     cct_duv_from_xy,
@@ -219,6 +220,7 @@ def _q(a: NDArray[np.float64] | list, p: float = 50) -> float:
     return float(np.percentile(a, p)) if a.size else float("nan")
 
 
+@single_blas_thread
 def daylight_report(
     spectra_csv_path: str | Path,
     out_dir: str | Path,

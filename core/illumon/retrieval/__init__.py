@@ -20,6 +20,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import NDArray
 
+from .._blas import single_blas_thread
 from ..observations import Observations
 from .common import RetrievalResult, gray_world, make_result
 from .joint import illuminant_retrieval_joint
@@ -65,6 +66,7 @@ METHODS: dict[str, Callable[..., RetrievalResult]] = {
 """Retrieval methods by name."""
 
 
+@single_blas_thread
 def retrieve_illuminants(
     observations: Observations, sensitivities: NDArray[np.float64], method: str = "joint", **kwargs
 ) -> RetrievalResult:

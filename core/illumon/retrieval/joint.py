@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 from scipy import sparse
 from scipy.optimize import least_squares
 
+from .._blas import single_blas_thread
 from ..daylight import DaylightModel, daylight_locus_duv, daylight_model, xy_from_cct_duv
 from ..observations import Observations
 from ..reflectance import ReflectanceBasis, reflectance_basis
@@ -248,6 +249,7 @@ def _gray_world_mired(obs: Observations, sensitivities: NDArray[np.float64], mod
     return grid[np.argmin(d, axis=1)]
 
 
+@single_blas_thread
 def illuminant_retrieval_joint(
     obs: Observations,
     sensitivities: NDArray[np.float64],

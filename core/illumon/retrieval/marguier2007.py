@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from .._blas import single_blas_thread
 from ..daylight import daylight_locus_xy, daylight_spectrum, theta_curve
 from ..observations import Observations
 from ..reflectance import ReflectanceBasis, reflectance_basis
@@ -56,6 +57,7 @@ def marguier_error(
     return float(np.sqrt(total) / (y.shape[1] * f))
 
 
+@single_blas_thread
 def illuminant_retrieval_Marguier2007(
     obs: Observations,
     sensitivities: NDArray[np.float64],

@@ -25,6 +25,7 @@ from collections.abc import Callable
 
 from numpy.typing import ArrayLike
 
+from .._blas import single_blas_thread
 from .bayes import sensitivities_Kinoshita2023
 from .common import SensitivityResult, rmse_per_channel
 from .correction import (
@@ -80,6 +81,7 @@ METHODS: dict[str, Callable[..., SensitivityResult]] = {
 """Sensitivity estimators by name."""
 
 
+@single_blas_thread
 def estimate_sensitivities(
     chart_rgb: ArrayLike, chart_reflectances: ArrayLike, method: str = "default", **kwargs: object
 ) -> SensitivityResult:

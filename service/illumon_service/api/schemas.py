@@ -39,14 +39,18 @@ class SensitivitiesIn(_Strict):
         return self
 
 
+MAX_SIDE = 1_000_000
+"""Largest region coordinate or side in pixels (beyond any image the service accepts)."""
+
+
 class RegionIn(_Strict):
     """A rectangle of static scene in pixels (origin top-left)."""
 
     id: str = Field(min_length=1, max_length=100)
-    x: int = Field(ge=0)
-    y: int = Field(ge=0)
-    width: int = Field(gt=0)
-    height: int = Field(gt=0)
+    x: int = Field(ge=0, le=MAX_SIDE)
+    y: int = Field(ge=0, le=MAX_SIDE)
+    width: int = Field(gt=0, le=MAX_SIDE)
+    height: int = Field(gt=0, le=MAX_SIDE)
 
 
 def _unique(regions: list[RegionIn]) -> list[RegionIn]:

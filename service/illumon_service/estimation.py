@@ -107,6 +107,22 @@ def _load_model(model: Any, path: Path) -> Any:
     return loaded
 
 
+def _solver(scene: Any, region_ids: list[str]) -> Any:
+    """The model's per-frame solver over the regions it knows, built once per loaded model and region list (building
+    it costs more than solving a frame) and kept on the model object. ``SceneModel.estimate`` matches patches in this
+    same order."""
+    index = {p: i for i, p in enumerate(scene.patches)}
+    mi = tuple(index[p] for p in region_ids if p in index)
+    with _CACHE_LOCK:
+        cache = scene.__dict__.setdefault("_service_solvers", {})
+        hit = cache.get(mi)
+    if hit is None:
+        hit = scene.solver(list(mi))
+        with _CACHE_LOCK:
+            cache[mi] = hit
+    return hit
+
+
 def _intervals(result: Any, extra: dict, i: int) -> dict | None:
     out: dict[str, Any] = {k: float(np.asarray(v)[i]) for k, v in (extra or {}).items() if k != "confidence"}
     for k in ("gain_lo", "gain_hi"):
@@ -129,7 +145,8 @@ def estimate_frame(
         return None
     try:
         if hasattr(model, "SceneModel") and hasattr(model.SceneModel, "load"):
-            result, extra = _load_model(model, path).estimate(obs)
+            scene = _load_model(model, path)
+            result, extra = scene.estimate(obs, solver=_solver(scene, list(region_ids)))
         else:
             result, extra = model.estimate_with_model(obs, str(path))
     except Exception as exc:  # noqa: BLE001 - the model API is young; never fail an ingest on it

@@ -189,6 +189,10 @@ def _fit_model(obs: Observations, css: NDArray[np.float64], path: Path, max_fit_
     return "fitted"
 
 
+ESTIMATE_CHUNK = 10_000
+"""Frames estimated per call of the scene model at a refit."""
+
+
 def _refit_with_model(
     obs: Observations, css: NDArray[np.float64], model_file: Path | None, max_fit_frames: int
 ) -> tuple[dict[str, dict], dict]:
@@ -201,19 +205,31 @@ def _refit_with_model(
     if model_file is not None:
         _save_model(fitted, model_file)
         _MODEL_CACHE.pop(str(model_file), None)
-    result, extra = fitted.estimate(obs)
-    ok = np.all(np.isfinite(result.white), axis=1)
-    conf = np.asarray(extra["confidence"], dtype=float)
-    out = {
-        fid: _row(result, i, conf[i], "refit:model", _intervals(result, extra, i))
-        for i, fid in enumerate(result.frames) if ok[i]
-    }
+    out: dict[str, dict] = {}
+    solver = None
+    ccts = []
+    for start in range(0, len(obs.frames), ESTIMATE_CHUNK):  # chunks keep the solver's temporaries in cache
+        part = obs.subset(slice(start, start + ESTIMATE_CHUNK))
+        if solver is None:
+            solver = _solver(fitted, list(part.patches))
+        try:
+            result, extra = fitted.estimate(part, solver=solver)
+        except ValueError:  # no frame of this chunk has two of the model's patches
+            continue
+        ok = np.all(np.isfinite(result.white), axis=1)
+        conf = np.asarray(extra["confidence"], dtype=float)
+        out.update({
+            fid: _row(result, i, conf[i], "refit:model", _intervals(result, extra, i))
+            for i, fid in enumerate(result.frames) if ok[i]
+        })
+        ccts.append(result.cct[ok])
+    cct = np.concatenate(ccts) if ccts else np.array([])
     summary = {
         "frames": len(out),
         "method": "model",
         "model": "fitted" if model_file is not None else "not saved",
         "frames_used_for_reflectances": fitted.training.get("frames_used_for_reflectances"),
-        "cct_k_median": float(np.median(result.cct[ok])) if ok.any() else None,
+        "cct_k_median": float(np.median(cct)) if cct.size else None,
         "identifiability_warnings": list(fitted.identifiability.get("warnings", [])),
     }
     return out, summary

@@ -26,7 +26,7 @@ REQUIRED = {
     "clipping": SEEDS,
     "patch_change": SEEDS,
     "shadow": SEEDS,
-    "off_locus_illuminant": SEEDS - 3,
+    "off_locus_illuminant": SEEDS - 2,
     "fluorescence": SEEDS - 3,
 }
 """Histories per effect (of ``SEEDS``) that must be diagnosed correctly. Off-locus light and fluorescence are only

@@ -5,9 +5,9 @@ combination of patch responses, and a fluorophore's emission ``(Σλ' a(λ') E(�
 so a fluorescent patch behaves like a patch with another (non-physical) reflectance. They show only against what is
 known of daylight, cameras and surfaces, i.e. against the joint spectral fit of :mod:`illumon.retrieval.joint`:
 
-* **off-locus light**: with the reflectances of the joint fit held, each frame is re-fitted with a free illuminant
-  (a smooth 10-function basis, no daylight prior). A daylight frame gains little (its spectrum is already within the
-  daylight model and prior); a lamp-lit frame gains much.
+* **off-locus light**: with the reflectances of the joint fit held, each frame is re-fitted with measured daylight
+  (the Gaussian of 2600 Granada spectra) and with a free illuminant (a smooth 10-function basis, no prior). A daylight
+  frame gains little from the freedom; a lamp-lit frame gains much.
 * **fluorescence** (Han, Matsushita, Sato, Okabe & Sato, CVPR 2012, eqs. 1–2): with the frames' illuminants and
   exposures of the joint fit held, each patch is re-fitted with its reflectance (Gaussian prior) plus the emission of a
   fluorophore, ``k_f s (Σλ a(λ) E_f(λ)) Cᵀe`` with ``s ≥ 0``, for each of the 21 fluorophores shipped in
@@ -79,24 +79,46 @@ def _generic_basis(n: int = 10, width_nm: float = 30.0) -> NDArray[np.float64]:
 
 
 def off_locus_gains(base: SpectralBase) -> tuple[NDArray[np.float64], int]:
-    """Per frame, the drop of whitened misfit (data + daylight prior) when its illuminant is free (reflectances held).
+    """Per frame, how much better a free illuminant explains it than measured daylight (reflectances held).
 
-    Returns the gains (F,), in units of the noise variance ``phi``, and the number of extra parameters per frame.
+    The daylight alternative is the Gaussian of 2600 measured Granada spectra (mean and four principal components,
+    ``illumon/data/daylight_prior.*``), so rare but natural skies (twilight, haze, well off the CIE locus) keep their
+    prior probability; the free alternative is a smooth 10-function basis without prior. Returns the gains (F,) in
+    units of the noise variance ``phi`` (data misfit over ``phi`` plus the daylight prior's χ²) and the number of
+    extra parameters per frame.
     """
+    from ..sensitivity.prior import default_daylight_prior
+
     prob = base.prob
     g = _generic_basis()
+    dp = default_daylight_prior()
+    day_basis = np.column_stack([dp.mean, dp.components])  # 61 × (1 + J)
     kb, _ = imaging_operators(base.sensitivities, g, prob.rb)  # nb × 3 × K
+    kd, _ = imaging_operators(base.sensitivities, day_basis, prob.rb)
     design = np.einsum("bcj,pj->pcb", kb, base.sigma)  # P × 3 × nb
+    design_d = np.einsum("bcj,pj->pcb", kd, base.sigma)  # P × 3 × (1 + J)
+    cov_inv = np.linalg.inv(dp.coefficient_covariance)
+    m = dp.coefficient_mean
+    j = dp.size
     gains = np.zeros(prob.F)
     for f in range(prob.F):
         w = prob.W[f]  # P × 3
-        a = (w[..., None] * design).reshape(-1, g.shape[1])
         b = (w * prob.Y[f]).ravel()
+        a = (w[..., None] * design).reshape(-1, g.shape[1])
         coef, *_ = np.linalg.lstsq(a, b, rcond=None)
-        free = float(((b - a @ coef) ** 2).sum())
-        day = float((base.data_res[f] ** 2).sum() + (base.prior_res[f] ** 2).sum())
-        gains[f] = (day - free) / base.phi
-    return gains, g.shape[1] - prob.np - 1
+        free = float(((b - a @ coef) ** 2).sum()) / base.phi
+        ad = (w[..., None] * design_d).reshape(-1, j + 1)
+        k0 = max(float(ad[:, 0] @ b / max(ad[:, 0] @ ad[:, 0], 1e-300)), 1e-12)
+        # minimise |b − ad x|²/φ + (x₁ − k₀m)ᵀ (k₀²Σ)⁻¹ (x₁ − k₀m),  x = [k, k·c]
+        lam = np.zeros((j + 1, j + 1))
+        lam[1:, 1:] = cov_inv / k0**2
+        rhs_prior = np.zeros(j + 1)
+        rhs_prior[1:] = lam[1:, 1:] @ (k0 * m)
+        x = np.linalg.solve(ad.T @ ad / base.phi + lam, ad.T @ b / base.phi + rhs_prior)
+        d = x[1:] - k0 * m
+        day = float(((b - ad @ x) ** 2).sum()) / base.phi + float(d @ lam[1:, 1:] @ d)
+        gains[f] = day - free
+    return gains, g.shape[1] - (j + 1)
 
 
 def shipped_fluorophores() -> tuple[list[str], NDArray[np.float64], NDArray[np.float64]]:

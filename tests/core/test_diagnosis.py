@@ -17,7 +17,7 @@ from illumon.retrieval import retrieve_illuminants
 
 SEED0 = 10_000
 SEEDS = 4
-"""Seeds per effect; each history is small (24 frames × 8 patches) to keep the suite fast on two shared cores."""
+"""Seeds per effect; most histories are small (24 frames × 8 patches) to keep the suite fast on two shared cores."""
 
 REQUIRED = {
     "none": SEEDS - 1,
@@ -26,16 +26,23 @@ REQUIRED = {
     "clipping": SEEDS,
     "patch_change": SEEDS,
     "shadow": SEEDS,
-    "off_locus_illuminant": SEEDS - 2,
-    "fluorescence": SEEDS - 3,
+    "off_locus_illuminant": SEEDS - 1,
+    "fluorescence": SEEDS - 2,
 }
-"""Histories per effect (of ``SEEDS``) that must be diagnosed correctly. Off-locus light and fluorescence are only
-visible against the spectral model, whose own error limits them (see the benchmark's figures)."""
+"""Histories per effect (of ``SEEDS``) that must be diagnosed correctly, from the rates on the development seeds: the
+bilinear effects ~100 % (the tone curve a little less on 24 × 8 histories), off-locus light ~90 %, fluorescence ~50 %
+(only visible against the spectral model, whose own error limits it; see the benchmark's figures)."""
+
+
+SIZE = {"off_locus_illuminant": (32, 10), "fluorescence": (32, 10)}
+"""History sizes (frames, patches) where 24 × 8 is too small: effects seen only against the spectral model need the
+typical scene (the benchmark draws 24…40 frames and 8…12 patches)."""
 
 
 def _hist(effect: str, i: int):
+    frames, patches = SIZE.get(effect, (24, 8))
     return hide_effect(effect, TEST_CAMERAS[i % len(TEST_CAMERAS)], SEED0 + 100 * EFFECTS.index(effect) + i,
-                       frames=24, patches=8)
+                       frames=frames, patches=patches)
 
 
 def _correct(h, d) -> bool:

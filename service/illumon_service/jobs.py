@@ -202,16 +202,21 @@ class JobRunner:
 def _refit_worker(
     database_url: str, camera_id: int, data_dir: str, max_frames: int, method: str, max_fit_frames: int = 300
 ) -> dict:
-    """Dask task: refit one camera with its own engine (engines are not picklable)."""
+    """Dask task: refit one camera with the worker process's engine (engines are not picklable; one per process and
+    database, created on the first task)."""
     limit_blas_threads()
-    engine = make_engine(database_url)
-    try:
-        return refit_camera(
-            make_session_factory(engine), camera_id, data_dir=Path(data_dir), max_frames=max_frames, method=method,
-            max_fit_frames=max_fit_frames,
-        )
-    finally:
-        engine.dispose()
+    with _ENGINES_LOCK:
+        if database_url not in _ENGINES:
+            _ENGINES[database_url] = make_session_factory(make_engine(database_url))
+        sessions = _ENGINES[database_url]
+    return refit_camera(
+        sessions, camera_id, data_dir=Path(data_dir), max_frames=max_frames, method=method,
+        max_fit_frames=max_fit_frames,
+    )
+
+
+_ENGINES: dict[str, sessionmaker[Session]] = {}
+_ENGINES_LOCK = threading.Lock()
 
 
 def run_batch(

@@ -12,9 +12,9 @@ Two stages, each a penalised-likelihood comparison against its own base model (S
 
 An extension is chosen when its BIC beats the base by more than :data:`NONE_MARGIN` (evidence "very strong" on the
 Kass & Raftery 1995 scale is ΔBIC > 10; 15 for the tone curve and 20 for off-locus light, whose tests see more model
-error, 5 for fluorescence, whose penalty already counts the search over patches; set on the development cameras and
-seeds only, see :mod:`.effects`); otherwise the answer is ``none``. The illuminants are then re-estimated with the
-chosen extension (:func:`corrected_observations`, :func:`estimate_with_effect`) and the change is reported.
+error; set on the development cameras and seeds only, see :mod:`.effects`); otherwise the answer is ``none``. The
+illuminants are then re-estimated with the chosen extension (:func:`corrected_observations`,
+:func:`estimate_with_effect`) and the change is reported.
 """
 
 from __future__ import annotations
@@ -44,7 +44,7 @@ NONE_MARGIN = {
     "patch_change": 10.0,
     "shadow": 10.0,
     "off_locus_illuminant": 20.0,
-    "fluorescence": 5.0,
+    "fluorescence": 10.0,
 }
 
 MIN_OFF_LOCUS_FRAMES = 2

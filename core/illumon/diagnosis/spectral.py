@@ -8,10 +8,10 @@ known of daylight, cameras and surfaces, i.e. against the joint spectral fit of 
 * **off-locus light**: with the reflectances of the joint fit held, each frame is re-fitted with measured daylight
   (the Gaussian of 2600 Granada spectra) and with a free illuminant (a smooth 10-function basis, no prior). A daylight
   frame gains little from the freedom; a lamp-lit frame gains much.
-* **fluorescence** (Han, Matsushita, Sato, Okabe & Sato, CVPR 2012, eqs. 1–2): with the frames' illuminants and
-  exposures of the joint fit held, each patch is re-fitted with its reflectance (Gaussian prior) plus the emission of a
-  fluorophore, ``k_f s (Σλ a(λ) E_f(λ)) Cᵀe`` with ``s ≥ 0``, for each of the 21 fluorophores shipped in
-  ``illumon/data/fluorophores.csv``.
+* **fluorescence** (Han, Matsushita, Sato, Okabe & Sato, CVPR 2012, eqs. 1–2): with the frames' illuminants
+  re-fitted as measured daylight (above) and held, each patch is re-fitted with its reflectance (Gaussian prior)
+  plus the emission of a fluorophore, ``k_f s (Σλ a(λ) E_f(λ)) Cᵀe`` with ``s ≥ 0``, for each of the 21
+  fluorophores shipped in ``illumon/data/fluorophores.csv``.
 
 Both gains are in the whitened units of the joint fit, whose noise scale is profiled from its data residuals.
 """
@@ -46,6 +46,7 @@ class SpectralBase:
     prior_res: NDArray[np.float64]  # F × nd whitened daylight prior
     phi: float  # noise scale of the whitened data residuals
     sensitivities: NDArray[np.float64]
+    day_spectra: NDArray[np.float64] | None = None  # F × 61 measured-daylight re-fit per frame, exposure included
 
 
 def fit_spectral_base(obs: Observations, sensitivities: NDArray[np.float64], max_nfev: int = 100,
@@ -101,6 +102,7 @@ def off_locus_gains(base: SpectralBase) -> tuple[NDArray[np.float64], int]:
     m = dp.coefficient_mean
     j = dp.size
     gains = np.zeros(prob.F)
+    day_x = np.zeros((prob.F, j + 1))
     for f in range(prob.F):
         w = prob.W[f]  # P × 3
         b = (w * prob.Y[f]).ravel()
@@ -118,6 +120,8 @@ def off_locus_gains(base: SpectralBase) -> tuple[NDArray[np.float64], int]:
         d = x[1:] - k0 * m
         day = float(((b - ad @ x) ** 2).sum()) / base.phi + float(d @ lam[1:, 1:] @ d)
         gains[f] = day - free
+        day_x[f] = x
+    base.day_spectra = day_x @ day_basis.T
     return gains, g.shape[1] - (j + 1)
 
 
@@ -147,9 +151,15 @@ def fluorescence_gains(base: SpectralBase) -> tuple[NDArray[np.float64], NDArray
     the fluorophore names."""
     prob = base.prob
     names, ex, em = shipped_fluorophores()
-    m, white = prob.operators(base.params)
-    spectra = prob.model.weights(base.params) @ prob.model.basis.T / white[:, 1:2]  # F × 61, camera white_g = 1
-    k = np.exp(base.logk)
+    if base.day_spectra is not None:  # frames re-fitted with measured daylight (off_locus_gains), exposure included
+        spectra = base.day_spectra
+        k = np.ones(prob.F)
+        kf, _ = imaging_operators(base.sensitivities, spectra.T, prob.rb)  # F × 3 × K
+        m = kf
+    else:
+        m, white = prob.operators(base.params)
+        spectra = prob.model.weights(base.params) @ prob.model.basis.T / white[:, 1:2]  # F × 61, camera white_g = 1
+        k = np.exp(base.logk)
     q = spectra @ ex.T  # F × J: absorbed light (Han et al. eq. 1)
     wcol = em @ base.sensitivities  # J × 3: camera response to each emission spectrum (eq. 2)
     a_all = k[:, None, None] * m  # F × 3 × K

@@ -9,8 +9,9 @@ The service is a real ``illumon serve`` process on a free loopback port (SQLite 
 through the whole path: multipart upload, decode, robust means of 16 regions of 120×120, per-frame estimate with the
 scene model, commit. Clients are threads of this process posting over HTTP/1.1 keep-alive; with concurrency ``c``
 the decode-only rate is measured with ``c`` threads as well (``cv2.imdecode`` releases the GIL).
-Frames: a gradient background, 16 patches rendered with measured spectra (Nikon D5100, Granada daylight, Munsell)
-where ``../shared/data`` exists (synthetic spectra otherwise), noise and a moving clutter rectangle.
+Frames: a textured gradient background (JPEG ≈ 0.23 MB at quality 90), 16 patches rendered with measured spectra
+(Nikon D5100, Granada daylight, Munsell) where ``../shared/data`` exists (synthetic spectra otherwise), noise and a
+moving clutter rectangle.
 """
 
 from __future__ import annotations
@@ -73,6 +74,10 @@ def render_frames(n: int, kind: str) -> tuple[list[bytes], np.ndarray, str]:
     lin = render(css, day, refl)  # n × 17 × 3
     yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
     shade = (0.7 + 0.3 * xx / W)[..., None] * (0.8 + 0.2 * yy / H)[..., None]
+    # Scene texture (foliage, paving): blurred noise at two scales, ±25 %, so that JPEG files have realistic sizes.
+    tex = sum(cv2.GaussianBlur(rng.standard_normal((H, W)).astype(np.float32), (0, 0), s) * a
+              for s, a in ((1.0, 0.5), (6.0, 2.0)))
+    shade = shade * np.clip(1 + 0.25 * tex / np.abs(tex).max(), 0.5, 1.5)[..., None]
     out = []
     for f in range(n):
         k = 0.7 / lin[f].max()

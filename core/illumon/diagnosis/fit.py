@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from ..camera import angular_error_deg
 from ..observations import Observations
 from . import bilinear as bl
-from .spectral import fit_spectral_base, fluorescence_gains, off_locus_gains
+from .spectral import fit_spectral_base, fluorescence_gains, off_locus_gains, refine_with_measured_daylight
 
 __all__ = [
     "RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "Candidate", "Diagnosis", "diagnose", "corrected_observations",
@@ -46,6 +46,9 @@ NONE_MARGIN = {
     "off_locus_illuminant": 20.0,
     "fluorescence": 10.0,
 }
+
+REFINE_ITERS = 3
+"""Alternations of measured-daylight frames and reflectances after the joint CIE fit (spectral stage)."""
 
 MIN_OFF_LOCUS_FRAMES = 2
 """Fewest frames reported as lit by off-locus light."""
@@ -214,14 +217,25 @@ def _bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float) -> tu
 
 
 def _spectral_stage(obs: Observations, sensitivities: NDArray[np.float64]) -> tuple[list[Candidate], dict]:
+    from scipy.stats import chi2
+
     base = fit_spectral_base(obs, sensitivities)
     n = int(base.prob.present.sum()) * 3
     f = base.prob.F
-    cands = []
-    # off-locus light: frames whose free-illuminant gain is an outlier of the history's own gain distribution
+    # fluorescence: the patch whose reflectance + emission beats reflectance alone the most, with each frame re-fitted
+    # as measured daylight once (reflectances of the joint fit)
+    refine_with_measured_daylight(base, iters=0)
+    fg, fb, strength, names = fluorescence_gains(base)
+    p = int(np.argmax(fg))
+    rest = np.delete(fg, p)
+    fscale = max(float(np.median(rest)) / chi2.median(1), 1.0) if rest.size else 1.0
+    fluor = Candidate("fluorescence", -float(fg[p] / fscale) + 2 * np.log(n),
+                      {"fluorophore": names[int(fb[p])], "emission_strength": round(float(strength[p]), 4),
+                       "gain_scale": round(fscale, 3)}, patch=p)
+    # off-locus light: frames whose free-illuminant gain is an outlier of the history's own gain distribution, after
+    # alternating measured-daylight frames and reflectances (less daylight-model error in the reflectances)
+    refine_with_measured_daylight(base, iters=REFINE_ITERS)
     gains, kx = off_locus_gains(base)
-    from scipy.stats import chi2
-
     scale = max(float(np.median(gains)) / chi2.median(kx), 1e-9)
     z = gains / scale
     order = np.argsort(-z)
@@ -236,18 +250,10 @@ def _spectral_stage(obs: Observations, sensitivities: NDArray[np.float64]) -> tu
             best_k, best_score = k, score
     frames = sorted(int(i) for i in order[:best_k])
     fallback = float(MIN_OFF_LOCUS_FRAMES * per_frame_pen - z[order[:MIN_OFF_LOCUS_FRAMES]].sum())
-    cands.append(Candidate("off_locus_illuminant", best_score if best_k else fallback,
-                           {"frame_indices": frames if best_k else [], "gain_scale": round(scale, 3)},
-                           frame=frames[0] if frames else None))
-    # fluorescence: the patch whose reflectance + emission beats reflectance alone the most
-    fg, fb, strength, names = fluorescence_gains(base)
-    p = int(np.argmax(fg))
-    rest = np.delete(fg, p)
-    fscale = max(float(np.median(rest)) / chi2.median(1), 1.0) if rest.size else 1.0
-    cands.append(Candidate("fluorescence", -float(fg[p] / fscale) + 2 * np.log(n),
-                           {"fluorophore": names[int(fb[p])], "emission_strength": round(float(strength[p]), 4),
-                            "gain_scale": round(fscale, 3)}, patch=p))
-    return cands, {"off_locus_frames": frames, "phi_spectral": base.phi}
+    off = Candidate("off_locus_illuminant", best_score if best_k else fallback,
+                    {"frame_indices": frames if best_k else [], "gain_scale": round(scale, 3)},
+                    frame=frames[0] if frames else None)
+    return [off, fluor], {"off_locus_frames": frames, "phi_spectral": base.phi}
 
 
 def diagnose(

@@ -31,7 +31,7 @@ from ..retrieval.common import imaging_operators
 from ..retrieval.joint import JointProblem, _gray_world_mired
 from ..spectra import WAVELENGTHS
 
-__all__ = ["SpectralBase", "fit_spectral_base", "off_locus_gains", "fluorescence_gains"]
+__all__ = ["SpectralBase", "fit_spectral_base", "refine_with_measured_daylight", "off_locus_gains", "fluorescence_gains"]
 
 
 @dataclass
@@ -79,6 +79,66 @@ def _generic_basis(n: int = 10, width_nm: float = 30.0) -> NDArray[np.float64]:
     return np.exp(-0.5 * ((WAVELENGTHS[:, None] - centres[None, :]) / width_nm) ** 2)
 
 
+def _daylight_basis() -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    from ..sensitivity.prior import default_daylight_prior
+
+    dp = default_daylight_prior()
+    return np.column_stack([dp.mean, dp.components]), dp.coefficient_mean, np.linalg.inv(dp.coefficient_covariance)
+
+
+def _daylight_frames(base: SpectralBase, sigma: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                                                              NDArray[np.float64]]:
+    """Each frame fitted as measured daylight with the reflectances held: ``E = k (μ + Pc)``, ``c`` under the Granada
+    Gaussian. Returns the weights ``x = [k, k·c]`` (F × (1+J)), the cost (data / φ + prior χ²) and the data misfit."""
+    prob = base.prob
+    day_basis, m, cov_inv = _daylight_basis()
+    j = day_basis.shape[1] - 1
+    kd, _ = imaging_operators(base.sensitivities, day_basis, prob.rb)
+    design_d = np.einsum("bcj,pj->pcb", kd, sigma)  # P × 3 × (1 + J)
+    xs = np.zeros((prob.F, j + 1))
+    cost = np.zeros(prob.F)
+    data = np.zeros(prob.F)
+    for f in range(prob.F):
+        w = prob.W[f]
+        b = (w * prob.Y[f]).ravel()
+        ad = (w[..., None] * design_d).reshape(-1, j + 1)
+        k0 = max(float(ad[:, 0] @ b / max(ad[:, 0] @ ad[:, 0], 1e-300)), 1e-12)
+        # minimise |b − ad x|²/φ + (x₁ − k₀m)ᵀ (k₀²Σ)⁻¹ (x₁ − k₀m),  x = [k, k·c]
+        lam = np.zeros((j + 1, j + 1))
+        lam[1:, 1:] = cov_inv / k0**2
+        rhs = np.zeros(j + 1)
+        rhs[1:] = lam[1:, 1:] @ (k0 * m)
+        x = np.linalg.solve(ad.T @ ad / base.phi + lam, ad.T @ b / base.phi + rhs)
+        d = x[1:] - k0 * m
+        data[f] = float(((b - ad @ x) ** 2).sum())
+        cost[f] = data[f] / base.phi + float(d @ lam[1:, 1:] @ d)
+        xs[f] = x
+    return xs, cost, data
+
+
+def refine_with_measured_daylight(base: SpectralBase, iters: int = 3) -> SpectralBase:
+    """Alternate frames (measured daylight, :func:`_daylight_frames`) and reflectances (linear under their prior) from the
+    joint CIE fit, so the tests below see less daylight-model error; updates ``base`` in place (``sigma``, ``phi``,
+    ``day_spectra``)."""
+    prob = base.prob
+    day_basis, _, _ = _daylight_basis()
+    sigma = base.sigma
+    for _ in range(iters):
+        xs, _, data = _daylight_frames(base, sigma)
+        spectra = xs @ day_basis.T
+        a, _ = imaging_operators(base.sensitivities, spectra.T, prob.rb)  # F × 3 × K
+        w2 = (prob.W**2).transpose(1, 0, 2)  # P × F × 3
+        n = np.einsum("pfc,fci,fcj->pij", w2, a, a) + prob.Lambda
+        b = np.einsum("pfc,fci->pi", w2 * prob.Y.transpose(1, 0, 2), a) + prob.Lambda @ prob.mu
+        sigma = np.linalg.solve(n, b[..., None])[..., 0]
+        nobs = int(prob.present.sum()) * 3
+        base.phi = float(data.sum() / max(nobs - prob.F * (day_basis.shape[1]) - prob.P * prob.nk, 1))
+    base.sigma = sigma
+    xs, _, _ = _daylight_frames(base, sigma)  # iters = 0: the frames only, reflectances of the joint fit
+    base.day_spectra = xs @ day_basis.T
+    return base
+
+
 def off_locus_gains(base: SpectralBase) -> tuple[NDArray[np.float64], int]:
     """Per frame, how much better a free illuminant explains it than measured daylight (reflectances held).
 
@@ -88,41 +148,21 @@ def off_locus_gains(base: SpectralBase) -> tuple[NDArray[np.float64], int]:
     units of the noise variance ``phi`` (data misfit over ``phi`` plus the daylight prior's χ²) and the number of
     extra parameters per frame.
     """
-    from ..sensitivity.prior import default_daylight_prior
-
     prob = base.prob
     g = _generic_basis()
-    dp = default_daylight_prior()
-    day_basis = np.column_stack([dp.mean, dp.components])  # 61 × (1 + J)
     kb, _ = imaging_operators(base.sensitivities, g, prob.rb)  # nb × 3 × K
-    kd, _ = imaging_operators(base.sensitivities, day_basis, prob.rb)
     design = np.einsum("bcj,pj->pcb", kb, base.sigma)  # P × 3 × nb
-    design_d = np.einsum("bcj,pj->pcb", kd, base.sigma)  # P × 3 × (1 + J)
-    cov_inv = np.linalg.inv(dp.coefficient_covariance)
-    m = dp.coefficient_mean
-    j = dp.size
+    xs, day, _ = _daylight_frames(base, base.sigma)
     gains = np.zeros(prob.F)
-    day_x = np.zeros((prob.F, j + 1))
     for f in range(prob.F):
         w = prob.W[f]  # P × 3
         b = (w * prob.Y[f]).ravel()
         a = (w[..., None] * design).reshape(-1, g.shape[1])
         coef, *_ = np.linalg.lstsq(a, b, rcond=None)
-        free = float(((b - a @ coef) ** 2).sum()) / base.phi
-        ad = (w[..., None] * design_d).reshape(-1, j + 1)
-        k0 = max(float(ad[:, 0] @ b / max(ad[:, 0] @ ad[:, 0], 1e-300)), 1e-12)
-        # minimise |b − ad x|²/φ + (x₁ − k₀m)ᵀ (k₀²Σ)⁻¹ (x₁ − k₀m),  x = [k, k·c]
-        lam = np.zeros((j + 1, j + 1))
-        lam[1:, 1:] = cov_inv / k0**2
-        rhs_prior = np.zeros(j + 1)
-        rhs_prior[1:] = lam[1:, 1:] @ (k0 * m)
-        x = np.linalg.solve(ad.T @ ad / base.phi + lam, ad.T @ b / base.phi + rhs_prior)
-        d = x[1:] - k0 * m
-        day = float(((b - ad @ x) ** 2).sum()) / base.phi + float(d @ lam[1:, 1:] @ d)
-        gains[f] = day - free
-        day_x[f] = x
-    base.day_spectra = day_x @ day_basis.T
-    return gains, g.shape[1] - (j + 1)
+        gains[f] = day[f] - float(((b - a @ coef) ** 2).sum()) / base.phi
+    if base.day_spectra is None:
+        base.day_spectra = xs @ _daylight_basis()[0].T
+    return gains, g.shape[1] - xs.shape[1]
 
 
 def shipped_fluorophores() -> tuple[list[str], NDArray[np.float64], NDArray[np.float64]]:

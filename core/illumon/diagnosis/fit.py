@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from .._blas import single_blas_thread
 from ..camera import angular_error_deg
 from ..observations import Observations
 from . import bilinear as bl
@@ -256,6 +257,7 @@ def _spectral_stage(obs: Observations, sensitivities: NDArray[np.float64]) -> tu
     return [off, fluor], {"off_locus_frames": frames, "phi_spectral": base.phi}
 
 
+@single_blas_thread
 def diagnose(
     obs: Observations,
     sensitivities: NDArray[np.float64],
@@ -373,6 +375,7 @@ def corrected_observations(obs: Observations, diag: Diagnosis) -> Observations:
     return Observations(list(obs.frames), patches, v, list(obs.times))
 
 
+@single_blas_thread
 def estimate_with_effect(obs: Observations, sensitivities: NDArray[np.float64], diag: Diagnosis, *, base_result=None,
                          **kwargs):
     """Illuminants re-estimated with the diagnosed effect modelled (joint retrieval on :func:`corrected_observations`).

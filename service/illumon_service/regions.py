@@ -35,6 +35,9 @@ MAGIC = {
 }
 
 
+_PER_REGION = False
+"""Use the per-region integer path (:func:`_robust_mean_codes`; kept as the reference of the vectorised one)."""
+
 MEDIAN_SAMPLES = 1024
 """Pixels used for a region's median and MAD (an even stride over the region; the mean uses every kept pixel). The
 median of 1024 samples is within ~0.04 σ of the region's: plenty for thresholds at 3.5 σ."""
@@ -246,6 +249,90 @@ def _robust_mean_codes(codes: NDArray, lut: NDArray[np.float64], k: float, min_k
     return np.take(lut, codes.compress(keep, axis=1)).mean(axis=1)  # compress/take: ~4× faster than [:, mask]
 
 
+def _region_means_codes(
+    image: NDArray, regions: list[Region], lut: NDArray[np.float64], clip_code: int, k: float, min_fraction: float,
+) -> list[NDArray[np.float64] | None]:
+    """:func:`_robust_mean_codes` of every region of an integer image at once (same result, region for region).
+
+    Only the regions' pixels are read (one channel-major copy of each crop). The elementwise steps — clipped-pixel
+    exclusion, the strided median samples, the trimming, the final mean — are a few numpy calls per region on its
+    small contiguous crop; the medians and MADs of all regions' samples are computed together (256-bin histograms
+    for 8-bit images, one padded sort for 16-bit ones) instead of some 40 small calls per region.
+    """
+    nreg = len(regions)
+    top = int(np.iinfo(image.dtype).max)
+    blocks = [np.moveaxis(image[r.y : r.y + r.height, r.x : r.x + r.width], 2, 0).reshape(3, -1) for r in regions]
+    min_keep = [max(1, int(np.ceil(min_fraction * b.shape[1]))) for b in blocks]
+    alive = np.ones(nreg, dtype=bool)
+    oks: list[NDArray[np.bool_] | None] = [None] * nreg
+    if clip_code <= top:
+        c = image.dtype.type(clip_code)
+        oks = [(b[0] < c) & (b[1] < c) & (b[2] < c) for b in blocks]
+    keeps = list(oks)
+    histogram = lut.size <= 256
+    for _ in range(2):
+        samples = []
+        for r, (b, kp) in enumerate(zip(blocks, keeps, strict=True)):
+            if alive[r]:
+                idx = None if kp is None else np.flatnonzero(kp)
+                nk = b.shape[1] if idx is None else idx.size
+                if nk < min_keep[r]:
+                    alive[r] = False
+                else:
+                    step = max(1, nk // MEDIAN_SAMPLES)
+                    samples.append(b[:, ::step] if idx is None else b[:, idx[::step]])
+                    continue
+            samples.append(blocks[r][:, :0])
+        m = np.array([s.shape[1] for s in samples])
+        half = m // 2
+        s_codes = np.concatenate(samples, axis=1)  # 3 × all samples
+        s_lab = np.repeat(np.arange(nreg), m)
+        if histogram:
+            # Upper medians and MADs from 256-bin histograms per channel and region (as _mad_8bit, all at once).
+            flat = ((np.arange(3)[:, None] * nreg + s_lab[None, :]) * 256 + s_codes).ravel()
+            counts = np.bincount(flat, minlength=3 * nreg * 256).reshape(3, nreg, 256)
+            med = lut[np.minimum((np.cumsum(counts, axis=2) <= half[None, :, None]).sum(axis=2), 255)]  # 3 × R
+            dev = np.abs(lut[None, None, :] - med[..., None])  # 3 × R × 256
+            order = np.argsort(dev, axis=2, kind="stable")
+            cum = np.cumsum(np.take_along_axis(counts, order, axis=2), axis=2)
+            pos = np.minimum((cum <= half[None, :, None]).sum(axis=2), 255)
+            mad = np.take_along_axis(dev, np.take_along_axis(order, pos[..., None], axis=2), axis=2)[..., 0]
+        else:
+            width = max(1, int(m.max()))
+            padded = np.full((3, nreg, width), top, dtype=s_codes.dtype)  # padding with the top code sorts last
+            padded[:, s_lab, np.arange(s_lab.size) - np.repeat(np.cumsum(m) - m, m)] = s_codes
+            same = bool(np.all(m == m[0]))  # the usual case (regions of one size): partitions, not sorts
+            if same:
+                med = lut[np.partition(padded, half[0], axis=2)[..., half[0]]]
+            else:
+                padded.sort(axis=2)
+                med = lut[np.take_along_axis(padded, half[None, :, None], axis=2)[..., 0]]
+            dev = np.abs(lut[padded] - med[..., None])
+            dev[:, np.arange(width)[None, :] >= m[:, None]] = np.inf
+            if same:
+                mad = np.partition(dev, half[0], axis=2)[..., half[0]]
+            else:
+                mad = np.take_along_axis(np.sort(dev, axis=2), half[None, :, None], axis=2)[..., 0]
+        scale = np.maximum(1.4826 * mad, 0.02 * np.abs(med) + 1e-4)
+        lo = np.searchsorted(lut, med - k * scale, side="left")  # 3 × R: first code with lut ≥ med − kσ
+        hi = np.searchsorted(lut, med + k * scale, side="right") - 1  # last code with lut ≤ med + kσ
+        alive &= ~np.any((lo > hi) | (lo > top) | (hi < 0), axis=0)
+        lo, hi = np.clip(lo, 0, top).astype(image.dtype), np.clip(hi, 0, top).astype(image.dtype)
+        for r in np.flatnonzero(alive):
+            b = blocks[r]
+            kp = (b[0] >= lo[0, r]) & (b[0] <= hi[0, r]) & (b[1] >= lo[1, r]) & (b[1] <= hi[1, r])
+            kp &= (b[2] >= lo[2, r]) & (b[2] <= hi[2, r])
+            if oks[r] is not None:
+                kp &= oks[r]
+            keeps[r] = kp
+    out: list[NDArray[np.float64] | None] = [None] * nreg
+    for r in np.flatnonzero(alive):
+        kp = keeps[r]
+        if np.count_nonzero(kp) >= min_keep[r]:
+            out[r] = np.take(lut, blocks[r].compress(kp, axis=1)).mean(axis=1)
+    return out
+
+
 def region_means(
     image: NDArray,
     regions: Iterable[Region],
@@ -270,6 +357,10 @@ def region_means(
                 f"region {r.id!r} ({r.x},{r.y} {r.width}×{r.height}) lies outside the {w}×{h} image"
             )
     out: dict[str, list[float] | None] = {}
+    if integer and regions and not _PER_REGION:
+        limit = min(int(np.ceil(clip_at)), np.iinfo(image.dtype).max + 1)
+        means = _region_means_codes(image, regions, lut, limit, k, min_fraction)
+        return {r.id: None if m is None else [float(v) for v in m] for r, m in zip(regions, means, strict=True)}
     for r in regions:
         block = image[r.y : r.y + r.height, r.x : r.x + r.width]
         n = r.width * r.height

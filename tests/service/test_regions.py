@@ -36,3 +36,26 @@ def test_srgb8_linearised():
     arr, full = decode_image(encode_png(img))
     out = region_means(arr, [Region("a", 0, 0, 20, 20)], response_for({"encoding": "srgb", "white_level": 255}, full))
     np.testing.assert_allclose(out["a"], 0.5, atol=0.01)
+
+
+def test_vectorised_regions_match_per_region_reference(monkeypatch):
+    """All regions at once (the default) give exactly the per-region reference path's values and misses."""
+    import illumon_service.regions as reg
+
+    rng = np.random.default_rng(7)
+    for dt, full in ((np.uint8, 255), (np.uint16, 65535)):
+        for trial in range(12):
+            img = (rng.normal(0.5, 0.05 + 0.1 * (trial % 3), (80, 90, 3)).clip(0, 1) * full).astype(dt)
+            img[rng.random((80, 90)) < 0.05 * (trial % 4)] = full  # clipped pixels
+            img[5:30, 5:25] = (0.9 * full, 0.1 * full, 0.1 * full)  # a passer-by
+            regions = [Region(str(i), int(rng.integers(0, 40)), int(rng.integers(0, 40)), int(rng.integers(1, 40)),
+                              int(rng.integers(1, 40))) for i in range(6)]
+            resp = ResponseCurve("srgb" if trial % 2 else "linear", white_level=full)
+            monkeypatch.setattr(reg, "_PER_REGION", True)
+            ref = region_means(img, regions, resp)
+            monkeypatch.setattr(reg, "_PER_REGION", False)
+            got = region_means(img, regions, resp)
+            for key, value in ref.items():
+                assert (value is None) == (got[key] is None)
+                if value is not None:
+                    np.testing.assert_allclose(got[key], value, rtol=1e-12)

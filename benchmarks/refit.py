@@ -9,6 +9,12 @@ reflectances, 10 % of patches missing) when ``../shared/data`` is present, from 
 are stored straight into the service's SQLite database (not timed); the timed part is
 :func:`illumon_service.jobs.refit_camera` — read the history, fit the scene model (reflectances on 300 frames spread
 over the illuminant range), estimate every frame, write the estimates — with the service's default settings.
+
+Fleet: serial is ``refit_camera`` camera after camera in this process; Dask is :func:`illumon_service.jobs.run_batch`
+(a ``LocalCluster`` of ``--workers`` processes with one thread each, tasks carrying only camera ids, its start-up
+included). The per-camera seconds of both and the load average are printed: on a shared machine the speed-up is
+bounded by the CPUs other processes leave free, and a per-camera time that grows under Dask means the workers competed
+for CPUs.
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ from illumon import datasets  # noqa: E402
 from illumon.camera import angular_error_deg  # noqa: E402
 from illumon.daylight import CIEDaylight  # noqa: E402
 from illumon.simulate import simulate_history  # noqa: E402
-from illumon_service.jobs import refit_camera, run_batch  # noqa: E402
+from illumon_service.jobs import refit_camera, run_batch, usable_cpus  # noqa: E402
 from illumon_service.settings import Settings  # noqa: E402
 from illumon_service.storage import Camera, Frame, make_engine, make_session_factory  # noqa: E402
 from sqlalchemy import insert  # noqa: E402
@@ -117,16 +123,24 @@ def fleet(cameras: int, frames: int, workers: int, css, day, refl) -> dict:
         sessions = make_session_factory(engine)
         ids = [store_camera(sessions, css, day, refl, frames, seed=s)[0] for s in range(cameras)]
         engine.dispose()
+        load0 = os.getloadavg()[0]
         t = time.perf_counter()
+        serial = []
         for cid in ids:
             engine = make_engine(settings.resolved_database_url)
-            refit_camera(make_session_factory(engine), cid, data_dir=Path(tmp), max_fit_frames=settings.refit_fit_frames)
+            serial.append(refit_camera(make_session_factory(engine), cid, data_dir=Path(tmp),
+                                       max_fit_frames=settings.refit_fit_frames))
             engine.dispose()
         out["serial_s"] = time.perf_counter() - t
+        load1 = os.getloadavg()[0]
         t = time.perf_counter()
         results = run_batch(settings, ids, n_workers=workers, progress=False)
         out["dask_s"] = time.perf_counter() - t
         out["dask_failures"] = sum("error" in r for r in results)
+        # Per-camera seconds inside refit_camera: equal on both sides unless the workers compete for CPUs.
+        out["serial_camera_s"] = float(np.mean([r["seconds"] for r in serial]))
+        out["dask_camera_s"] = float(np.mean([r["seconds"] for r in results if "seconds" in r] or [np.nan]))
+        out["load_serial"], out["load_dask"] = (load0 + load1) / 2, (load1 + os.getloadavg()[0]) / 2
     out["speedup"] = out["serial_s"] / out["dask_s"]
     return out
 
@@ -138,7 +152,7 @@ def main() -> None:
     parser.add_argument("--sizes", help="comma-separated history lengths (1000,10000,100000)")
     parser.add_argument("--cameras", type=int, help="fleet size (200)")
     parser.add_argument("--fleet-frames", type=int, help="frames per fleet camera (200)")
-    parser.add_argument("--workers", type=int, default=os.cpu_count() or 2, help="Dask worker processes (CPU count)")
+    parser.add_argument("--workers", type=int, default=usable_cpus(), help="Dask worker processes (usable CPUs)")
     args = parser.parse_args()
     warnings.simplefilter("ignore")
     sizes = [int(v) for v in args.sizes.split(",")] if args.sizes else ([1000, 10000] if args.quick else [1000, 10000, 100000])
@@ -151,8 +165,12 @@ def main() -> None:
     single = one_camera(sizes, css, day, refl)
     print(f"\nfleet: {cameras} cameras × {fleet_frames} frames × 16 patches")
     fl = fleet(cameras, fleet_frames, args.workers, css, day, refl)
-    print(f"{'serial s':>9} {'Dask s':>8} {'workers':>8} {'speed-up':>9} {'failures':>9}")
-    print(f"{fl['serial_s']:9.1f} {fl['dask_s']:8.1f} {fl['dask_workers']:8d} {fl['speedup']:9.2f} {fl['dask_failures']:9d}")
+    print(f"{'serial s':>9} {'Dask s':>8} {'workers':>8} {'speed-up':>9} {'failures':>9} {'s/cam ser':>9} {'s/cam Dask':>10} "
+          f"{'load ser':>8} {'load Dask':>9}")
+    print(f"{fl['serial_s']:9.1f} {fl['dask_s']:8.1f} {fl['dask_workers']:8d} {fl['speedup']:9.2f} {fl['dask_failures']:9d} "
+          f"{fl['serial_camera_s']:9.2f} {fl['dask_camera_s']:10.2f} {fl['load_serial']:8.1f} {fl['load_dask']:9.1f}")
+    print("s/cam: mean seconds of one camera's refit inside refit_camera; load: 1-min load average during each part "
+          f"(other processes included; {os.cpu_count()} CPUs)")
     RESULTS.mkdir(exist_ok=True)
     out = {"data": provenance, "cpus": os.cpu_count(), "one_camera": single, "fleet": fl}
     (RESULTS / "refit.json").write_text(json.dumps(out, indent=1) + "\n")

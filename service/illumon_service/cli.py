@@ -38,7 +38,7 @@ def _cmd_refit(args: argparse.Namespace) -> int:
     settings = _settings(args)
     Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
     ids = None if args.all else [args.camera]
-    results = run_batch(settings, ids, args.dask_scheduler)
+    results = run_batch(settings, ids, args.dask_scheduler, n_workers=args.workers)
     for r in results:
         print(json.dumps(r, sort_keys=True))
     return 1 if any("error" in r for r in results) else 0
@@ -61,6 +61,7 @@ def add_serve_command(subparsers: argparse._SubParsersAction) -> None:
     refit.add_argument("--data-dir", help="service data folder (./var)")
     refit.add_argument("--database-url", help="SQLAlchemy URL (SQLite under the data dir by default)")
     refit.add_argument("--dask-scheduler", help="address of a Dask scheduler (a LocalCluster by default)")
+    refit.add_argument("--workers", type=int, help="LocalCluster worker processes (usable CPUs); 1 refits serially")
     refit.set_defaults(func=_cmd_refit)
 
 

@@ -71,3 +71,19 @@ def test_scheduled_refit(tmp_path):
                 break
             time.sleep(0.1)
         assert jobs and jobs[0].state == "failed"  # no frames: fails with a reason, the schedule keeps running
+
+
+def test_refit_all_one_worker_runs_serially(tmp_path, scene, capsys):
+    """`illumon refit --all --workers 1` refits without Dask and says so."""
+    rng = np.random.default_rng(5)
+    with TestClient(create_app(make_settings(tmp_path))) as c:
+        for _ in range(2):
+            cid, token = register(c, scene.css, scene.regions)
+            for f in range(3):
+                patches = {r["id"]: list(rng.uniform(0.1, 0.6, 3)) for r in scene.regions}
+                body = {"taken_at": f"2025-06-01T0{f}:00:00Z", "patches": patches}
+                assert c.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token)).status_code == 201
+    assert main(["refit", "--all", "--workers", "1", "--data-dir", str(tmp_path)]) == 0
+    captured = capsys.readouterr()
+    assert captured.out.count('"frames": 3') == 2
+    assert "serially without Dask" in captured.err

@@ -17,14 +17,15 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["main", "build_parser", "write_estimates"]
+__all__ = ["main", "build_parser", "write_estimates", "white_level_arg"]
 
 
 class UsageError(Exception):
     """A problem with the user's input, reported as one line and exit status 2."""
 
 
-def _white_level(text: str) -> float:
+def white_level_arg(text: str) -> float:
+    """argparse type of ``--white-level``: a positive finite number."""
     try:
         v = float(text)
     except ValueError:
@@ -124,7 +125,7 @@ def build_parser() -> argparse.ArgumentParser:
     est.add_argument("--out", required=True, help="ESTIMATES.csv to write")
     est.add_argument("--method", default="joint", choices=["joint", "marguier2007", "gray_world"])
     est.add_argument("--daylight-model", default="cie", choices=["cie", "measured"])
-    est.add_argument("--white-level", type=_white_level, default=255.0, help="value of a saturated pixel (255)")
+    est.add_argument("--white-level", type=white_level_arg, default=255.0, help="value of a saturated pixel (255)")
     est.add_argument("--reflectances", help="also write the recovered patch reflectances to this CSV")
     est.add_argument("--model-effects", default="none", choices=["none", "auto"],
                      help="auto: diagnose the history (`illumon diagnose`) and estimate with the effect modelled")

@@ -870,11 +870,13 @@ def _cmd_fit(args: argparse.Namespace) -> int:
 
 def add_fit_command(subparsers: Any) -> None:
     """Register ``illumon fit OBSERVATIONS.csv --sensitivities SENSITIVITIES.csv --model MODEL.json``."""
+    from .cli import white_level_arg
+
     p = subparsers.add_parser("fit", help="learn a scene model (patch reflectances) from a history")
     p.add_argument("observations", help="OBSERVATIONS.csv with columns frame,time,patch,r,g,b")
     p.add_argument("--sensitivities", required=True, help="camera sensitivities CSV wavelength_nm,r,g,b")
     p.add_argument("--model", required=True, help="MODEL.json to write")
-    p.add_argument("--white-level", type=float, default=255.0, help="value of a saturated pixel (255)")
+    p.add_argument("--white-level", type=white_level_arg, default=255.0, help="value of a saturated pixel (255)")
     p.add_argument("--max-fit-frames", type=int, default=300, help="frames used for the reflectance fit (300)")
     p.set_defaults(func=_cmd_fit)
 

@@ -4,20 +4,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 from typing import Any
+
+from ..cli import white_level_arg
 
 __all__ = ["add_diagnose_command", "run_diagnosis"]
 
 
-def _white_level(text: str) -> float:
-    try:
-        v = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"white level must be a number, got {text!r}") from None
-    if not (v > 0 and math.isfinite(v)):
-        raise argparse.ArgumentTypeError(f"white level must be positive, got {text!r}")
-    return v
 
 
 def run_diagnosis(observations_path: str, obs, sensitivities, *, reestimate: bool = True):
@@ -59,5 +52,5 @@ def add_diagnose_command(subparsers: Any) -> None:
     p.add_argument("observations", help="OBSERVATIONS.csv with columns frame,time,patch,r,g,b")
     p.add_argument("--sensitivities", required=True, help="camera sensitivities CSV wavelength_nm,r,g,b")
     p.add_argument("--out", required=True, help="REPORT.json to write")
-    p.add_argument("--white-level", type=_white_level, default=255.0, help="value of a saturated pixel (255)")
+    p.add_argument("--white-level", type=white_level_arg, default=255.0, help="value of a saturated pixel (255)")
     p.set_defaults(func=_cmd_diagnose)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+import tempfile
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from pathlib import Path
@@ -35,10 +36,21 @@ def admin_token(settings: Settings) -> str:
     path = Path(settings.data_dir) / "admin_token"
     if path.is_file():
         return path.read_text().strip()
+    # Written to a private temporary file, then hard-linked into place: the link fails if another process (a second
+    # uvicorn worker) got there first, and a reader never sees a half-written file; the loser reads the winner's token.
     token = new_token()
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
-    with os.fdopen(fd, "w") as fh:
-        fh.write(token + "\n")
+    fd, tmp = tempfile.mkstemp(prefix=".admin_token-", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as fh:  # mkstemp creates the file with mode 0600
+            fh.write(token + "\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            return path.read_text().strip()
+    finally:
+        os.unlink(tmp)
     print(f"illumon: generated admin token (stored in {path}, mode 0600): {token}", file=sys.stderr, flush=True)
     return token
 

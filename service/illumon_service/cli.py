@@ -24,11 +24,27 @@ def _settings(args: argparse.Namespace):  # noqa: ANN202 - avoids importing pyda
 def _cmd_serve(args: argparse.Namespace) -> int:
     import uvicorn
 
-    from .app import create_app
+    from .app import admin_token, create_app
 
     settings = _settings(args)
-    app = create_app(settings)
-    uvicorn.run(app, host=args.host, port=args.port, log_level=args.log_level)
+    workers = args.workers
+    if workers <= 1:
+        uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level)
+        return 0
+    # Several worker processes, each building the app from the environment: the tables and the admin token are
+    # created here first, so that the workers only open them.
+    import os
+
+    from .storage import make_engine
+
+    Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
+    make_engine(settings.resolved_database_url).dispose()
+    admin_token(settings)
+    os.environ["ILLUMON_DATA_DIR"] = str(Path(settings.data_dir).resolve())
+    if settings.database_url:
+        os.environ["ILLUMON_DATABASE_URL"] = settings.database_url
+    uvicorn.run("illumon_service.app:create_app", factory=True, workers=workers, host=args.host, port=args.port,
+                log_level=args.log_level)
     return 0
 
 
@@ -51,6 +67,8 @@ def add_serve_command(subparsers: argparse._SubParsersAction) -> None:
     serve.add_argument("--port", type=int, default=8000, help="port (8000)")
     serve.add_argument("--data-dir", help="folder for the SQLite database, admin token and models (./var)")
     serve.add_argument("--database-url", help="SQLAlchemy URL, e.g. postgresql+psycopg://… (SQLite by default)")
+    serve.add_argument("--workers", type=int, default=1,
+                       help="worker processes (1); SQLite in WAL mode is shared, /metrics is per process")
     serve.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
     serve.set_defaults(func=_cmd_serve)
 

@@ -137,6 +137,7 @@ class JobRunner:
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="illumon-refit")
         self._stop = threading.Event()
         self._scheduler: threading.Thread | None = None
+        self._lock_fd: int | None = None
 
     def submit(self, camera_id: int) -> str:
         """Record a queued job for the camera and start it; returns the job id."""
@@ -178,10 +179,30 @@ class JobRunner:
         self.metrics.inc("illumon_refit_total", labels='outcome="done"')
         self._set(job_id, state="done", progress=1.0, summary=summary, finished_at=utcnow())
 
+    def _take_schedule_lock(self) -> bool:
+        """Hold ``<data dir>/refit-schedule.lock`` (an exclusive ``flock``, released when this process ends): of the
+        service processes sharing a data dir (``illumon serve --workers N``) only the holder runs the schedule."""
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not on POSIX: one process per data dir assumed
+            return True
+        fd = os.open(Path(self.settings.data_dir) / "refit-schedule.lock", os.O_RDWR | os.O_CREAT, 0o600)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            return False
+        self._lock_fd = fd
+        return True
+
     def start_schedule(self) -> None:
-        """Refit every camera every ``refit_every_hours`` hours in a daemon thread (no-op when the setting is 0)."""
+        """Refit every camera every ``refit_every_hours`` hours in a daemon thread (no-op when the setting is 0, or
+        when another process sharing the data dir runs the schedule)."""
         hours = self.settings.refit_every_hours
         if hours <= 0 or self._scheduler is not None:
+            return
+        if not self._take_schedule_lock():
+            log.info("another service process runs the refit schedule")
             return
 
         def loop() -> None:
@@ -198,6 +219,9 @@ class JobRunner:
         """Stop the schedule and wait for the running job."""
         self._stop.set()
         self._pool.shutdown(wait=True, cancel_futures=True)
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)  # releases the schedule lock
+            self._lock_fd = None
 
 
 def _refit_worker(

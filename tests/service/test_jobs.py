@@ -87,3 +87,33 @@ def test_refit_all_one_worker_runs_serially(tmp_path, scene, capsys):
     captured = capsys.readouterr()
     assert captured.out.count('"frames": 3') == 2
     assert "serially without Dask" in captured.err
+
+
+def test_only_one_process_runs_the_schedule(tmp_path):
+    """Service processes sharing a data dir (serve --workers N): the schedule lock lets one of them run it."""
+    from illumon_service.jobs import JobRunner
+    from illumon_service.metrics import Metrics
+
+    settings = make_settings(tmp_path, refit_every_hours=1.0)
+    first, second = (JobRunner(None, settings, Metrics()) for _ in range(2))  # sessions unused until a refit is due
+    first.start_schedule()
+    second.start_schedule()
+    assert first._scheduler is not None and second._scheduler is None
+    first.shutdown()
+    second.start_schedule()  # the lock is released with the first runner
+    assert second._scheduler is not None
+    second.shutdown()
+
+
+def test_admin_token_generated_once_under_races(tmp_path):
+    """Concurrent first starts agree on one admin token (hard link into place; losers read the winner's)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from illumon_service.app import admin_token
+
+    settings = make_settings(tmp_path, admin_token=None)
+    with ThreadPoolExecutor(8) as pool:
+        tokens = set(pool.map(lambda _i: admin_token(settings), range(16)))
+    assert len(tokens) == 1 and (tmp_path / "admin_token").read_text().strip() in tokens
+    assert (tmp_path / "admin_token").stat().st_mode & 0o777 == 0o600
+    assert not list(tmp_path.glob(".admin_token-*"))

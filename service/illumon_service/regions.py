@@ -38,6 +38,9 @@ MAGIC = {
 _PER_REGION = False
 """Use the per-region integer path (:func:`_robust_mean_codes`; kept as the reference of the vectorised one)."""
 
+_ALL_AT_ONCE_16 = False
+"""Use :func:`_region_means_codes` for 16-bit images too (same values; slower on 120×120 regions)."""
+
 MEDIAN_SAMPLES = 1024
 """Pixels used for a region's median and MAD (an even stride over the region; the mean uses every kept pixel). The
 median of 1024 samples is within ~0.04 σ of the region's: plenty for thresholds at 3.5 σ."""
@@ -357,7 +360,9 @@ def region_means(
                 f"region {r.id!r} ({r.x},{r.y} {r.width}×{r.height}) lies outside the {w}×{h} image"
             )
     out: dict[str, list[float] | None] = {}
-    if integer and regions and not _PER_REGION:
+    # 8-bit: all regions at once (4 ms instead of 6-9 ms for 16 regions of 120×120 on the ingest benchmark's frames);
+    # 16-bit: per region, whose radix sorts beat one padded partition of every region's samples (5.3 vs 6.1 ms).
+    if integer and regions and not _PER_REGION and (image.dtype == np.uint8 or _ALL_AT_ONCE_16):
         limit = min(int(np.ceil(clip_at)), np.iinfo(image.dtype).max + 1)
         means = _region_means_codes(image, regions, lut, limit, k, min_fraction)
         return {r.id: None if m is None else [float(v) for v in m] for r, m in zip(regions, means, strict=True)}

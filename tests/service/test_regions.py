@@ -43,6 +43,7 @@ def test_vectorised_regions_match_per_region_reference(monkeypatch):
     import illumon_service.regions as reg
 
     rng = np.random.default_rng(7)
+    monkeypatch.setattr(reg, "_ALL_AT_ONCE_16", True)
     for dt, full in ((np.uint8, 255), (np.uint16, 65535)):
         for trial in range(12):
             img = (rng.normal(0.5, 0.05 + 0.1 * (trial % 3), (80, 90, 3)).clip(0, 1) * full).astype(dt)

@@ -10,8 +10,10 @@ known of daylight, cameras and surfaces, i.e. against the joint spectral fit of 
   frame gains little from the freedom; a lamp-lit frame gains much.
 * **fluorescence** (Han, Matsushita, Sato, Okabe & Sato, CVPR 2012, eqs. 1–2): with the frames' illuminants
   re-fitted as measured daylight (above) and held, each patch is re-fitted with its reflectance (Gaussian prior)
-  plus the emission of a fluorophore, ``k_f s (Σλ a(λ) E_f(λ)) Cᵀe`` with ``s ≥ 0``, for each of the 21
-  fluorophores shipped in ``illumon/data/fluorophores.csv``.
+  plus an emission ``k_f (Σλ a(λ) E_f(λ)) w``: :func:`generic_fluorescence_gains` (used by the diagnosis) with a free
+  non-negative RGB ``w`` and a generic short-wave absorption band ``a``, so the fluorophore need not be known;
+  :func:`fluorescence_gains` with ``w = s Cᵀe``, ``s ≥ 0``, for each of the 21 fluorophores shipped in
+  ``illumon/data/fluorophores.csv`` (reported as the closest shipped one).
 
 Both gains are in the whitened units of the joint fit, whose noise scale is profiled from its data residuals.
 """
@@ -31,7 +33,10 @@ from ..retrieval.common import imaging_operators
 from ..retrieval.joint import JointProblem, _gray_world_mired
 from ..spectra import WAVELENGTHS
 
-__all__ = ["SpectralBase", "fit_spectral_base", "refine_with_measured_daylight", "off_locus_gains", "fluorescence_gains"]
+__all__ = [
+    "SpectralBase", "fit_spectral_base", "refine_with_measured_daylight", "off_locus_gains", "fluorescence_gains",
+    "generic_fluorescence_gains", "excitation_bands", "EXCITATION_CENTRES_NM",
+]
 
 
 @dataclass
@@ -232,3 +237,79 @@ def fluorescence_gains(base: SpectralBase) -> tuple[NDArray[np.float64], NDArray
         strength[p] = float(s[j] * np.median(k * q[:, j] * wcol[j, 1]) / max(green, 1e-9)) if s[j] > 0 else 0.0
         _ = r0
     return gains, best, strength, names
+
+
+EXCITATION_CENTRES_NM: tuple[float, ...] = (400.0, 430.0, 460.0, 490.0, 520.0, 550.0)
+"""Centres of the generic excitation bands (:func:`excitation_bands`)."""
+
+
+def excitation_bands(centres: tuple[float, ...] = EXCITATION_CENTRES_NM, width_nm: float = 30.0) -> NDArray[np.float64]:
+    """Generic short-wave excitation spectra (B × 61): Gaussian absorption bands, peak 1, for fluorophores not shipped."""
+    return np.exp(-0.5 * ((WAVELENGTHS[None, :] - np.asarray(centres)[:, None]) / width_nm) ** 2)
+
+
+def _nonneg_quadratic_gain(h: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+    """``max 2 bᵀx − xᵀHx`` over ``x ≥ 0`` (small ``x``: every active set), with its maximiser."""
+    n = b.size
+    best, xbest = 0.0, np.zeros(n)
+    for mask in range(1, 2**n):
+        idx = [i for i in range(n) if mask >> i & 1]
+        hs = h[np.ix_(idx, idx)]
+        try:
+            xs = np.linalg.solve(hs, b[idx])
+        except np.linalg.LinAlgError:
+            continue
+        if np.any(xs < 0):
+            continue
+        g = float(b[idx] @ xs)
+        if g > best:
+            best, xbest = g, np.zeros(n)
+            xbest[idx] = xs
+    return best, xbest
+
+
+def generic_fluorescence_gains(base: SpectralBase,
+                               bands: NDArray[np.float64] | None = None) -> tuple[NDArray[np.float64], NDArray[np.int64],
+                                                                                  NDArray[np.float64]]:
+    """Per patch, the drop of whitened misfit (units of ``phi``) when the patch adds an emission of unknown colour.
+
+    Han et al. (CVPR 2012, eqs. 1–2): the emitted light is a fixed spectrum scaled by the light the fluorophore
+    absorbs, ``(Σλ' a(λ') E_f(λ')) e(λ)``, so the camera sees ``q_f · w`` with ``q_f`` the frame's absorbed light
+    and ``w = Cᵀe`` a fixed RGB. The fluorophore is not assumed known: ``w`` is a free non-negative 3-vector and the
+    excitation ``a`` one of a few generic short-wave bands (:func:`excitation_bands`). A reflectance cannot follow
+    ``q_f`` because the ratio of absorbed short-wave light to the light a surface reflects changes with the sky's
+    colour temperature: the evidence grows with the history's range of skies. Frames are the measured-daylight re-fit
+    (``base.day_spectra``, exposure included), the patch's reflectance is re-fitted (Gaussian prior) with the emission.
+    Returns the best gain over bands per patch, the band index and the emission's share of the patch's signal per
+    channel (median over frames, P × 3).
+    """
+    prob = base.prob
+    if base.day_spectra is None:
+        raise ValueError("generic_fluorescence_gains needs the measured-daylight frames (refine_with_measured_daylight)")
+    bands = excitation_bands() if bands is None else bands
+    spectra = base.day_spectra
+    m, _ = imaging_operators(base.sensitivities, spectra.T, prob.rb)  # F × 3 × K
+    q = spectra @ bands.T  # F × B absorbed light per band (eq. 1)
+    lam, mu = prob.Lambda, prob.mu
+    gains = np.zeros(prob.P)
+    best = np.zeros(prob.P, dtype=np.int64)
+    share = np.zeros((prob.P, 3))
+    eye = np.eye(3)
+    for p in range(prob.P):
+        w = prob.W[:, p]  # F × 3
+        d = (w[..., None] * m).reshape(-1, m.shape[-1])  # 3F × K
+        y = (w * prob.Y[:, p]).ravel()
+        nmat = d.T @ d + lam
+        sig = np.linalg.solve(nmat, d.T @ y + lam @ mu)
+        res = y - d @ sig
+        for bi in range(bands.shape[0]):
+            g = (w[:, :, None] * q[:, bi, None, None] * eye[None]).reshape(-1, 3)  # 3F × 3, one column per channel
+            dg = d.T @ g
+            h = g.T @ g - dg.T @ np.linalg.solve(nmat, dg)
+            gain, x = _nonneg_quadratic_gain(h, g.T @ res)
+            if gain / base.phi > gains[p]:
+                gains[p], best[p] = gain / base.phi, bi
+                ok = prob.present[:, p]
+                level = np.median(prob.Y[ok, p], axis=0) if ok.any() else np.ones(3)
+                share[p] = np.median(q[ok, bi, None], axis=0) * x / np.maximum(level, 1e-9)
+    return gains, best, share

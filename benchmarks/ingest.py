@@ -28,8 +28,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -45,6 +43,7 @@ import numpy as np
 from illumon import datasets
 from illumon.camera import ResponseCurve, render
 from illumon.daylight import CIEDaylight
+from illumon_service.process import free_port, stop_process, wait_healthy
 
 RESULTS = Path(__file__).with_name("results")
 W, H = 1920, 1080
@@ -107,13 +106,6 @@ def render_frames(n: int, kind: str) -> tuple[list[bytes], np.ndarray, str]:
     return out, css, provenance
 
 
-def free_port() -> int:
-    """A free loopback port."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def start_server(data_dir: str, port: int, workers: int = 1) -> subprocess.Popen:
     """``illumon serve --workers workers`` on ``port``; returns once /healthz answers."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("ILLUMON_")}
@@ -122,17 +114,8 @@ def start_server(data_dir: str, port: int, workers: int = 1) -> subprocess.Popen
     proc = subprocess.Popen([str(exe), "serve", "--host", "127.0.0.1", "--port", str(port), "--data-dir", data_dir,
                              "--log-level", "warning", "--workers", str(workers)],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise RuntimeError(f"serve exited: {proc.stderr.read().decode()}")
-        try:
-            if httpx.get(f"http://127.0.0.1:{port}/healthz", timeout=1, trust_env=False).status_code == 200:
-                return proc
-        except httpx.TransportError:
-            time.sleep(0.2)
-    proc.kill()
-    raise RuntimeError("serve did not start")
+    wait_healthy(proc, f"http://127.0.0.1:{port}", timeout=60, describe=lambda: proc.stderr.read().decode())
+    return proc
 
 
 def register(http: httpx.Client, css: np.ndarray, encoding: str) -> tuple[int, dict]:
@@ -237,11 +220,7 @@ def main() -> None:
                               f"{row['decode_p50_ms']:7.1f} {row['server_mean_ms']:7.1f} {row['load1']:5.1f}  "
                               + " ".join(f"{row['server_stage_ms'][st]:5.1f}" for st in STAGES), flush=True)
         finally:
-            proc.send_signal(signal.SIGTERM)
-            try:
-                proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                proc.kill()
+            stop_process(proc)
     RESULTS.mkdir(exist_ok=True)
     out = {"width": W, "height": H, "regions": 16, "data": provenance, "cpus": os.cpu_count(),
            "server_workers": args.server_workers, "runs": rows}

@@ -11,11 +11,8 @@ from __future__ import annotations
 
 import os
 import shutil
-import signal
-import socket
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import datetime
@@ -32,6 +29,7 @@ if not CHROMIUM.exists():
                 allow_module_level=True)
 
 from illumon_service.demo import demo_cameras, post_day  # noqa: E402 - after the skips
+from illumon_service.process import free_port, stop_process, wait_healthy  # noqa: E402
 
 ILLUMON = Path(sys.executable).with_name("illumon")
 ARGS = ["--no-sandbox", "--headless", "--disable-gpu", "--disable-quic", "--no-first-run", "--disable-background-networking",
@@ -56,17 +54,11 @@ class Fleet:
         return r.json()
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture(scope="module")
 def fleet(tmp_path_factory) -> Iterator[Fleet]:
     """``illumon serve`` on a free loopback port, two cameras registered, a day posted and refitted."""
     data = tmp_path_factory.mktemp("serve")
-    port = _free_port()
+    port = free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("ILLUMON_")}
     cmd = [str(ILLUMON), "serve", "--host", "127.0.0.1", "--port", str(port), "--data-dir", str(data), "--log-level", "warning"]
     log = (data / "serve.log").open("w")
@@ -74,28 +66,12 @@ def fleet(tmp_path_factory) -> Iterator[Fleet]:
     base = f"http://127.0.0.1:{port}"
     http = httpx.Client(trust_env=False, timeout=60)
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            if proc.poll() is not None:
-                raise AssertionError(f"serve exited: {(data / 'serve.log').read_text()}")
-            try:
-                if http.get(f"{base}/healthz", timeout=1).status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            if time.monotonic() > deadline:
-                raise AssertionError("serve did not answer /healthz within 60 s")
-            time.sleep(0.2)
+        wait_healthy(proc, base, timeout=60, describe=lambda: (data / "serve.log").read_text())
         admin = (data / "admin_token").read_text().strip()
         cams = post_day(base, admin, demo_cameras())
         yield Fleet(base, admin, {c["name"]: c for c in cams}, http)
     finally:
-        proc.send_signal(signal.SIGTERM)
-        try:
-            proc.wait(timeout=20)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=10)
+        stop_process(proc)
         log.close()
         http.close()
 

@@ -4,24 +4,16 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import httpx
+from illumon_service.process import free_port, stop_process, wait_healthy
 
 ILLUMON = Path(sys.executable).with_name("illumon")
-
-
-def free_port() -> int:
-    """A free TCP port on 127.0.0.1."""
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @dataclass
@@ -55,12 +47,7 @@ class Server:
 
     def stop(self) -> None:
         """SIGTERM (graceful), SIGKILL after 20 s."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                self.kill()
+        stop_process(self.proc)
 
 
 def start_server(data_dir: Path, *, port: int | None = None, env: dict[str, str] | None = None,
@@ -78,14 +65,8 @@ def start_server(data_dir: Path, *, port: int | None = None, env: dict[str, str]
     with open(log_path, "ab") as fh:
         proc = subprocess.Popen(cmd, env=full_env, stdout=fh, stderr=subprocess.STDOUT)
     server = Server(proc, port, data_dir, log_path, full_env)
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise AssertionError(f"serve exited with {proc.returncode}: {server.log()}")
-        try:
-            if httpx.get(f"{server.base}/healthz", timeout=1, trust_env=False).status_code == 200:
-                return server
-        except httpx.TransportError:
-            time.sleep(0.1)
-    server.kill()
-    raise AssertionError(f"serve did not answer /healthz within {timeout} s: {server.log()}")
+    try:
+        wait_healthy(proc, server.base, timeout=timeout, describe=server.log)
+    except RuntimeError as exc:
+        raise AssertionError(str(exc)) from None
+    return server

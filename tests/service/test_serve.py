@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -13,16 +12,11 @@ from pathlib import Path
 import httpx
 import numpy as np
 from illumon_service.app import admin_token
+from illumon_service.process import free_port, wait_healthy
 from illumon_service.settings import Settings
 from svc_helpers import encode_png, grid_regions
 
 ILLUMON = Path(sys.executable).with_name("illumon")
-
-
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def _start(data_dir: Path, port: int) -> subprocess.Popen:
@@ -30,17 +24,11 @@ def _start(data_dir: Path, port: int) -> subprocess.Popen:
     cmd = [str(ILLUMON), "serve", "--host", "127.0.0.1", "--port", str(port), "--data-dir", str(data_dir),
            "--log-level", "warning"]
     proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 30
-    while time.monotonic() < deadline:
-        if proc.poll() is not None:
-            raise AssertionError(f"serve exited: {proc.stderr.read()}")
-        try:
-            if httpx.Client(trust_env=False).get(f"http://127.0.0.1:{port}/healthz", timeout=1).status_code == 200:
-                return proc
-        except httpx.TransportError:
-            time.sleep(0.2)
-    proc.kill()
-    raise AssertionError("serve did not answer /healthz within 30 s")
+    try:
+        wait_healthy(proc, f"http://127.0.0.1:{port}", timeout=30, describe=lambda: proc.stderr.read())
+    except RuntimeError as exc:
+        raise AssertionError(str(exc)) from None
+    return proc
 
 
 def _kill(proc: subprocess.Popen) -> str:
@@ -50,7 +38,7 @@ def _kill(proc: subprocess.Popen) -> str:
 
 
 def test_serve_durable(tmp_path):
-    port = _free_port()
+    port = free_port()
     proc = _start(tmp_path, port)
     try:
         token = (tmp_path / "admin_token").read_text().strip()

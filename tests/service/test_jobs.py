@@ -43,9 +43,9 @@ def test_refit_cli(tmp_path, scene, capsys):
         assert len(c.get(f"/v1/cameras/{cid}/estimates", headers=bearer(token)).json()) == 4
 
 
-def test_refit_all_with_dask(tmp_path, scene, capsys):
-    """`illumon refit --all` fans two cameras out over a Dask LocalCluster."""
-    rng = np.random.default_rng(4)
+def _two_cameras_three_frames(tmp_path, scene, seed: int) -> None:
+    """Register two cameras and post three observations to each (random patch values)."""
+    rng = np.random.default_rng(seed)
     with TestClient(create_app(make_settings(tmp_path))) as c:
         for _ in range(2):
             cid, token = register(c, scene.css, scene.regions)
@@ -53,6 +53,11 @@ def test_refit_all_with_dask(tmp_path, scene, capsys):
                 patches = {r["id"]: list(rng.uniform(0.1, 0.6, 3)) for r in scene.regions}
                 body = {"taken_at": f"2025-06-01T0{f}:00:00Z", "patches": patches}
                 assert c.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token)).status_code == 201
+
+
+def test_refit_all_with_dask(tmp_path, scene, capsys):
+    """`illumon refit --all` fans two cameras out over a Dask LocalCluster."""
+    _two_cameras_three_frames(tmp_path, scene, seed=4)
     assert main(["refit", "--all", "--data-dir", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert out.count('"frames": 3') == 2
@@ -75,14 +80,7 @@ def test_scheduled_refit(tmp_path):
 
 def test_refit_all_one_worker_runs_serially(tmp_path, scene, capsys):
     """`illumon refit --all --workers 1` refits without Dask and says so."""
-    rng = np.random.default_rng(5)
-    with TestClient(create_app(make_settings(tmp_path))) as c:
-        for _ in range(2):
-            cid, token = register(c, scene.css, scene.regions)
-            for f in range(3):
-                patches = {r["id"]: list(rng.uniform(0.1, 0.6, 3)) for r in scene.regions}
-                body = {"taken_at": f"2025-06-01T0{f}:00:00Z", "patches": patches}
-                assert c.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token)).status_code == 201
+    _two_cameras_three_frames(tmp_path, scene, seed=5)
     assert main(["refit", "--all", "--workers", "1", "--data-dir", str(tmp_path)]) == 0
     captured = capsys.readouterr()
     assert captured.out.count('"frames": 3') == 2

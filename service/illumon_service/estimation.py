@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from illumon import model as scene_model
 from illumon.observations import Observations
 from illumon.spectra import WAVELENGTHS
 from numpy.typing import NDArray
@@ -44,17 +45,9 @@ def model_path(data_dir: Path | str, camera_id: int) -> Path:
     return Path(data_dir) / "models" / f"camera-{camera_id}.json"
 
 
-def _model_module() -> Any | None:
-    try:
-        import illumon.model as model  # noqa: PLC0415 - optional, written concurrently
-    except ImportError:
-        return None
-    return model
-
-
 def model_available(data_dir: Path | str, camera_id: int) -> bool:
-    """Whether per-frame estimation is possible for the camera (module importable and a model fitted)."""
-    return _model_module() is not None and model_path(data_dir, camera_id).is_file()
+    """Whether per-frame estimation is possible for the camera (a scene model has been fitted)."""
+    return model_path(data_dir, camera_id).is_file()
 
 
 def sensitivities_array(stored: Sequence[Sequence[float]]) -> NDArray[np.float64]:
@@ -93,7 +86,7 @@ _MODEL_CACHE: dict[str, tuple[int, Any]] = {}
 _CACHE_LOCK = threading.Lock()
 
 
-def _load_model(model: Any, path: Path) -> Any:
+def _load_model(path: Path) -> scene_model.SceneModel:
     """The scene model at ``path``, loaded once per file version (the per-frame solve is then ~1 ms)."""
     mtime = path.stat().st_mtime_ns
     key = str(path)
@@ -101,7 +94,7 @@ def _load_model(model: Any, path: Path) -> Any:
         hit = _MODEL_CACHE.get(key)
         if hit is not None and hit[0] == mtime:
             return hit[1]
-    loaded = model.SceneModel.load(path)
+    loaded = scene_model.SceneModel.load(path)
     with _CACHE_LOCK:
         _MODEL_CACHE[key] = (mtime, loaded)
     return loaded
@@ -135,21 +128,17 @@ def estimate_frame(
     data_dir: Path | str, camera_id: int, frame_id: str, taken_at: str, patches: dict, region_ids: Sequence[str]
 ) -> dict | None:
     """Per-frame estimate from the camera's fitted scene model, or ``None`` when there is none (yet)."""
-    model = _model_module()
     path = model_path(data_dir, camera_id)
-    if model is None or not path.is_file():
+    if not path.is_file():
         return None
     obs = build_observations([(frame_id, taken_at, patches)], region_ids)
     present = obs.present[0]
     if present.sum() < 2:
         return None
     try:
-        if hasattr(model, "SceneModel") and hasattr(model.SceneModel, "load"):
-            scene = _load_model(model, path)
-            result, extra = scene.estimate(obs, solver=_solver(scene, list(region_ids)))
-        else:
-            result, extra = model.estimate_with_model(obs, str(path))
-    except Exception as exc:  # noqa: BLE001 - the model API is young; never fail an ingest on it
+        scene = _load_model(path)
+        result, extra = scene.estimate(obs, solver=_solver(scene, list(region_ids)))
+    except Exception as exc:  # noqa: BLE001 - the frame is stored either way; an unreadable model must not lose it
         log.warning("scene model estimate failed for camera %s: %s", camera_id, exc)
         return None
     if not np.all(np.isfinite(result.white[0])):
@@ -176,12 +165,9 @@ def _seen_patches(obs: Observations) -> Observations:
 
 
 def _fit_model(obs: Observations, css: NDArray[np.float64], path: Path, max_fit_frames: int = 300) -> str:
-    """Fit and save a scene model with :mod:`illumon.model` when available; returns a status string."""
-    model = _model_module()
-    if model is None:
-        return "illumon.model not installed"
+    """Fit and save a scene model with :mod:`illumon.model`; returns a status string."""
     try:
-        fitted = model.fit_scene_model(_seen_patches(obs), css, max_fit_frames=max_fit_frames)
+        fitted = scene_model.fit_scene_model(_seen_patches(obs), css, max_fit_frames=max_fit_frames)
         _save_model(fitted, path)
     except Exception as exc:  # noqa: BLE001 - the retrieval's estimates still stand
         log.warning("scene model fit failed: %s", exc)
@@ -198,10 +184,7 @@ def _refit_with_model(
 ) -> tuple[dict[str, dict], dict]:
     """Fit the scene model on the history (reflectances on ≤ ``max_fit_frames`` frames spread over the illuminant
     range), save it, and estimate every frame with it: ``illumon fit`` then ``illumon estimate --model``."""
-    model = _model_module()
-    if model is None:
-        raise ValueError("refit method 'model' needs illumon.model")
-    fitted = model.fit_scene_model(_seen_patches(obs), css, max_fit_frames=max_fit_frames)
+    fitted = scene_model.fit_scene_model(_seen_patches(obs), css, max_fit_frames=max_fit_frames)
     if model_file is not None:
         _save_model(fitted, model_file)
         _MODEL_CACHE.pop(str(model_file), None)

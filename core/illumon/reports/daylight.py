@@ -22,6 +22,7 @@ import inspect
 import json
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -437,7 +438,14 @@ def _plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    names = []
+    names: list[str] = []
+
+    def save(figure: Any, name: str) -> None:
+        figure.tight_layout()
+        figure.savefig(out / name, dpi=110)
+        plt.close(figure)
+        names.append(name)
+
     f, ax = plt.subplots(1, 2, figsize=(11, 4))
     cct = np.asarray(fig["error_vs_cct"]["cct"])
     for k in ("cie_cct", "cie_xy", "cie_free", "theta"):
@@ -450,10 +458,7 @@ def _plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) 
         a.set_ylabel(lab)
         a.legend(markerscale=4, fontsize=8)
     ax[0].axhline(1e-3, color="k", lw=0.8, ls="--")
-    f.tight_layout()
-    f.savefig(out / "error_vs_cct.png", dpi=110)
-    plt.close(f)
-    names.append("error_vs_cct.png")
+    save(f, "error_vs_cct.png")
 
     d = fig["delta_vs_cct"]
     f, ax = plt.subplots(figsize=(6, 4))
@@ -467,10 +472,7 @@ def _plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) 
     ax.set_xlabel("CCT (K)")
     ax.set_ylabel("δ = Duv − Duv(CIE daylight locus)")
     ax.legend(markerscale=4, fontsize=8)
-    f.tight_layout()
-    f.savefig(out / "delta_vs_cct.png", dpi=110)
-    plt.close(f)
-    names.append("delta_vs_cct.png")
+    save(f, "delta_vs_cct.png")
 
     r = fig["residual_by_wavelength"]
     f, ax = plt.subplots(figsize=(7, 4))
@@ -479,10 +481,7 @@ def _plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) 
     ax.set_xlabel("wavelength (nm)")
     ax.set_ylabel("RMS relative residual")
     ax.legend(fontsize=8)
-    f.tight_layout()
-    f.savefig(out / "residual_by_wavelength.png", dpi=110)
-    plt.close(f)
-    names.append("residual_by_wavelength.png")
+    save(f, "residual_by_wavelength.png")
 
     h = fig["held_out_error_by_k"]
     f, ax = plt.subplots(figsize=(6, 4))
@@ -491,10 +490,7 @@ def _plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) 
     ax.set_xlabel("principal components k")
     ax.set_ylabel("relative RMSE")
     ax.legend()
-    f.tight_layout()
-    f.savefig(out / "held_out_error_by_k.png", dpi=110)
-    plt.close(f)
-    names.append("held_out_error_by_k.png")
+    save(f, "held_out_error_by_k.png")
 
     worst = np.argsort(err["cie_xy"]["gfc"])[:4]
     f, axs = plt.subplots(1, 4, figsize=(14, 3.5))
@@ -505,20 +501,14 @@ def _plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) 
         a.set_title(f"#{i}: GFC {err['cie_xy']['gfc'][i]:.4f}", fontsize=9)
         a.set_xlabel("nm")
     axs[0].legend(fontsize=7)
-    f.tight_layout()
-    f.savefig(out / "worst_fits.png", dpi=110)
-    plt.close(f)
-    names.append("worst_fits.png")
+    save(f, "worst_fits.png")
 
     b = fig["band_scan"]
     f, ax = plt.subplots(figsize=(7, 3.5))
     ax.plot(b["centre_nm"], b["evidence"])
     ax.set_xlabel("band centre (nm)")
     ax.set_ylabel("summed matched-filter evidence")
-    f.tight_layout()
-    f.savefig(out / "band_scan.png", dpi=110)
-    plt.close(f)
-    names.append("band_scan.png")
+    save(f, "band_scan.png")
 
     g = fig["gain"].get("retrieval_per_history")
     if g:
@@ -526,10 +516,7 @@ def _plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) 
         ax.boxplot([[x["median_angular_cie"] for x in g], [x["median_angular_measured"] for x in g]])
         ax.set_xticks([1, 2], ["CIE D", "measured"])
         ax.set_ylabel("median angular error per history (°)")
-        f.tight_layout()
-        f.savefig(out / "gain_retrieval.png", dpi=110)
-        plt.close(f)
-        names.append("gain_retrieval.png")
+        save(f, "gain_retrieval.png")
     return names
 
 

@@ -36,10 +36,7 @@ MAGIC = {
 
 
 _PER_REGION = False
-"""Use the per-region integer path (:func:`_robust_mean_codes`; kept as the reference of the vectorised one)."""
-
-_ALL_AT_ONCE_16 = False
-"""Use :func:`_region_means_codes` for 16-bit images too (same values; slower on 120×120 regions)."""
+"""Use the per-region numpy path (:func:`_robust_mean_codes`; kept as the reference of :func:`_region_means_cv`)."""
 
 MEDIAN_SAMPLES = 1024
 """Pixels used for a region's median and MAD (an even stride over the region; the mean uses every kept pixel). The
@@ -252,88 +249,112 @@ def _robust_mean_codes(codes: NDArray, lut: NDArray[np.float64], k: float, min_k
     return np.take(lut, codes.compress(keep, axis=1)).mean(axis=1)  # compress/take: ~4× faster than [:, mask]
 
 
-def _region_means_codes(
+def _sample_stats(
+    samples: list[NDArray], lut: NDArray[np.float64], top: int,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Upper median and upper-median absolute deviation, in linear light, of every region's median samples.
+
+    ``samples`` holds one ``m × 3`` array of integer codes per region (``m ≥ 1``, or 0 for a region no longer
+    computed, whose statistics are then meaningless); returns two ``3 × R`` arrays, exactly the values
+    :func:`_robust_mean_codes` computes region by region. The codes are sorted (a radix sort of small integers), so
+    the median is the linearised middle code (the lookup table is non-decreasing). For the MAD, the pixels within
+    ``t`` of the median are a run of consecutive sorted samples and, ``|v − median|`` being convex, a run's largest
+    deviation is at one of its ends: the ``(h+1)``-th smallest deviation (``h = m // 2``) is therefore the smallest,
+    over runs ``s … s+h``, of ``max(|v_s − median|, |v_{s+h} − median|)`` — elementwise, no partition needed.
+    """
+    nreg = len(samples)
+    m = np.array([s.shape[0] for s in samples])
+    half = m // 2
+    width = max(1, int(m.max()))
+    same = bool(np.all(m == width))  # the usual case: regions of one size, nothing dropped or the same count kept
+    if same:
+        codes = np.stack(samples, axis=0).transpose(2, 0, 1)  # 3 × R × m
+    else:
+        codes = np.full((3, nreg, width), top, dtype=samples[0].dtype)  # padding with the top code sorts last
+        for r, s in enumerate(samples):
+            codes[:, r, : s.shape[0]] = s.T
+    codes = np.sort(codes, axis=2, kind="stable")
+    med = lut[np.take_along_axis(codes, half[None, :, None], axis=2)[..., 0]][..., None]  # 3 × R × 1
+    if same:  # runs s … s + h, s = 0 … m − 1 − h
+        h = int(half[0])
+        runs = width - h
+        dev = np.maximum(np.abs(lut.take(codes[..., :runs]) - med), np.abs(lut.take(codes[..., h:]) - med))
+        return med[..., 0], dev.min(axis=2)
+    runs = width - int(half.min())  # the longest range of run starts; a region's runs beyond m − 1 − h are masked
+    ends = np.minimum(np.arange(runs)[None, :] + half[:, None], width - 1)  # R × runs
+    ends = np.broadcast_to(ends, codes.shape[:2] + (runs,))
+    dev = np.maximum(np.abs(lut.take(codes[..., :runs]) - med),
+                     np.abs(lut.take(np.take_along_axis(codes, ends, axis=2)) - med))
+    dev[:, np.arange(runs)[None, :] > (m - 1 - half)[:, None]] = np.inf
+    return med[..., 0], dev.min(axis=2)
+
+
+def _kept_mean(crop: NDArray, mask: NDArray[np.uint8] | None, lut: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Mean linear value, per channel of ``crop`` (h × w × 3 codes), of the pixels where ``mask`` is non-zero.
+
+    The codes are linearised through the lookup table (``cv2.LUT`` for 8-bit, ``np.take`` for 16-bit codes) and
+    averaged by ``cv2.mean`` with double accumulators.
+    """
+    lin = cv2.LUT(crop, lut) if lut.size <= 256 else lut.take(crop)
+    return np.array(cv2.mean(lin, mask)[:3])
+
+
+def _region_means_cv(
     image: NDArray, regions: list[Region], lut: NDArray[np.float64], clip_code: int, k: float, min_fraction: float,
 ) -> list[NDArray[np.float64] | None]:
-    """:func:`_robust_mean_codes` of every region of an integer image at once (same result, region for region).
+    """:func:`_robust_mean_codes` of every region of an integer image (same values, region for region), fast.
 
-    Only the regions' pixels are read (one channel-major copy of each crop). The elementwise steps — clipped-pixel
-    exclusion, the strided median samples, the trimming, the final mean — are a few numpy calls per region on its
-    small contiguous crop; the medians and MADs of all regions' samples are computed together (256-bin histograms
-    for 8-bit images, one padded sort for 16-bit ones) instead of some 40 small calls per region.
+    ``image`` (h × w × 3, uint8 or uint16) must have contiguous pixels (channel stride = item size), in any channel
+    order: the lookup table is the same for every channel, so the means come out in the image's channel order. The
+    bulk work runs in OpenCV on each region's view, without copies and with the GIL released: one ``cv2.inRange``
+    per trimming pass gives the kept pixels (clipping folded in: a pixel is kept when every channel lies in
+    ``[lo, min(hi, clip − 1)]``), ``cv2.countNonZero`` their number, and the final mean is ``cv2.mean`` of the
+    linearised codes. Python only handles the
+    ≤ ~1024 strided median samples of each region (gathered from the kept pixels' flat indices), whose medians and
+    MADs are computed for all regions at once (:func:`_sample_stats`).
     """
     nreg = len(regions)
     top = int(np.iinfo(image.dtype).max)
-    blocks = [np.moveaxis(image[r.y : r.y + r.height, r.x : r.x + r.width], 2, 0).reshape(3, -1) for r in regions]
-    min_keep = [max(1, int(np.ceil(min_fraction * b.shape[1]))) for b in blocks]
-    alive = np.ones(nreg, dtype=bool)
-    oks: list[NDArray[np.bool_] | None] = [None] * nreg
-    if clip_code <= top:
-        c = image.dtype.type(clip_code)
-        oks = [(b[0] < c) & (b[1] < c) & (b[2] < c) for b in blocks]
-    keeps = list(oks)
-    histogram = lut.size <= 256
+    cap = min(clip_code - 1, top)  # highest unclipped code
+    # Contiguous copies of the crops (a memcpy per row): flat pixel indices then address them directly.
+    crops = [np.ascontiguousarray(image[r.y : r.y + r.height, r.x : r.x + r.width]) for r in regions]
+    sizes = [r.width * r.height for r in regions]
+    min_keep = [max(1, int(np.ceil(min_fraction * n))) for n in sizes]
+    masks: list[NDArray[np.uint8] | None] = [None] * nreg  # None: every pixel kept
+    counts = list(sizes)
+    if cap < top:
+        for r, crop in enumerate(crops):
+            if crop.max() > cap:  # some pixel clipped (the maximum is ~8× cheaper than the mask)
+                masks[r] = cv2.inRange(crop, (0, 0, 0), (cap, cap, cap))
+                counts[r] = cv2.countNonZero(masks[r])
+    alive = np.array([c >= mk for c, mk in zip(counts, min_keep, strict=True)])
+    empty = np.zeros((0, 3), image.dtype)
     for _ in range(2):
         samples = []
-        for r, (b, kp) in enumerate(zip(blocks, keeps, strict=True)):
-            if alive[r]:
-                idx = None if kp is None else np.flatnonzero(kp)
-                nk = b.shape[1] if idx is None else idx.size
-                if nk < min_keep[r]:
-                    alive[r] = False
-                else:
-                    step = max(1, nk // MEDIAN_SAMPLES)
-                    samples.append(b[:, ::step] if idx is None else b[:, idx[::step]])
-                    continue
-            samples.append(blocks[r][:, :0])
-        m = np.array([s.shape[1] for s in samples])
-        half = m // 2
-        s_codes = np.concatenate(samples, axis=1)  # 3 × all samples
-        s_lab = np.repeat(np.arange(nreg), m)
-        if histogram:
-            # Upper medians and MADs from 256-bin histograms per channel and region (as _mad_8bit, all at once).
-            flat = ((np.arange(3)[:, None] * nreg + s_lab[None, :]) * 256 + s_codes).ravel()
-            counts = np.bincount(flat, minlength=3 * nreg * 256).reshape(3, nreg, 256)
-            med = lut[np.minimum((np.cumsum(counts, axis=2) <= half[None, :, None]).sum(axis=2), 255)]  # 3 × R
-            dev = np.abs(lut[None, None, :] - med[..., None])  # 3 × R × 256
-            order = np.argsort(dev, axis=2, kind="stable")
-            cum = np.cumsum(np.take_along_axis(counts, order, axis=2), axis=2)
-            pos = np.minimum((cum <= half[None, :, None]).sum(axis=2), 255)
-            mad = np.take_along_axis(dev, np.take_along_axis(order, pos[..., None], axis=2), axis=2)[..., 0]
-        else:
-            width = max(1, int(m.max()))
-            padded = np.full((3, nreg, width), top, dtype=s_codes.dtype)  # padding with the top code sorts last
-            padded[:, s_lab, np.arange(s_lab.size) - np.repeat(np.cumsum(m) - m, m)] = s_codes
-            same = bool(np.all(m == m[0]))  # the usual case (regions of one size): partitions, not sorts
-            if same:
-                med = lut[np.partition(padded, half[0], axis=2)[..., half[0]]]
-            else:
-                padded.sort(axis=2)
-                med = lut[np.take_along_axis(padded, half[None, :, None], axis=2)[..., 0]]
-            dev = np.abs(lut[padded] - med[..., None])
-            dev[:, np.arange(width)[None, :] >= m[:, None]] = np.inf
-            if same:
-                mad = np.partition(dev, half[0], axis=2)[..., half[0]]
-            else:
-                mad = np.take_along_axis(np.sort(dev, axis=2), half[None, :, None], axis=2)[..., 0]
+        for r in range(nreg):
+            if not alive[r]:
+                samples.append(empty)
+                continue
+            step = max(1, counts[r] // MEDIAN_SAMPLES)
+            mask = masks[r]
+            pixels = crops[r].reshape(-1, 3)
+            if mask is None:
+                samples.append(pixels[::step])
+            else:  # the kept pixels' flat indices, every step-th of them
+                samples.append(pixels.take(mask.reshape(-1).view(bool).nonzero()[0][::step], axis=0))
+        med, mad = _sample_stats(samples, lut, top)
         scale = np.maximum(1.4826 * mad, 0.02 * np.abs(med) + 1e-4)
         lo = np.searchsorted(lut, med - k * scale, side="left")  # 3 × R: first code with lut ≥ med − kσ
-        hi = np.searchsorted(lut, med + k * scale, side="right") - 1  # last code with lut ≤ med + kσ
-        alive &= ~np.any((lo > hi) | (lo > top) | (hi < 0), axis=0)
-        lo, hi = np.clip(lo, 0, top).astype(image.dtype), np.clip(hi, 0, top).astype(image.dtype)
+        hi = np.minimum(np.searchsorted(lut, med + k * scale, side="right") - 1, cap)  # last kept code ≤ med + kσ
         for r in np.flatnonzero(alive):
-            b = blocks[r]
-            kp = (b[0] >= lo[0, r]) & (b[0] <= hi[0, r]) & (b[1] >= lo[1, r]) & (b[1] <= hi[1, r])
-            kp &= (b[2] >= lo[2, r]) & (b[2] <= hi[2, r])
-            if oks[r] is not None:
-                kp &= oks[r]
-            keeps[r] = kp
-    out: list[NDArray[np.float64] | None] = [None] * nreg
-    for r in np.flatnonzero(alive):
-        kp = keeps[r]
-        if np.count_nonzero(kp) >= min_keep[r]:
-            out[r] = np.take(lut, blocks[r].compress(kp, axis=1)).mean(axis=1)
-    return out
+            lo_r, hi_r = lo[:, r].tolist(), hi[:, r].tolist()
+            if lo_r[0] > hi_r[0] or lo_r[1] > hi_r[1] or lo_r[2] > hi_r[2]:
+                alive[r] = False
+                continue
+            masks[r] = cv2.inRange(crops[r], tuple(lo_r), tuple(hi_r))
+            counts[r] = cv2.countNonZero(masks[r])
+            alive[r] = counts[r] >= min_keep[r]
+    return [_kept_mean(crops[r], masks[r], lut) if alive[r] else None for r in range(nreg)]
 
 
 def region_means(
@@ -360,12 +381,19 @@ def region_means(
                 f"region {r.id!r} ({r.x},{r.y} {r.width}×{r.height}) lies outside the {w}×{h} image"
             )
     out: dict[str, list[float] | None] = {}
-    # 8-bit: all regions at once (4 ms instead of 6-9 ms for 16 regions of 120×120 on the ingest benchmark's frames);
-    # 16-bit: per region, whose radix sorts beat one padded partition of every region's samples (5.3 vs 6.1 ms).
-    if integer and regions and not _PER_REGION and (image.dtype == np.uint8 or _ALL_AT_ONCE_16):
+    if integer and regions and not _PER_REGION:
         limit = min(int(np.ceil(clip_at)), np.iinfo(image.dtype).max + 1)
-        means = _region_means_codes(image, regions, lut, limit, k, min_fraction)
-        return {r.id: None if m is None else [float(v) for v in m] for r, m in zip(regions, means, strict=True)}
+        if limit <= 0:  # every code clipped
+            return {r.id: None for r in regions}
+        # Work in the pixels' memory order: OpenCV decodes BGR and decode_image returns a reversed view of it.
+        item = image.dtype.itemsize
+        flip = image.strides[2] == -item
+        base = image[:, :, ::-1] if flip else image
+        if base.strides[2] != item or base.strides[1] != 3 * item:
+            base = np.ascontiguousarray(base)
+        means = _region_means_cv(base, regions, lut, limit, k, min_fraction)
+        return {r.id: None if m is None else [float(v) for v in (m[::-1] if flip else m)]
+                for r, m in zip(regions, means, strict=True)}
     for r in regions:
         block = image[r.y : r.y + r.height, r.x : r.x + r.width]
         n = r.width * r.height

@@ -39,23 +39,34 @@ def test_srgb8_linearised():
 
 
 def test_vectorised_regions_match_per_region_reference(monkeypatch):
-    """All regions at once (the default) give exactly the per-region reference path's values and misses."""
+    """The OpenCV path (the default) gives the per-region numpy reference's values and misses, whatever the memory
+    layout of the pixels: RGB, a reversed view of BGR (what decode_image returns), or non-contiguous pixels."""
     import illumon_service.regions as reg
 
     rng = np.random.default_rng(7)
-    monkeypatch.setattr(reg, "_ALL_AT_ONCE_16", True)
     for dt, full in ((np.uint8, 255), (np.uint16, 65535)):
         for trial in range(12):
-            img = (rng.normal(0.5, 0.05 + 0.1 * (trial % 3), (80, 90, 3)).clip(0, 1) * full).astype(dt)
-            img[rng.random((80, 90)) < 0.05 * (trial % 4)] = full  # clipped pixels
+            img = (rng.normal(0.5, 0.05 + 0.1 * (trial % 3), (80, 180, 3)).clip(0, 1) * full).astype(dt)
+            img[rng.random((80, 180)) < 0.05 * (trial % 4)] = full  # clipped pixels
             img[5:30, 5:25] = (0.9 * full, 0.1 * full, 0.1 * full)  # a passer-by
-            regions = [Region(str(i), int(rng.integers(0, 40)), int(rng.integers(0, 40)), int(rng.integers(1, 40)),
-                              int(rng.integers(1, 40))) for i in range(6)]
+            layout = trial % 3
+            if layout == 1:
+                img = np.ascontiguousarray(img[:, :, ::-1])[:, :, ::-1]  # BGR memory, RGB view
+            elif layout == 2:
+                img = img[:, ::2]  # every other column: pixels not contiguous
+            else:
+                img = img[:, :90]
+            size = 40 if trial < 9 else 8  # regions of different sizes; at the end, small ones (one median sample each)
+            regions = [Region(str(i), int(rng.integers(0, 40)), int(rng.integers(0, 40)), int(rng.integers(1, size)),
+                              int(rng.integers(1, size))) for i in range(6)]
+            if trial % 4 == 3:  # all of one size, the usual case
+                regions = [Region(str(i), int(rng.integers(0, 40)), int(rng.integers(0, 40)), 30, 25) for i in range(6)]
             resp = ResponseCurve("srgb" if trial % 2 else "linear", white_level=full)
             monkeypatch.setattr(reg, "_PER_REGION", True)
             ref = region_means(img, regions, resp)
             monkeypatch.setattr(reg, "_PER_REGION", False)
             got = region_means(img, regions, resp)
+            assert any(v is not None for v in ref.values())
             for key, value in ref.items():
                 assert (value is None) == (got[key] is None)
                 if value is not None:

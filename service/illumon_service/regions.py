@@ -24,7 +24,8 @@ from illumon.camera import ResponseCurve
 from numpy.typing import NDArray
 
 __all__ = [
-    "ImageError", "RegionError", "Region", "sniff_format", "declared_size", "decode_image", "region_means", "response_for",
+    "ImageError", "RegionError", "Region", "DecodedFrame", "sniff_format", "declared_size", "decode_image",
+    "decode_frame", "jpeg_reduction", "region_means", "response_for",
 ]
 
 MAGIC = {
@@ -37,6 +38,16 @@ MAGIC = {
 
 _PER_REGION = False
 """Use the per-region numpy path (:func:`_robust_mean_codes`; kept as the reference of :func:`_region_means_cv`)."""
+
+MIN_REDUCED_SIDE = 32
+"""Smallest width and height, in decoded pixels, a region may have for a reduced-resolution JPEG decode."""
+
+_REDUCED = {
+    2: (cv2.IMREAD_REDUCED_GRAYSCALE_2, cv2.IMREAD_REDUCED_COLOR_2),
+    4: (cv2.IMREAD_REDUCED_GRAYSCALE_4, cv2.IMREAD_REDUCED_COLOR_4),
+    8: (cv2.IMREAD_REDUCED_GRAYSCALE_8, cv2.IMREAD_REDUCED_COLOR_8),
+}
+"""imdecode flags (grey, colour) of each reduction factor."""
 
 MEDIAN_SAMPLES = 1024
 """Pixels used for a region's median and MAD (an even stride over the region; the mean uses every kept pixel). The
@@ -74,6 +85,33 @@ def sniff_format(data: bytes) -> str | None:
     return None
 
 
+def _jpeg_sof(data: bytes) -> tuple[int, int, int, int] | None:
+    """``(width, height, bits per sample, components)`` from a JPEG's first SOF marker, ``None`` if not found."""
+    i = 2
+    try:
+        while i + 9 < len(data):
+            if data[i] != 0xFF:
+                return None
+            marker = data[i + 1]
+            if marker == 0xFF:
+                i += 1
+                continue
+            if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+                i += 2
+                continue
+            seg = int.from_bytes(data[i + 2 : i + 4], "big")
+            if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+                h = int.from_bytes(data[i + 5 : i + 7], "big")
+                w = int.from_bytes(data[i + 7 : i + 9], "big")
+                return w, h, data[i + 4], data[i + 9]
+            if seg < 2:
+                return None
+            i += 2 + seg
+    except IndexError:
+        return None
+    return None
+
+
 def declared_size(data: bytes, fmt: str) -> tuple[int, int] | None:
     """Width and height stated by a PNG (IHDR), JPEG (first SOF marker) or TIFF (first IFD) header; ``None`` when the
     header is too short or malformed to say (the decoder then decides)."""
@@ -83,26 +121,8 @@ def declared_size(data: bytes, fmt: str) -> tuple[int, int] | None:
                 return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
             return None
         if fmt == "jpeg":
-            i = 2
-            while i + 9 < len(data):
-                if data[i] != 0xFF:
-                    return None
-                marker = data[i + 1]
-                if marker == 0xFF:
-                    i += 1
-                    continue
-                if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
-                    i += 2
-                    continue
-                seg = int.from_bytes(data[i + 2 : i + 4], "big")
-                if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
-                    h = int.from_bytes(data[i + 5 : i + 7], "big")
-                    w = int.from_bytes(data[i + 7 : i + 9], "big")
-                    return w, h
-                if seg < 2:
-                    return None
-                i += 2 + seg
-            return None
+            sof = _jpeg_sof(data)
+            return None if sof is None else (sof[0], sof[1])
         if fmt == "tiff":
             order = "little" if data[:2] == b"II" else "big"
             off = int.from_bytes(data[4:8], order)
@@ -119,10 +139,31 @@ def declared_size(data: bytes, fmt: str) -> tuple[int, int] | None:
     return None
 
 
-def decode_image(data: bytes, *, max_pixels: int = 50_000_000) -> tuple[NDArray, float]:
+def jpeg_reduction(data: bytes, regions: Iterable[Region], max_reduction: int, min_side: int = MIN_REDUCED_SIDE) -> int:
+    """The factor (1, 2, 4 or 8) by which to decode ``data`` at reduced resolution for robust means of ``regions``.
+
+    libjpeg decodes a JPEG at 1/2, 1/4 or 1/8 of its size by scaling its inverse DCT (each decoded pixel is close to
+    the mean of the s × s pixels it replaces), saving the full-size IDCT, colour conversion and upsampling. The factor
+    is the largest one ≤ ``max_reduction`` at which every region still spans at least ``min_side`` decoded pixels in
+    each direction; 1 for anything but an 8-bit grey or three-component JPEG, or when ``max_reduction`` is 1.
+    """
+    if max_reduction < 2 or sniff_format(data) != "jpeg":
+        return 1
+    sof = _jpeg_sof(data)
+    if sof is None or sof[2] != 8 or sof[3] not in (1, 3):
+        return 1
+    regions = list(regions)
+    for s in (8, 4, 2):
+        if s <= max_reduction and all(min(r.width, r.height) >= s * min_side for r in regions):
+            return s
+    return 1
+
+
+def decode_image(data: bytes, *, max_pixels: int = 50_000_000, reduction: int = 1) -> tuple[NDArray, float]:
     """Decode ``data`` to an RGB array (H × W × 3, uint8 or uint16) and its full-scale value (255 or 65535).
 
-    Raises :class:`ImageError` for empty, unrecognised, undecodable, too large or unsupported images.
+    ``reduction`` 2, 4 or 8 (a JPEG only, see :func:`jpeg_reduction`) decodes at that fraction of the size, ⌈H/s⌉ ×
+    ⌈W/s⌉. Raises :class:`ImageError` for empty, unrecognised, undecodable, too large or unsupported images.
     """
     if not data:
         raise ImageError("image is empty (0 bytes)", 400)
@@ -133,7 +174,17 @@ def decode_image(data: bytes, *, max_pixels: int = 50_000_000) -> tuple[NDArray,
     if size is not None and size[0] * size[1] > max_pixels:
         # Refuse decompression bombs before allocating: the header states the size.
         raise ImageError(f"image has {size[0]}×{size[1]} pixels; the limit is {max_pixels}", 413)
-    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if reduction == 1:
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    else:
+        sof = _jpeg_sof(data) if fmt == "jpeg" else None
+        if reduction not in _REDUCED or sof is None or sof[2] != 8 or sof[3] not in (1, 3):
+            raise ValueError(f"cannot decode this image at 1/{reduction} size (an 8-bit JPEG at 1/2, 1/4 or 1/8 only)")
+        # IMREAD_UNCHANGED ignores the EXIF orientation; so must the reduced decode, or regions would move.
+        flags = _REDUCED[reduction][sof[3] == 3] | cv2.IMREAD_IGNORE_ORIENTATION
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+        if img is not None and img.shape[:2] != (-(-sof[1] // reduction), -(-sof[0] // reduction)):
+            raise ImageError("image could not be decoded (its size differs from the one its header states)")
     if img is None or img.size == 0:
         raise ImageError("image could not be decoded (corrupt or truncated file)")
     if img.shape[0] * img.shape[1] > max_pixels:
@@ -153,6 +204,31 @@ def decode_image(data: bytes, *, max_pixels: int = 50_000_000) -> tuple[NDArray,
     else:
         raise ImageError(f"unsupported channel count {img.shape[2]}; use RGB or grey images")
     return img, full
+
+
+@dataclass(frozen=True)
+class DecodedFrame:
+    """An uploaded frame decoded for region statistics (:func:`decode_frame`)."""
+
+    image: NDArray
+    """RGB pixels, H × W × 3, uint8 or uint16; at 1/``scale`` of the full resolution."""
+    full_scale: float
+    """255 or 65535."""
+    scale: int
+    """Full-resolution pixels per decoded pixel along each axis (1, or 2, 4, 8 for a reduced JPEG decode)."""
+    size: tuple[int, int]
+    """Full-resolution (width, height)."""
+
+
+def decode_frame(
+    data: bytes, regions: Iterable[Region], *, max_pixels: int = 50_000_000, max_reduction: int = 1,
+) -> DecodedFrame:
+    """Decode an upload for the robust means of ``regions``: a JPEG at the reduction :func:`jpeg_reduction` allows
+    (at most ``max_reduction``), anything else at full size. Raises :class:`ImageError` like :func:`decode_image`."""
+    scale = jpeg_reduction(data, regions, max_reduction)
+    image, full = decode_image(data, max_pixels=max_pixels, reduction=scale)
+    size = declared_size(data, "jpeg") if scale > 1 else None
+    return DecodedFrame(image, full, scale, size or (int(image.shape[1]), int(image.shape[0])))
 
 
 def response_for(response: Mapping, full_scale: float) -> ResponseCurve:
@@ -289,18 +365,28 @@ def _sample_stats(
     return med[..., 0], dev.min(axis=2)
 
 
-def _kept_mean(crop: NDArray, mask: NDArray[np.uint8] | None, lut: NDArray[np.float64]) -> NDArray[np.float64]:
+def _kept_mean(
+    crop: NDArray, mask: NDArray[np.uint8] | None, lut: NDArray[np.float64], weight: NDArray[np.float64] | None,
+    min_weight: float,
+) -> NDArray[np.float64] | None:
     """Mean linear value, per channel of ``crop`` (h × w × 3 codes), of the pixels where ``mask`` is non-zero.
 
     The codes are linearised through the lookup table (``cv2.LUT`` for 8-bit, ``np.take`` for 16-bit codes) and
-    averaged by ``cv2.mean`` with double accumulators.
+    averaged by ``cv2.mean`` with double accumulators. With ``weight`` (h × w, each pixel's share of the region, see
+    :func:`_decoded_regions`) the mean is weighted, and ``None`` when the kept pixels weigh less than ``min_weight``.
     """
     lin = cv2.LUT(crop, lut) if lut.size <= 256 else lut.take(crop)
-    return np.array(cv2.mean(lin, mask)[:3])
+    if weight is None:
+        return np.array(cv2.mean(lin, mask)[:3])
+    kept = cv2.mean(weight, mask)[0]  # mean weight of the kept pixels: Σ w / count
+    if kept * (crop.shape[0] * crop.shape[1] if mask is None else cv2.countNonZero(mask)) < min_weight:
+        return None
+    return np.array(cv2.mean(lin * weight[..., None], mask)[:3]) / kept
 
 
 def _region_means_cv(
     image: NDArray, regions: list[Region], lut: NDArray[np.float64], clip_code: int, k: float, min_fraction: float,
+    weights: list[NDArray[np.float64] | None] | None = None,
 ) -> list[NDArray[np.float64] | None]:
     """:func:`_robust_mean_codes` of every region of an integer image (same values, region for region), fast.
 
@@ -311,7 +397,9 @@ def _region_means_cv(
     ``[lo, min(hi, clip − 1)]``), ``cv2.countNonZero`` their number, and the final mean is ``cv2.mean`` of the
     linearised codes. Python only handles the
     ≤ ~1024 strided median samples of each region (gathered from the kept pixels' flat indices), whose medians and
-    MADs are computed for all regions at once (:func:`_sample_stats`).
+    MADs are computed for all regions at once (:func:`_sample_stats`). ``weights`` (per region, ``None`` or each
+    pixel's share of it) weight the final mean and the ``min_fraction`` test of a region decoded at reduced size
+    whose edges cut decoded pixels; medians and trimming treat its pixels alike.
     """
     nreg = len(regions)
     top = int(np.iinfo(image.dtype).max)
@@ -354,7 +442,32 @@ def _region_means_cv(
             masks[r] = cv2.inRange(crops[r], tuple(lo_r), tuple(hi_r))
             counts[r] = cv2.countNonZero(masks[r])
             alive[r] = counts[r] >= min_keep[r]
-    return [_kept_mean(crops[r], masks[r], lut) if alive[r] else None for r in range(nreg)]
+    weights = weights or [None] * nreg
+    return [_kept_mean(crops[r], masks[r], lut, weights[r], 0.0 if weights[r] is None else min_fraction * weights[r].sum())
+            if alive[r] else None for r in range(nreg)]
+
+
+def _decoded_regions(regions: list[Region], scale: int) -> tuple[list[Region], list[NDArray[np.float64] | None]]:
+    """``regions`` (full-resolution pixels) on an image decoded at 1/``scale`` size, and their pixels' weights.
+
+    Decoded pixel ``j`` covers full-resolution pixels ``j·s … j·s + s − 1``; a region keeps every decoded pixel it
+    touches, each weighted by the fraction of it inside the region (``None``: edges on the grid, all weights 1).
+    """
+    out, weights = [], []
+    for r in regions:
+        x0, y0 = r.x // scale, r.y // scale
+        x1, y1 = -(-(r.x + r.width) // scale), -(-(r.y + r.height) // scale)
+        out.append(Region(r.id, x0, y0, x1 - x0, y1 - y0))
+        if (r.x % scale, r.y % scale, r.width % scale, r.height % scale) == (0, 0, 0, 0):
+            weights.append(None)
+            continue
+
+        def cover(a: int, b: int, lo: int, hi: int) -> NDArray[np.float64]:
+            j = np.arange(a, b)
+            return (np.minimum((j + 1) * scale, hi) - np.maximum(j * scale, lo)) / scale
+
+        weights.append(np.outer(cover(y0, y1, r.y, r.y + r.height), cover(x0, x1, r.x, r.x + r.width)))
+    return out, weights
 
 
 def region_means(
@@ -365,12 +478,23 @@ def region_means(
     clip_fraction: float = 0.98,
     min_fraction: float = 0.5,
     k: float = 3.5,
+    scale: int = 1,
+    size: tuple[int, int] | None = None,
 ) -> dict[str, list[float] | None]:
     """Robust mean linear RGB (0…1) of each region, ``None`` where the region is mostly clipped or occluded.
 
+    ``image`` may be decoded at 1/``scale`` of the full resolution (:func:`jpeg_reduction`); ``regions`` are always
+    in full-resolution pixels and ``size`` is the full-resolution (width, height) (default: the image's × scale).
+    The means are then those of the decoded pixels a region touches, weighted by their share of it; a decoded pixel
+    is close to the mean of the codes it replaces, so its linear value differs from the mean of theirs by a
+    (Jensen) term of the order of the response curve's curvature times the codes' variance within the pixel.
     Raises :class:`RegionError` if a region extends beyond the image.
     """
     h, w = image.shape[:2]
+    if size is not None:
+        w, h = size
+    elif scale > 1:
+        w, h = w * scale, h * scale
     integer = image.dtype in (np.uint8, np.uint16)
     lut = _lut(response, 256 if image.dtype == np.uint8 else 65536) if integer else None
     clip_at = response.black_level + clip_fraction * (response.white_level - response.black_level)
@@ -381,6 +505,12 @@ def region_means(
                 f"region {r.id!r} ({r.x},{r.y} {r.width}×{r.height}) lies outside the {w}×{h} image"
             )
     out: dict[str, list[float] | None] = {}
+    weights: list[NDArray[np.float64] | None] | None = None
+    if scale > 1:
+        regions, weights = _decoded_regions(regions, scale)
+        if not integer or (_PER_REGION and any(wt is not None for wt in weights)):
+            raise ValueError("a reduced-resolution decode needs an integer image (and, for the reference path, regions on "
+                             "the decoded pixel grid)")
     if integer and regions and not _PER_REGION:
         limit = min(int(np.ceil(clip_at)), np.iinfo(image.dtype).max + 1)
         if limit <= 0:  # every code clipped
@@ -388,10 +518,8 @@ def region_means(
         # Work in the pixels' memory order: OpenCV decodes BGR and decode_image returns a reversed view of it.
         item = image.dtype.itemsize
         flip = image.strides[2] == -item
-        base = image[:, :, ::-1] if flip else image
-        if base.strides[2] != item or base.strides[1] != 3 * item:
-            base = np.ascontiguousarray(base)
-        means = _region_means_cv(base, regions, lut, limit, k, min_fraction)
+        base = image[:, :, ::-1] if flip else image  # any other layout: each crop is copied to contiguous pixels
+        means = _region_means_cv(base, regions, lut, limit, k, min_fraction, weights)
         return {r.id: None if m is None else [float(v) for v in (m[::-1] if flip else m)]
                 for r, m in zip(regions, means, strict=True)}
     for r in regions:

@@ -132,3 +132,31 @@ def test_too_many_pixels(tmp_path):
         cid, token = register(c, _css(), grid_regions())
         r = post_image(c, cid, token, _image())
         assert r.status_code == 413 and "pixels" in r.json()["detail"]
+
+
+def test_reduced_jpeg_decode_setting(tmp_path):
+    """ILLUMON_JPEG_MAX_REDUCTION: a JPEG whose regions are large enough is decoded at 1/2 size (counted in /metrics),
+    with region means close to the full decode's; regions are still checked against the full-resolution size."""
+    rng = np.random.default_rng(2)
+    regions = grid_regions(4, size=70)
+    img = np.empty((SIZE[1], SIZE[0] + 1, 3), np.uint8)  # odd width: the half-size decode is 161 pixels wide
+    img[:] = (90, 140, 60)
+    img = np.clip(img + rng.normal(0, 4, img.shape), 0, 255).astype(np.uint8)
+    jpeg = encode_png(img, ".jpg")
+    values = {}
+    for reduction in (1, 8):
+        with TestClient(create_app(make_settings(tmp_path / str(reduction), jpeg_max_reduction=reduction))) as c:
+            cid, token = register(c, _css(), regions)
+            r = post_image(c, cid, token, jpeg, content_type="image/jpeg")
+            assert r.status_code == 201, r.text
+            values[reduction] = r.json()["regions"]
+            scale = "1/1" if reduction == 1 else "1/2"  # 70-pixel regions: 35 decoded pixels at 1/2, 17 at 1/4
+            assert f'illumon_ingest_decodes_total{{scale="{scale}"}} 1' in c.get("/metrics").text
+            frames = c.get(f"/v1/cameras/{cid}/frames", headers=bearer(token)).json()
+            assert (frames[0]["width"], frames[0]["height"]) == (SIZE[0] + 1, SIZE[1])
+            outside = [{"id": "edge", "x": SIZE[0] + 1 - 69, "y": 0, "width": 70, "height": 70}]
+            cid2, token2 = register(c, _css(), outside)  # one pixel beyond the right edge (inside the decoded 161)
+            r = post_image(c, cid2, token2, jpeg, content_type="image/jpeg")
+            assert r.status_code == 422 and "outside" in r.json()["detail"], r.text
+    for key, value in values[1].items():
+        np.testing.assert_allclose(values[8][key], value, rtol=0.01)  # ~0.3 %: codes averaged before linearising

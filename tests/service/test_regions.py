@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from illumon.camera import ResponseCurve
 from illumon_service.regions import Region, decode_image, region_means, response_for
 from svc_helpers import encode_png
@@ -71,3 +72,50 @@ def test_vectorised_regions_match_per_region_reference(monkeypatch):
                 assert (value is None) == (got[key] is None)
                 if value is not None:
                     np.testing.assert_allclose(got[key], value, rtol=1e-12)
+
+
+def test_reduced_decode_weights_edges_by_coverage():
+    """On an image whose every 2×2 block is one colour, the decoded-at-half-size path (regions cutting blocks, their
+    edge pixels weighted by coverage) gives the full-resolution means exactly."""
+    rng = np.random.default_rng(3)
+    for trial in range(6):
+        small = np.empty((60, 80, 3), np.uint8)
+        # Bounded noise (no pixel beyond 3.5 robust σ: nothing trimmed at either resolution) and one clipped block.
+        small[:] = rng.integers(100, 140, (60, 80, 3)) if trial % 2 else rng.integers(40, 200, (1, 1, 3))
+        small += rng.integers(0, 12, (60, 80, 3), dtype=np.uint8)
+        small[7, 9] = 255
+        full = np.repeat(np.repeat(small, 2, axis=0), 2, axis=1)
+        regions = [Region("a", 3, 5, 41, 27), Region("b", 10, 10, 60, 40), Region("c", 17, 2, 33, 90),
+                   Region("d", 101, 61, 58, 58)]
+        resp = ResponseCurve("srgb" if trial % 3 else "linear", white_level=255)
+        ref = region_means(full, regions, resp)
+        got = region_means(small, regions, resp, scale=2, size=(160, 120))
+        for key, value in ref.items():
+            np.testing.assert_allclose(got[key], value, rtol=1e-12)
+
+
+def test_reduced_jpeg_decode():
+    """jpeg_reduction picks the largest factor keeping every region ≥ 32 decoded pixels wide; decode_image then
+    decodes at that size (JPEG only) and the region means stay within a fraction of a percent of the full decode's."""
+    from illumon_service.regions import jpeg_reduction
+
+    rng = np.random.default_rng(4)
+    yy, xx = np.mgrid[0:300, 0:403]
+    img = np.stack([80 + 60 * np.sin(xx / 50.0), 120 + 40 * np.cos(yy / 40.0), 100 + 0 * xx], axis=2)
+    img = np.clip(img + rng.normal(0, 3, img.shape), 0, 255).astype(np.uint8)
+    jpeg, png = encode_png(img, ".jpg"), encode_png(img)
+    regions = [Region("a", 10, 10, 130, 70), Region("b", 201, 150, 150, 133)]
+    assert jpeg_reduction(jpeg, regions, 8) == 2  # 70 px: 35 at 1/2, 17 at 1/4
+    assert jpeg_reduction(jpeg, regions, 1) == 1 and jpeg_reduction(png, regions, 8) == 1
+    assert jpeg_reduction(jpeg, [Region("s", 0, 0, 63, 200)], 8) == 1
+    assert jpeg_reduction(jpeg, [Region("s", 0, 0, 256, 256)], 4) == 4
+    half, _ = decode_image(jpeg, reduction=2)
+    assert half.shape == (150, 202, 3)
+    arr, _ = decode_image(jpeg)
+    resp = ResponseCurve("srgb", white_level=255)
+    ref = region_means(arr, regions, resp)
+    got = region_means(half, regions, resp, scale=2, size=(403, 300))
+    for key, value in ref.items():
+        np.testing.assert_allclose(got[key], value, rtol=0.005)
+    with pytest.raises(ValueError, match="reduced|1/2"):
+        decode_image(png, reduction=2)

@@ -12,7 +12,7 @@ from starlette.concurrency import run_in_threadpool
 
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import estimate_frame
-from ...regions import ImageError, Region, RegionError, decode_image, region_means, response_for, sniff_format
+from ...regions import ImageError, Region, RegionError, decode_frame, region_means, response_for, sniff_format
 from ...storage import Camera, Estimate, Frame, as_utc
 from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, ObservationIn
 from .estimates import estimate_out
@@ -106,9 +106,19 @@ def _store(
     request: Request, session, cam: Camera, taken_at: datetime, patches: dict, size: tuple[int, int] | None,
     image: bytes | None = None, fmt: str | None = None,
 ) -> dict:
-    """Store a frame, estimate it if a model exists, commit, and build the 201 answer."""
+    """Estimate a frame if a model exists, store it, commit, and build the 201 answer.
+
+    The estimate comes first (it needs no frame id): the flush that inserts the frame opens the write transaction,
+    which on SQLite holds the database's one write lock until the commit, so nothing slow may run in between.
+    """
     settings = request.app.state.settings
     metrics = request.app.state.metrics
+    t0 = time.perf_counter()
+    est = estimate_frame(settings.data_dir, cam.id, "new", taken_at.isoformat(), patches,
+                         [r["id"] for r in cam.regions])
+    t1 = time.perf_counter()
+    metrics.observe("illumon_estimate_seconds", t1 - t0)
+    metrics.observe("illumon_ingest_stage_seconds", t1 - t0, labels='stage="estimate"')
     frame = Frame(camera_id=cam.id, taken_at=taken_at, patches=patches,
                   width=size[0] if size else None, height=size[1] if size else None)
     session.add(frame)
@@ -119,12 +129,6 @@ def _store(
         path = folder / f"{frame.id}.{fmt}"
         path.write_bytes(image)
         frame.image_path = str(path)
-    t0 = time.perf_counter()
-    est = estimate_frame(settings.data_dir, cam.id, str(frame.id), taken_at.isoformat(), patches,
-                         [r["id"] for r in cam.regions])
-    t1 = time.perf_counter()
-    metrics.observe("illumon_estimate_seconds", t1 - t0)
-    metrics.observe("illumon_ingest_stage_seconds", t1 - t0, labels='stage="estimate"')
     row = None
     if est is not None:
         row = Estimate(frame_id=frame.id, camera_id=cam.id, taken_at=taken_at, **est)
@@ -168,21 +172,22 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
     def work() -> dict:
         try:
             t0 = time.perf_counter()
-            img, full = decode_image(data, max_pixels=settings.max_image_pixels)
+            regions = [Region(**r) for r in cam.regions]
+            frame = decode_frame(data, regions, max_pixels=settings.max_image_pixels,
+                                 max_reduction=settings.jpeg_max_reduction)
             t1 = time.perf_counter()
             metrics.observe("illumon_ingest_stage_seconds", t1 - t0, labels='stage="decode"')
-            response = response_for(cam.response, full)
+            metrics.inc("illumon_ingest_decodes_total", labels=f'scale="1/{frame.scale}"')
             patches = region_means(
-                img, [Region(**r) for r in cam.regions], response,
-                clip_fraction=settings.clip_fraction, min_fraction=settings.min_region_fraction,
+                frame.image, regions, response_for(cam.response, frame.full_scale), scale=frame.scale,
+                size=frame.size, clip_fraction=settings.clip_fraction, min_fraction=settings.min_region_fraction,
             )
             metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t1, labels='stage="regions"')
         except ImageError as exc:
             raise HTTPException(exc.status, str(exc)) from None
         except RegionError as exc:
             raise HTTPException(422, str(exc)) from None
-        size = (int(img.shape[1]), int(img.shape[0]))
-        return _store(request, session, cam, taken_at, patches, size, data, sniff_format(data))
+        return _store(request, session, cam, taken_at, patches, frame.size, data, sniff_format(data))
 
     out = await run_in_threadpool(work)
     request.app.state.metrics.observe("illumon_ingest_seconds", time.perf_counter() - t_start)

@@ -106,10 +106,12 @@ def render_frames(n: int, kind: str) -> tuple[list[bytes], np.ndarray, str]:
     return out, css, provenance
 
 
-def start_server(data_dir: str, port: int, workers: int = 1) -> subprocess.Popen:
-    """``illumon serve --workers workers`` on ``port``; returns once /healthz answers."""
+def start_server(data_dir: str, port: int, workers: int = 1, jpeg_max_reduction: int = 1) -> subprocess.Popen:
+    """``illumon serve --workers workers`` on ``port`` (``ILLUMON_JPEG_MAX_REDUCTION``); returns once /healthz
+    answers."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("ILLUMON_")}
     env["ILLUMON_ADMIN_TOKEN"] = ADMIN
+    env["ILLUMON_JPEG_MAX_REDUCTION"] = str(jpeg_max_reduction)
     exe = Path(sys.executable).with_name("illumon")
     proc = subprocess.Popen([str(exe), "serve", "--host", "127.0.0.1", "--port", str(port), "--data-dir", data_dir,
                              "--log-level", "warning", "--workers", str(workers)],
@@ -166,18 +168,23 @@ def main() -> None:
     parser.add_argument("--frames", type=int, help="timed frames per run (60)")
     parser.add_argument("--concurrency", default="1,4", help="client threads per run, comma-separated (1,4)")
     parser.add_argument("--server-workers", type=int, default=1, help="illumon serve --workers (1)")
+    parser.add_argument("--jpeg-reduction", default="1,2",
+                        help="ILLUMON_JPEG_MAX_REDUCTION of the JPEG runs, comma-separated (1,2: full and half size)")
     args = parser.parse_args()
     n = args.frames or (20 if args.quick else 60)
     levels = [int(v) for v in args.concurrency.split(",")]
+    reductions = [int(v) for v in args.jpeg_reduction.split(",")]
     cv2.setNumThreads(1)
     rows = []
     print(f"1920×1080, 16 regions of 120×120, {n} frames per run; CPUs: {os.cpu_count()}; "
-          f"server workers: {args.server_workers}")
-    print(f"{'format':>6} {'MB':>5} {'clients':>7} {'ingest f/s':>10} {'decode f/s':>10} {'ratio':>6} "
-          f"{'p50 ms':>7} {'p99 ms':>7} {'dec p50':>7} {'srv ms':>7} {'load':>5}  server stages ms: " + " ".join(STAGES))
+          f"server workers: {args.server_workers}; decode f/s: cv2.imdecode at full size; "
+          f"ingest decode: the size the server decoded at")
+    print(f"{'format':>6} {'MB':>5} {'clients':>7} {'ingest':>6} {'ingest f/s':>10} {'decode f/s':>10} {'ratio':>6} "
+          f"{'p50 ms':>7} {'p99 ms':>7} {'dec p50':>7} {'srv ms':>7} {'load':>5}  server stages ms: "
+          + " ".join(STAGES))
+    print(f"{'':>6} {'':>5} {'':>7} {'decode':>6}")
     with tempfile.TemporaryDirectory() as tmp:
-        port = free_port()
-        proc = start_server(tmp, port, args.server_workers)
+        servers: dict[int, tuple[subprocess.Popen, int]] = {}
         lock = threading.Lock()
         clock = [T0]
 
@@ -186,11 +193,24 @@ def main() -> None:
                 clock[0] += timedelta(seconds=10)
                 return clock[0]
 
+        def server(reduction: int) -> int:
+            if reduction not in servers:
+                port = free_port()
+                folder = Path(tmp) / f"reduction-{reduction}"
+                servers[reduction] = (start_server(str(folder), port, args.server_workers, reduction), port)
+            return servers[reduction][1]
+
+        runs = [("jpeg", "image/jpeg", "srgb", red) for red in reductions] + [("png16", "image/png", "linear", 1)]
+        rendered: dict[str, tuple] = {}
         try:
             limits = httpx.Limits(max_connections=max(levels), max_keepalive_connections=max(levels))
-            with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=120, trust_env=False, limits=limits) as http:
-                for kind, ctype, encoding in (("jpeg", "image/jpeg", "srgb"), ("png16", "image/png", "linear")):
-                    frames, css, provenance = render_frames(12 + n, kind)
+            for kind, ctype, encoding, reduction in runs:
+                port = server(reduction)
+                with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=120, trust_env=False,
+                                  limits=limits) as http:
+                    if kind not in rendered:
+                        rendered[kind] = render_frames(12 + n, kind)
+                    frames, css, provenance = rendered[kind]
                     cam, auth = register(http, css, encoding)
                     for i in range(12):  # history, then a refit: later frames are estimated with the scene model
                         post(http, cam, auth, frames[i], ctype, next_time())
@@ -203,11 +223,14 @@ def main() -> None:
                         dec_wall, dec_lat = run_parallel(decode_once, timed, c)
                         m0 = _server_ingest(http)
                         wall, lat = run_parallel(
-                            lambda d, cam=cam, auth=auth, ctype=ctype: post(http, cam, auth, d, ctype, next_time()), timed, c
+                            lambda d, cam=cam, auth=auth, ctype=ctype, http=http: post(http, cam, auth, d, ctype,
+                                                                                       next_time()), timed, c
                         )
                         m1 = _server_ingest(http)
-                        row = {"format": kind, "mb": mb, "clients": c, "frames": n, "ingest_fps": n / wall,
-                               "decode_fps": n / dec_wall, "ratio": dec_wall / wall,
+                        scales = [s for s in m1["decodes"] if m1["decodes"][s] > m0["decodes"].get(s, 0.0)]
+                        row = {"format": kind, "mb": mb, "clients": c, "frames": n, "jpeg_max_reduction": reduction,
+                               "ingest_decode": ",".join(sorted(scales)) or "?",
+                               "ingest_fps": n / wall, "decode_fps": n / dec_wall, "ratio": dec_wall / wall,
                                "p50_ms": 1e3 * float(np.percentile(lat, 50)), "p99_ms": 1e3 * float(np.percentile(lat, 99)),
                                "decode_p50_ms": 1e3 * float(np.percentile(dec_lat, 50)),
                                "decode_p99_ms": 1e3 * float(np.percentile(dec_lat, 99)),
@@ -215,12 +238,13 @@ def main() -> None:
                                "server_stage_ms": {st: _mean_ms(m0, m1, st) for st in STAGES},
                                "load1": os.getloadavg()[0]}
                         rows.append(row)
-                        print(f"{kind:>6} {mb:5.2f} {c:7d} {row['ingest_fps']:10.1f} {row['decode_fps']:10.1f} "
-                              f"{row['ratio']:6.2f} {row['p50_ms']:7.1f} {row['p99_ms']:7.1f} "
+                        print(f"{kind:>6} {mb:5.2f} {c:7d} {row['ingest_decode']:>6} {row['ingest_fps']:10.1f} "
+                              f"{row['decode_fps']:10.1f} {row['ratio']:6.2f} {row['p50_ms']:7.1f} {row['p99_ms']:7.1f} "
                               f"{row['decode_p50_ms']:7.1f} {row['server_mean_ms']:7.1f} {row['load1']:5.1f}  "
                               + " ".join(f"{row['server_stage_ms'][st]:5.1f}" for st in STAGES), flush=True)
         finally:
-            stop_process(proc)
+            for proc, _ in servers.values():
+                stop_process(proc)
     RESULTS.mkdir(exist_ok=True)
     out = {"width": W, "height": H, "regions": 16, "data": provenance, "cpus": os.cpu_count(),
            "server_workers": args.server_workers, "runs": rows}
@@ -232,11 +256,13 @@ def main() -> None:
 STAGES = ("receive", "decode", "regions", "estimate", "commit")
 
 
-def _server_ingest(http: httpx.Client) -> dict[str, tuple[float, float]]:
-    """(sum, count) of the service's ``illumon_ingest_seconds`` summary (key ``total``) and of each ingest stage."""
+def _server_ingest(http: httpx.Client) -> dict:
+    """(sum, count) of the service's ``illumon_ingest_seconds`` summary (key ``total``) and of each ingest stage, and
+    the count of decodes per scale (key ``decodes``: {"1/1": n, "1/2": n, …})."""
     text = http.get("/metrics").text
     vals = {ln.split()[0]: float(ln.split()[1]) for ln in text.splitlines() if ln.startswith("illumon_ingest_")}
-    out = {"total": (vals.get("illumon_ingest_seconds_sum", 0.0), vals.get("illumon_ingest_seconds_count", 0.0))}
+    out: dict = {"total": (vals.get("illumon_ingest_seconds_sum", 0.0), vals.get("illumon_ingest_seconds_count", 0.0))}
+    out["decodes"] = {k.split('"')[1]: v for k, v in vals.items() if k.startswith("illumon_ingest_decodes_total{")}
     for st in STAGES:
         key = f'illumon_ingest_stage_seconds_%s{{stage="{st}"}}'
         out[st] = (vals.get(key % "sum", 0.0), vals.get(key % "count", 0.0))

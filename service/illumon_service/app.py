@@ -19,7 +19,7 @@ from .api.routes import cameras, estimates, frames, gains, health, jobs, pages
 from .jobs import JobRunner
 from .metrics import Metrics
 from .settings import Settings
-from .storage import hash_token, make_engine, make_session_factory, new_token
+from .storage import GroupCommit, hash_token, make_engine, make_session_factory, new_token
 
 __all__ = ["create_app", "admin_token"]
 
@@ -96,6 +96,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessions = sessions
+    app.state.commits = GroupCommit(sessions)  # frames: concurrent ingests share one durable commit
     app.state.metrics = metrics
     app.state.jobs = runner
     app.state.admin_token_hash = hash_token(admin_token(settings))

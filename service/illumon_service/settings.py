@@ -6,7 +6,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 __all__ = ["Settings"]
@@ -47,11 +47,19 @@ class Settings(BaseSettings):
     """A region is missing in a frame when fewer than this fraction of its pixels are usable."""
     clip_fraction: float = Field(default=0.98, gt=0.0, le=1.0)
     """Pixels at or above this fraction of the white level in any channel count as clipped."""
-    jpeg_max_reduction: Literal[1, 2, 4, 8] = 1
+    jpeg_max_reduction: int = 1
     """Decode 8-bit JPEG frames at up to 1/N of their size (libjpeg DCT scaling) when every region keeps at least 32
     decoded pixels per side; region edges that cut decoded pixels are weighted by coverage. 1 (default): always full
     size. 2 decodes 1920×1080 ~35 % faster; the region means then average codes over 2×2 pixels before linearising,
     off by ~0.04 % (median) on smooth regions but up to ~0.5 % on finely textured ones (README, *Ingest speed*)."""
+
+    @field_validator("jpeg_max_reduction")
+    @classmethod
+    def _reduction(cls, value: int) -> int:
+        """1, 2, 4 or 8: the factors libjpeg can decode at."""
+        if value not in (1, 2, 4, 8):
+            raise ValueError("jpeg_max_reduction must be 1, 2, 4 or 8")
+        return value
 
     @cached_property
     def resolved_database_url(self) -> str:

@@ -9,7 +9,10 @@ from __future__ import annotations
 
 import hashlib
 import secrets
+import threading
+from collections.abc import Callable
 from datetime import datetime, timezone
+from typing import TypeVar
 
 from sqlalchemy import JSON, DateTime, Float, ForeignKey, Integer, String, create_engine, event, select
 from sqlalchemy.engine import Engine
@@ -28,7 +31,10 @@ __all__ = [
     "utcnow",
     "as_utc",
     "camera_by_token",
+    "GroupCommit",
 ]
+
+T = TypeVar("T")
 
 
 def utcnow() -> datetime:
@@ -144,3 +150,89 @@ def make_session_factory(engine: Engine) -> sessionmaker[Session]:
 def camera_by_token(session: Session, token: str) -> Camera | None:
     """The camera whose token is ``token``, or ``None``."""
     return session.scalars(select(Camera).where(Camera.token_hash == hash_token(token))).first()
+
+
+class GroupCommit:
+    """Group commit: concurrent writes share one transaction and one durable commit (one fsync).
+
+    ``submit(write)`` runs ``write(session)`` (add rows, flush, build the answer) and returns its result once the
+    transaction holding it is committed, never before. Threads arriving while a commit is under way queue their writes;
+    the first of them then writes all queued ones in one transaction and commits once, and every waiting thread returns
+    (leader / followers, no extra thread). On SQLite, whose single write lock otherwise makes concurrent writers poll
+    with sleeps (``busy_timeout``), this also turns that wait into a queue. A write that fails before the commit
+    (its flush raises) makes the batch run again one write per transaction, so only the failing write fails; a commit
+    that raises fails every write of its batch and is not retried, as it might have reached the disk.
+    """
+
+    def __init__(self, sessions: sessionmaker[Session]) -> None:
+        self._sessions = sessions
+        self._lock = threading.Lock()
+        self._pending: list[tuple[Callable[[Session], object], dict, threading.Event]] = []
+        self._leading = False
+        self.batches = 0
+        """Transactions committed (for tests and metrics)."""
+
+    def submit(self, write: Callable[[Session], T]) -> T:
+        """Run ``write`` in a transaction shared with concurrent writes; its result after the commit (or its error)."""
+        box: dict = {}
+        done = threading.Event()
+        with self._lock:
+            self._pending.append((write, box, done))
+        while not done.is_set():
+            with self._lock:
+                lead = not self._leading
+                self._leading = True
+            if lead:
+                self._lead()
+            else:
+                done.wait(0.05)  # re-checks, should a leader die without handing over
+        if "error" in box:
+            raise box["error"]
+        return box["result"]
+
+    def _lead(self) -> None:
+        """Commit batches until none is queued (called with ``_leading`` set; clears it)."""
+        try:
+            while True:
+                with self._lock:
+                    batch, self._pending = self._pending, []
+                    if not batch:
+                        self._leading = False
+                        return
+                try:
+                    self._commit(batch)
+                except BaseException as exc:
+                    for _, box, _ in batch:
+                        if "result" not in box:
+                            box.setdefault("error", exc)
+                    raise
+                finally:
+                    for _, _, done in batch:
+                        done.set()
+        except BaseException:
+            with self._lock:
+                self._leading = False
+            raise
+
+    def _commit(self, batch: list[tuple[Callable[[Session], object], dict, threading.Event]]) -> None:
+        """Write and commit ``batch``; record each write's result or error in its box."""
+        with self._sessions() as session:
+            try:
+                results = [write(session) for write, _, _ in batch]
+            except Exception as exc:  # noqa: BLE001 - isolated below
+                session.rollback()
+                if len(batch) == 1:
+                    batch[0][1]["error"] = exc
+                    return
+                for item in batch:  # nothing of the batch is on disk: each write again, on its own
+                    self._commit([item])
+                return
+            try:
+                session.commit()
+            except Exception as exc:  # noqa: BLE001 - reported to every waiting request
+                for _, box, _ in batch:
+                    box["error"] = exc
+                return
+        self.batches += 1
+        for (_, box, _), result in zip(batch, results, strict=True):
+            box["result"] = result

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from fastapi import APIRouter, HTTPException, Request, status
 from sqlalchemy import select
+from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from ...deps import PrincipalDep, SessionDep, camera_for
@@ -103,13 +104,14 @@ async def read_multipart(request: Request, limit: int) -> tuple[dict[str, str], 
 
 
 def _store(
-    request: Request, session, cam: Camera, taken_at: datetime, patches: dict, size: tuple[int, int] | None,
+    request: Request, session: Session, cam: Camera, taken_at: datetime, patches: dict, size: tuple[int, int] | None,
     image: bytes | None = None, fmt: str | None = None,
 ) -> dict:
-    """Estimate a frame if a model exists, store it, commit, and build the 201 answer.
+    """Estimate a frame if a model exists, store it durably, and build the 201 answer.
 
-    The estimate comes first (it needs no frame id): the flush that inserts the frame opens the write transaction,
-    which on SQLite holds the database's one write lock until the commit, so nothing slow may run in between.
+    The estimate comes first (it needs no frame id); the rows are then written through the app's
+    :class:`~illumon_service.storage.GroupCommit`, which returns once they are committed (concurrent ingests share
+    one commit), so the answer never precedes durability.
     """
     settings = request.app.state.settings
     metrics = request.app.state.metrics
@@ -119,29 +121,37 @@ def _store(
     t1 = time.perf_counter()
     metrics.observe("illumon_estimate_seconds", t1 - t0)
     metrics.observe("illumon_ingest_stage_seconds", t1 - t0, labels='stage="estimate"')
-    frame = Frame(camera_id=cam.id, taken_at=taken_at, patches=patches,
-                  width=size[0] if size else None, height=size[1] if size else None)
-    session.add(frame)
-    session.flush()
-    if image is not None and settings.keep_images:
-        folder = Path(settings.data_dir) / "images" / f"camera-{cam.id}"
-        folder.mkdir(parents=True, exist_ok=True)
-        path = folder / f"{frame.id}.{fmt}"
-        path.write_bytes(image)
-        frame.image_path = str(path)
-    row = None
-    if est is not None:
-        row = Estimate(frame_id=frame.id, camera_id=cam.id, taken_at=taken_at, **est)
-        session.add(row)
-    session.commit()
+    # The request's session has done its reading: give its connection back to the pool (``cam`` keeps its loaded
+    # columns) so that requests waiting for a group commit never hold every pooled connection.
+    session.close()
+
+    def write(session: Session) -> dict:
+        frame = Frame(camera_id=cam.id, taken_at=taken_at, patches=patches,
+                      width=size[0] if size else None, height=size[1] if size else None)
+        session.add(frame)
+        session.flush()
+        if image is not None and settings.keep_images:
+            folder = Path(settings.data_dir) / "images" / f"camera-{cam.id}"
+            folder.mkdir(parents=True, exist_ok=True)
+            path = folder / f"{frame.id}.{fmt}"
+            path.write_bytes(image)
+            frame.image_path = str(path)
+        row = None
+        if est is not None:
+            row = Estimate(frame_id=frame.id, camera_id=cam.id, taken_at=taken_at, **est)
+            session.add(row)
+            session.flush()
+        return {
+            "frame_id": frame.id,
+            "taken_at": as_utc(frame.taken_at).isoformat(),
+            "regions": patches,
+            "estimate": estimate_out(row) if row is not None else None,
+        }
+
+    out = request.app.state.commits.submit(write)
     metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t1, labels='stage="commit"')
     metrics.inc("illumon_frames_ingested_total")
-    return {
-        "frame_id": frame.id,
-        "taken_at": as_utc(frame.taken_at).isoformat(),
-        "regions": patches,
-        "estimate": estimate_out(row) if row is not None else None,
-    }
+    return out
 
 
 @router.post("/{camera_id}/frames", status_code=status.HTTP_201_CREATED, openapi_extra=FRAME_UPLOAD)

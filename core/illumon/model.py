@@ -340,6 +340,9 @@ class SceneModel:
         Spread of the history's reciprocal temperatures, condition of the joint problem, ``determined`` and warnings.
     version
         Format version (:data:`MODEL_VERSION`).
+    history_estimate
+        After :func:`fit_scene_model`: :meth:`estimate` of the whole history it was fitted on (computed anyway for
+        ``training``), so a refit need not estimate the same frames twice; not saved, ``None`` on a loaded model.
     """
 
     patches: list[str]
@@ -353,6 +356,7 @@ class SceneModel:
     training: dict = field(default_factory=dict)
     identifiability: dict = field(default_factory=dict)
     version: int = MODEL_VERSION
+    history_estimate: tuple[RetrievalResult, dict] | None = field(default=None, repr=False, compare=False)
 
     # -- serialisation --
     def to_dict(self) -> dict:
@@ -734,7 +738,8 @@ def fit_scene_model(
                                    common_duv=float(max(common[1], MODEL_ERROR["common_duv"])))},
     )
     # Illuminants of every frame with the learned reflectances (the fast solver), for the training summary.
-    res, _ = model.estimate(obs)
+    res, extra = model.estimate(obs)
+    model.history_estimate = (res, extra)
     mired_all = 1e6 / res.cct
     ok = np.isfinite(mired_all)
     times = [t for t in obs.times if t]

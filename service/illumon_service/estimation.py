@@ -18,7 +18,7 @@ from __future__ import annotations
 import logging
 import os
 import threading
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -179,6 +179,25 @@ ESTIMATE_CHUNK = 10_000
 """Frames estimated per call of the scene model at a refit."""
 
 
+def _history_estimates(fitted: scene_model.SceneModel, obs: Observations) -> Iterator[tuple[Any, dict]]:
+    """``fitted.estimate`` of every frame of ``obs`` in chunks (they keep the solver's temporaries in cache); the
+    fit's own estimate of the same frames when it has one (computed for its training summary: the same numbers)."""
+    done = fitted.history_estimate
+    if done is not None and list(done[0].frames) == list(obs.frames):
+        yield done
+        return
+    solver = None
+    for start in range(0, len(obs.frames), ESTIMATE_CHUNK):
+        part = obs.subset(slice(start, start + ESTIMATE_CHUNK))
+        if solver is None:
+            solver = _solver(fitted, list(part.patches))
+        try:
+            est = fitted.estimate(part, solver=solver)
+        except ValueError:  # no frame of this chunk has two of the model's patches
+            continue
+        yield est
+
+
 def _refit_with_model(
     obs: Observations, css: NDArray[np.float64], model_file: Path | None, max_fit_frames: int
 ) -> tuple[dict[str, dict], dict]:
@@ -189,16 +208,8 @@ def _refit_with_model(
         _save_model(fitted, model_file)
         _MODEL_CACHE.pop(str(model_file), None)
     out: dict[str, dict] = {}
-    solver = None
     ccts = []
-    for start in range(0, len(obs.frames), ESTIMATE_CHUNK):  # chunks keep the solver's temporaries in cache
-        part = obs.subset(slice(start, start + ESTIMATE_CHUNK))
-        if solver is None:
-            solver = _solver(fitted, list(part.patches))
-        try:
-            result, extra = fitted.estimate(part, solver=solver)
-        except ValueError:  # no frame of this chunk has two of the model's patches
-            continue
+    for result, extra in _history_estimates(fitted, obs):
         ok = np.all(np.isfinite(result.white), axis=1)
         conf = np.asarray(extra["confidence"], dtype=float)
         out.update({

@@ -180,7 +180,8 @@ def main() -> None:
           f"server workers: {args.server_workers}; decode f/s: cv2.imdecode at full size; "
           f"ingest decode: the size the server decoded at")
     print(f"{'format':>6} {'MB':>5} {'clients':>7} {'ingest':>6} {'ingest f/s':>10} {'decode f/s':>10} {'ratio':>6} "
-          f"{'p50 ms':>7} {'p99 ms':>7} {'dec p50':>7} {'srv ms':>7} {'load':>5}  server stages ms: "
+          f"{'p50 ms':>7} {'p99 ms':>7} {'dec p50':>7} {'srv ms':>7} {'dec cpu':>7} {'srv cpu':>7} {'cli cpu':>7} "
+          f"{'load':>5}  server stages ms: "
           + " ".join(STAGES))
     print(f"{'':>6} {'':>5} {'':>7} {'decode':>6}")
     with tempfile.TemporaryDirectory() as tmp:
@@ -220,12 +221,16 @@ def main() -> None:
                     timed = frames[12:]
                     mb = float(np.mean([len(f) for f in timed]) / 1e6)
                     for c in levels:
+                        dec_cpu = time.process_time()
                         dec_wall, dec_lat = run_parallel(decode_once, timed, c)
+                        dec_cpu = time.process_time() - dec_cpu
                         m0 = _server_ingest(http)
+                        srv_cpu, cli_cpu = _cpu_seconds(servers[reduction][0].pid), time.process_time()
                         wall, lat = run_parallel(
                             lambda d, cam=cam, auth=auth, ctype=ctype, http=http: post(http, cam, auth, d, ctype,
                                                                                        next_time()), timed, c
                         )
+                        srv_cpu, cli_cpu = _cpu_seconds(servers[reduction][0].pid) - srv_cpu, time.process_time() - cli_cpu
                         m1 = _server_ingest(http)
                         scales = [s for s in m1["decodes"] if m1["decodes"][s] > m0["decodes"].get(s, 0.0)]
                         row = {"format": kind, "mb": mb, "clients": c, "frames": n, "jpeg_max_reduction": reduction,
@@ -236,11 +241,13 @@ def main() -> None:
                                "decode_p99_ms": 1e3 * float(np.percentile(dec_lat, 99)),
                                "server_mean_ms": _mean_ms(m0, m1, "total"),
                                "server_stage_ms": {st: _mean_ms(m0, m1, st) for st in STAGES},
-                               "load1": os.getloadavg()[0]}
+                               "decode_cpu_ms": 1e3 * dec_cpu / n, "server_cpu_ms": 1e3 * srv_cpu / n,
+                               "client_cpu_ms": 1e3 * cli_cpu / n, "load1": os.getloadavg()[0]}
                         rows.append(row)
                         print(f"{kind:>6} {mb:5.2f} {c:7d} {row['ingest_decode']:>6} {row['ingest_fps']:10.1f} "
                               f"{row['decode_fps']:10.1f} {row['ratio']:6.2f} {row['p50_ms']:7.1f} {row['p99_ms']:7.1f} "
-                              f"{row['decode_p50_ms']:7.1f} {row['server_mean_ms']:7.1f} {row['load1']:5.1f}  "
+                              f"{row['decode_p50_ms']:7.1f} {row['server_mean_ms']:7.1f} {row['decode_cpu_ms']:7.1f} "
+                              f"{row['server_cpu_ms']:7.1f} {row['client_cpu_ms']:7.1f} {row['load1']:5.1f}  "
                               + " ".join(f"{row['server_stage_ms'][st]:5.1f}" for st in STAGES), flush=True)
         finally:
             for proc, _ in servers.values():
@@ -267,6 +274,22 @@ def _server_ingest(http: httpx.Client) -> dict:
         key = f'illumon_ingest_stage_seconds_%s{{stage="{st}"}}'
         out[st] = (vals.get(key % "sum", 0.0), vals.get(key % "count", 0.0))
     return out
+
+
+def _cpu_seconds(pid: int) -> float:
+    """CPU seconds (user + system) used so far by process ``pid`` and its descendants (Linux ``/proc``; NaN
+    elsewhere): the server's cost per frame whatever else loads the machine."""
+    tick = os.sysconf("SC_CLK_TCK")
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            fields = fh.read().rsplit(")", 1)[1].split()
+        total = (int(fields[11]) + int(fields[12])) / tick  # utime, stime
+        for task in os.listdir(f"/proc/{pid}/task"):
+            with open(f"/proc/{pid}/task/{task}/children") as fh:
+                total += sum(_cpu_seconds(int(child)) for child in fh.read().split())
+        return total
+    except (OSError, ValueError, IndexError):
+        return float("nan")
 
 
 def _mean_ms(m0: dict, m1: dict, key: str) -> float:

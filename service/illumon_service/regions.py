@@ -77,7 +77,7 @@ class Region:
     height: int
 
 
-def sniff_format(data: bytes) -> str | None:
+def sniff_format(data: bytes | bytearray) -> str | None:
     """``"png"``, ``"jpeg"`` or ``"tiff"`` from the leading magic bytes, else ``None``."""
     for magic, name in MAGIC.items():
         if data.startswith(magic):
@@ -85,7 +85,7 @@ def sniff_format(data: bytes) -> str | None:
     return None
 
 
-def _jpeg_sof(data: bytes) -> tuple[int, int, int, int] | None:
+def _jpeg_sof(data: bytes | bytearray) -> tuple[int, int, int, int] | None:
     """``(width, height, bits per sample, components)`` from a JPEG's first SOF marker, ``None`` if not found."""
     i = 2
     try:
@@ -112,7 +112,7 @@ def _jpeg_sof(data: bytes) -> tuple[int, int, int, int] | None:
     return None
 
 
-def declared_size(data: bytes, fmt: str) -> tuple[int, int] | None:
+def declared_size(data: bytes | bytearray, fmt: str) -> tuple[int, int] | None:
     """Width and height stated by a PNG (IHDR), JPEG (first SOF marker) or TIFF (first IFD) header; ``None`` when the
     header is too short or malformed to say (the decoder then decides)."""
     try:
@@ -139,7 +139,9 @@ def declared_size(data: bytes, fmt: str) -> tuple[int, int] | None:
     return None
 
 
-def jpeg_reduction(data: bytes, regions: Iterable[Region], max_reduction: int, min_side: int = MIN_REDUCED_SIDE) -> int:
+def jpeg_reduction(
+    data: bytes | bytearray, regions: Iterable[Region], max_reduction: int, min_side: int = MIN_REDUCED_SIDE,
+) -> int:
     """The factor (1, 2, 4 or 8) by which to decode ``data`` at reduced resolution for robust means of ``regions``.
 
     libjpeg decodes a JPEG at 1/2, 1/4 or 1/8 of its size by scaling its inverse DCT (each decoded pixel is close to
@@ -159,7 +161,7 @@ def jpeg_reduction(data: bytes, regions: Iterable[Region], max_reduction: int, m
     return 1
 
 
-def decode_image(data: bytes, *, max_pixels: int = 50_000_000, reduction: int = 1) -> tuple[NDArray, float]:
+def decode_image(data: bytes | bytearray, *, max_pixels: int = 50_000_000, reduction: int = 1) -> tuple[NDArray, float]:
     """Decode ``data`` to an RGB array (H × W × 3, uint8 or uint16) and its full-scale value (255 or 65535).
 
     ``reduction`` 2, 4 or 8 (a JPEG only, see :func:`jpeg_reduction`) decodes at that fraction of the size, ⌈H/s⌉ ×
@@ -221,7 +223,7 @@ class DecodedFrame:
 
 
 def decode_frame(
-    data: bytes, regions: Iterable[Region], *, max_pixels: int = 50_000_000, max_reduction: int = 1,
+    data: bytes | bytearray, regions: Iterable[Region], *, max_pixels: int = 50_000_000, max_reduction: int = 1,
 ) -> DecodedFrame:
     """Decode an upload for the robust means of ``regions``: a JPEG at the reduction :func:`jpeg_reduction` allows
     (at most ``max_reduction``), anything else at full size. Raises :class:`ImageError` like :func:`decode_image`."""

@@ -14,6 +14,7 @@ response are in the image's units (a white level ≤ 255 given for a 16-bit imag
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from functools import lru_cache
@@ -352,17 +353,22 @@ def _sample_stats(
         for r, s in enumerate(samples):
             codes[:, r, : s.shape[0]] = s.T
     codes = np.sort(codes, axis=2, kind="stable")
-    med = lut[np.take_along_axis(codes, half[None, :, None], axis=2)[..., 0]][..., None]  # 3 × R × 1
+    # Run starts s ≤ h and ends s + h ≥ h: below the median, med − v is |v − med| (bit for bit), above, v − med.
     if same:  # runs s … s + h, s = 0 … m − 1 − h
         h = int(half[0])
-        runs = width - h
-        dev = np.maximum(np.abs(lut.take(codes[..., :runs]) - med), np.abs(lut.take(codes[..., h:]) - med))
+        med = lut.take(codes[..., h : h + 1])  # 3 × R × 1
+        dev = lut.take(codes[..., : width - h])
+        np.subtract(med, dev, out=dev)
+        upper = lut.take(codes[..., h:])
+        upper -= med
+        np.maximum(dev, upper, out=dev)
         return med[..., 0], dev.min(axis=2)
+    med = lut[np.take_along_axis(codes, half[None, :, None], axis=2)[..., 0]][..., None]  # 3 × R × 1
     runs = width - int(half.min())  # the longest range of run starts; a region's runs beyond m − 1 − h are masked
     ends = np.minimum(np.arange(runs)[None, :] + half[:, None], width - 1)  # R × runs
     ends = np.broadcast_to(ends, codes.shape[:2] + (runs,))
-    dev = np.maximum(np.abs(lut.take(codes[..., :runs]) - med),
-                     np.abs(lut.take(np.take_along_axis(codes, ends, axis=2)) - med))
+    dev = np.abs(lut.take(codes[..., :runs]) - med)  # abs: the masked runs may pass the median
+    np.maximum(dev, np.abs(lut.take(np.take_along_axis(codes, ends, axis=2)) - med), out=dev)
     dev[:, np.arange(runs)[None, :] > (m - 1 - half)[:, None]] = np.inf
     return med[..., 0], dev.min(axis=2)
 
@@ -408,8 +414,9 @@ def _region_means_cv(
     cap = min(clip_code - 1, top)  # highest unclipped code
     # Contiguous copies of the crops (a memcpy per row): flat pixel indices then address them directly.
     crops = [np.ascontiguousarray(image[r.y : r.y + r.height, r.x : r.x + r.width]) for r in regions]
+    pixels = [c.reshape(-1, 3) for c in crops]
     sizes = [r.width * r.height for r in regions]
-    min_keep = [max(1, int(np.ceil(min_fraction * n))) for n in sizes]
+    min_keep = [max(1, math.ceil(min_fraction * n)) for n in sizes]
     masks: list[NDArray[np.uint8] | None] = [None] * nreg  # None: every pixel kept
     counts = list(sizes)
     if cap < top:
@@ -417,7 +424,7 @@ def _region_means_cv(
             if crop.max() > cap:  # some pixel clipped (the maximum is ~8× cheaper than the mask)
                 masks[r] = cv2.inRange(crop, (0, 0, 0), (cap, cap, cap))
                 counts[r] = cv2.countNonZero(masks[r])
-    alive = np.array([c >= mk for c, mk in zip(counts, min_keep, strict=True)])
+    alive = [c >= mk for c, mk in zip(counts, min_keep, strict=True)]
     empty = np.zeros((0, 3), image.dtype)
     for _ in range(2):
         samples = []
@@ -427,17 +434,18 @@ def _region_means_cv(
                 continue
             step = max(1, counts[r] // MEDIAN_SAMPLES)
             mask = masks[r]
-            pixels = crops[r].reshape(-1, 3)
-            if mask is None:
-                samples.append(pixels[::step])
+            if mask is None or counts[r] == sizes[r]:
+                samples.append(pixels[r][::step])
             else:  # the kept pixels' flat indices, every step-th of them
-                samples.append(pixels.take(mask.reshape(-1).view(bool).nonzero()[0][::step], axis=0))
+                samples.append(pixels[r].take(mask.reshape(-1).view(bool).nonzero()[0][::step], axis=0))
         med, mad = _sample_stats(samples, lut, top)
         scale = np.maximum(1.4826 * mad, 0.02 * np.abs(med) + 1e-4)
-        lo = np.searchsorted(lut, med - k * scale, side="left")  # 3 × R: first code with lut ≥ med − kσ
-        hi = np.minimum(np.searchsorted(lut, med + k * scale, side="right") - 1, cap)  # last kept code ≤ med + kσ
-        for r in np.flatnonzero(alive):
-            lo_r, hi_r = lo[:, r].tolist(), hi[:, r].tolist()
+        lo = np.searchsorted(lut, med - k * scale, side="left").T.tolist()  # R × 3: first code with lut ≥ med − kσ
+        hi = np.minimum(np.searchsorted(lut, med + k * scale, side="right") - 1, cap).T.tolist()  # last ≤ med + kσ
+        for r in range(nreg):
+            if not alive[r]:
+                continue
+            lo_r, hi_r = lo[r], hi[r]
             if lo_r[0] > hi_r[0] or lo_r[1] > hi_r[1] or lo_r[2] > hi_r[2]:
                 alive[r] = False
                 continue

@@ -119,3 +119,25 @@ def test_reduced_jpeg_decode():
         np.testing.assert_allclose(got[key], value, rtol=0.005)
     with pytest.raises(ValueError, match="reduced|1/2"):
         decode_image(png, reduction=2)
+
+
+def test_sample_medians_and_mads_are_exact():
+    """The all-regions median / MAD of the median samples equal, bit for bit, a sort and a partition per region and
+    channel (regions of one size and of several, 8- and 16-bit codes, sRGB and linear tables)."""
+    from illumon_service.regions import _lut, _sample_stats
+
+    rng = np.random.default_rng(11)
+    for dt, full in ((np.uint8, 255), (np.uint16, 65535)):
+        for enc in ("srgb", "linear"):
+            lut = _lut(ResponseCurve(enc, white_level=full), full + 1)
+            for sizes in ([64] * 5, [1, 2, 3, 50, 1029, 0]):
+                samples = [(rng.normal(0.4, rng.uniform(0.001, 0.2), (m, 3)).clip(0, 1) * full).astype(dt) for m in sizes]
+                med, mad = _sample_stats(samples, lut, full)
+                for r, s in enumerate(samples):
+                    if not len(s):
+                        continue
+                    for c in range(3):
+                        v = lut[s[:, c]]
+                        ref_med = np.sort(v)[len(v) // 2]
+                        ref_mad = np.partition(np.abs(v - ref_med), len(v) // 2)[len(v) // 2]
+                        assert med[c, r] == ref_med and mad[c, r] == ref_mad

@@ -21,6 +21,7 @@ Both gains are in the whitened units of the joint fit, whose noise scale is prof
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
@@ -35,7 +36,7 @@ from ..spectra import WAVELENGTHS
 
 __all__ = [
     "SpectralBase", "fit_spectral_base", "refine_with_measured_daylight", "off_locus_gains", "fluorescence_gains",
-    "generic_fluorescence_gains", "excitation_bands", "EXCITATION_CENTRES_NM",
+    "generic_fluorescence_gains", "excitation_bands", "EXCITATION_CENTRES_NM", "daylight_mixture",
 ]
 
 
@@ -91,33 +92,57 @@ def _daylight_basis() -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray
     return np.column_stack([dp.mean, dp.components]), dp.coefficient_mean, np.linalg.inv(dp.coefficient_covariance)
 
 
+@lru_cache(maxsize=1)
+def daylight_mixture() -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The Gaussian mixture of measured daylight coefficients (``illumon/data/daylight_mixture.json``): weights (K,),
+    means (K × 4) and covariances (K × 4 × 4) of the coefficients on the shipped daylight components, fitted by EM to
+    the training half of the Granada spectra (``tools/build_daylight_mixture.py``; K = 6 by BIC). Measured skies are
+    far from Gaussian (a long blue tail, a thin warm end): one Gaussian, symmetric about its mean, would give warm lamp
+    light the probability of blue sky."""
+    import json
+    from importlib import resources
+
+    meta = json.loads((resources.files("illumon") / "data" / "daylight_mixture.json").read_text())
+    return (np.asarray(meta["weights"], dtype=float), np.asarray(meta["means"], dtype=float),
+            np.asarray(meta["covariances"], dtype=float))
+
+
 def _daylight_frames(base: SpectralBase, sigma: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64],
                                                                               NDArray[np.float64]]:
-    """Each frame fitted as measured daylight with the reflectances held: ``E = k (μ + Pc)``, ``c`` under the Granada
-    Gaussian. Returns the weights ``x = [k, k·c]`` (F × (1+J)), the cost (data / φ + prior χ²) and the data misfit."""
+    """Each frame fitted as measured daylight with the reflectances held: ``E = k (μ + Pc)``, ``c`` under the mixture
+    of measured skies (:func:`daylight_mixture`; the component of lowest cost). Returns the weights ``x = [k, k·c]``
+    (F × (1+J)), the cost (data / φ + the component's χ² + ln det Σ_k − 2 ln w_k, relative to the smallest such
+    constant) and the data misfit."""
     prob = base.prob
-    day_basis, m, cov_inv = _daylight_basis()
+    day_basis, _, _ = _daylight_basis()
+    weights, means, covs = daylight_mixture()
     j = day_basis.shape[1] - 1
+    cov_inv = np.linalg.inv(covs)
+    const = np.linalg.slogdet(covs)[1] - 2.0 * np.log(weights)
+    const = const - const.min()
     kd, _ = imaging_operators(base.sensitivities, day_basis, prob.rb)
     design_d = np.einsum("bcj,pj->pcb", kd, sigma)  # P × 3 × (1 + J)
     xs = np.zeros((prob.F, j + 1))
-    cost = np.zeros(prob.F)
+    cost = np.full(prob.F, np.inf)
     data = np.zeros(prob.F)
     for f in range(prob.F):
         w = prob.W[f]
         b = (w * prob.Y[f]).ravel()
         ad = (w[..., None] * design_d).reshape(-1, j + 1)
         k0 = max(float(ad[:, 0] @ b / max(ad[:, 0] @ ad[:, 0], 1e-300)), 1e-12)
-        # minimise |b − ad x|²/φ + (x₁ − k₀m)ᵀ (k₀²Σ)⁻¹ (x₁ − k₀m),  x = [k, k·c]
-        lam = np.zeros((j + 1, j + 1))
-        lam[1:, 1:] = cov_inv / k0**2
-        rhs = np.zeros(j + 1)
-        rhs[1:] = lam[1:, 1:] @ (k0 * m)
-        x = np.linalg.solve(ad.T @ ad / base.phi + lam, ad.T @ b / base.phi + rhs)
-        d = x[1:] - k0 * m
-        data[f] = float(((b - ad @ x) ** 2).sum())
-        cost[f] = data[f] / base.phi + float(d @ lam[1:, 1:] @ d)
-        xs[f] = x
+        ata, atb = ad.T @ ad / base.phi, ad.T @ b / base.phi
+        for q in range(weights.size):
+            # minimise |b − ad x|²/φ + (x₁ − k₀m)ᵀ (k₀²Σ)⁻¹ (x₁ − k₀m),  x = [k, k·c]
+            lam = np.zeros((j + 1, j + 1))
+            lam[1:, 1:] = cov_inv[q] / k0**2
+            rhs = np.zeros(j + 1)
+            rhs[1:] = lam[1:, 1:] @ (k0 * means[q])
+            x = np.linalg.solve(ata + lam, atb + rhs)
+            d = x[1:] - k0 * means[q]
+            dat = float(((b - ad @ x) ** 2).sum())
+            c = dat / base.phi + float(d @ lam[1:, 1:] @ d) + float(const[q])
+            if c < cost[f]:
+                cost[f], data[f], xs[f] = c, dat, x
     return xs, cost, data
 
 

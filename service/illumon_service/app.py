@@ -96,7 +96,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.settings = settings
     app.state.engine = engine
     app.state.sessions = sessions
-    app.state.commits = GroupCommit(sessions)  # frames: concurrent ingests share one durable commit
+    # Frames: concurrent ingests share one durable commit.
+    app.state.commits = GroupCommit(sessions, lambda n: metrics.observe("illumon_ingest_commit_frames", n))
     app.state.metrics = metrics
     app.state.jobs = runner
     app.state.admin_token_hash = hash_token(admin_token(settings))

@@ -17,6 +17,7 @@ class Metrics:
         "illumon_ingest_seconds": ("summary", "Whole ingest latency: decode, region statistics, estimate, commit."),
         "illumon_ingest_stage_seconds": ("summary", "Ingest stages: receive (upload and multipart), decode, regions, "
                                                     "estimate, commit."),
+        "illumon_ingest_commit_frames": ("summary", "Frames per ingest commit (group commit: one transaction, one fsync)."),
         "illumon_ingest_decodes_total": ("counter", "Decoded frames by scale (1/1 full size; 1/2, 1/4, 1/8 reduced JPEG)."),
         "illumon_refit_seconds": ("summary", "Refit job durations."),
         "illumon_refit_total": ("counter", "Refit jobs by outcome."),

@@ -156,69 +156,62 @@ class GroupCommit:
     """Group commit: concurrent writes share one transaction and one durable commit (one fsync).
 
     ``submit(write)`` runs ``write(session)`` (add rows, flush, build the answer) and returns its result once the
-    transaction holding it is committed, never before. Threads arriving while a commit is under way queue their writes;
-    the first of them then writes all queued ones in one transaction and commits once, and every waiting thread returns
-    (leader / followers, no extra thread). On SQLite, whose single write lock otherwise makes concurrent writers poll
-    with sleeps (``busy_timeout``), this also turns that wait into a queue. A write that fails before the commit
-    (its flush raises) makes the batch run again one write per transaction, so only the failing write fails; a commit
-    that raises fails every write of its batch and is not retried, as it might have reached the disk.
+    transaction holding it is committed, never before. Threads arriving while a commit is under way queue their
+    writes; when it ends, one of them writes every queued one in one transaction and commits once (leader / followers,
+    no extra thread; a leader commits one batch, then hands over). On SQLite, whose single write lock otherwise makes
+    concurrent writers poll with sleeps (``busy_timeout``), this also turns that wait into a queue. A write that fails
+    before the commit (its flush raises) makes the batch run again one write per transaction, so only the failing
+    write fails; a commit that raises fails every write of its batch and is not retried, as it might have reached
+    the disk.
     """
 
-    def __init__(self, sessions: sessionmaker[Session]) -> None:
+    def __init__(self, sessions: sessionmaker[Session], on_commit: Callable[[int], None] | None = None) -> None:
         self._sessions = sessions
-        self._lock = threading.Lock()
-        self._pending: list[tuple[Callable[[Session], object], dict, threading.Event]] = []
+        self._on_commit = on_commit  # called with the number of writes of every committed transaction
+        self._cond = threading.Condition()
+        self._pending: list[tuple[Callable[[Session], object], dict]] = []
         self._leading = False
         self.batches = 0
         """Transactions committed (for tests and metrics)."""
 
     def submit(self, write: Callable[[Session], T]) -> T:
-        """Run ``write`` in a transaction shared with concurrent writes; its result after the commit (or its error)."""
+        """Run ``write`` in a transaction shared with concurrent writes; its result after the commit (or its error).
+
+        The thread that finds no commit under way leads: it takes every queued write (its own among them), commits
+        them, and hands over; the others wait for their write's commit, or for their turn to lead.
+        """
         box: dict = {}
-        done = threading.Event()
-        with self._lock:
-            self._pending.append((write, box, done))
-        while not done.is_set():
-            with self._lock:
-                lead = not self._leading
-                self._leading = True
+        with self._cond:
+            self._pending.append((write, box))
+            while "done" not in box and self._leading:
+                self._cond.wait()
+            lead = "done" not in box
             if lead:
-                self._lead()
-            else:
-                done.wait(0.05)  # re-checks, should a leader die without handing over
+                self._leading = True
+                batch, self._pending = self._pending, []
+        if lead:
+            try:
+                self._commit(batch)
+            except BaseException as exc:  # the leader's own failure (e.g. interrupted): its batch fails with it
+                for _, other in batch:
+                    if "result" not in other:
+                        other.setdefault("error", exc)
+                raise
+            finally:
+                with self._cond:
+                    for _, other in batch:
+                        other["done"] = True
+                    self._leading = False
+                    self._cond.notify_all()
         if "error" in box:
             raise box["error"]
         return box["result"]
 
-    def _lead(self) -> None:
-        """Commit batches until none is queued (called with ``_leading`` set; clears it)."""
-        try:
-            while True:
-                with self._lock:
-                    batch, self._pending = self._pending, []
-                    if not batch:
-                        self._leading = False
-                        return
-                try:
-                    self._commit(batch)
-                except BaseException as exc:
-                    for _, box, _ in batch:
-                        if "result" not in box:
-                            box.setdefault("error", exc)
-                    raise
-                finally:
-                    for _, _, done in batch:
-                        done.set()
-        except BaseException:
-            with self._lock:
-                self._leading = False
-            raise
-
-    def _commit(self, batch: list[tuple[Callable[[Session], object], dict, threading.Event]]) -> None:
+    def _commit(self, batch: list[tuple[Callable[[Session], object], dict]]) -> None:
         """Write and commit ``batch``; record each write's result or error in its box."""
         with self._sessions() as session:
             try:
-                results = [write(session) for write, _, _ in batch]
+                results = [write(session) for write, _ in batch]
             except Exception as exc:  # noqa: BLE001 - isolated below
                 session.rollback()
                 if len(batch) == 1:
@@ -230,9 +223,11 @@ class GroupCommit:
             try:
                 session.commit()
             except Exception as exc:  # noqa: BLE001 - reported to every waiting request
-                for _, box, _ in batch:
+                for _, box in batch:
                     box["error"] = exc
                 return
         self.batches += 1
-        for (_, box, _), result in zip(batch, results, strict=True):
+        if self._on_commit is not None:
+            self._on_commit(len(batch))
+        for (_, box), result in zip(batch, results, strict=True):
             box["result"] = result

@@ -1,26 +1,36 @@
 """Ingest benchmark (issue 9): frames/s and p50/p99 latency of ``POST /v1/cameras/{id}/frames`` for 1920×1080
 8-bit JPEG and 16-bit PNG frames with 16 regions, next to ``cv2.imdecode`` alone on the same bytes in the same run.
 
-Run: ``python benchmarks/ingest.py [--quick] [--frames N] [--concurrency 1,4]``. Prints a table and writes
-``benchmarks/results/ingest.json``.
+Run: ``python benchmarks/ingest.py [--quick] [--frames N] [--concurrency 1,4] [--jpeg-reduction 1,2]
+[--server-workers N]``. Prints a table and writes ``benchmarks/results/ingest.json``.
 
 The service is a real ``illumon serve`` process on a free loopback port (SQLite in a temporary folder, WAL,
 ``synchronous=FULL``: every 201 is on disk). Each camera first gets 12 frames and a refit, so every timed frame goes
 through the whole path: multipart upload, decode, robust means of 16 regions of 120×120, per-frame estimate with the
-scene model, commit. Clients are threads of this process posting over HTTP/1.1 keep-alive.
+scene model, durable commit (concurrent frames share one: group commit). Clients are threads of this process, each
+posting over its own HTTP/1.1 keep-alive ``http.client`` connection with a hand-assembled multipart body (well under
+a millisecond of client CPU per JPEG frame, so that the client takes little CPU from the server it measures).
 
 What is compared, per format and concurrency ``c``: the same timed frames (the same bytes), in the same run, first
-decoded by ``cv2.imdecode(…, IMREAD_UNCHANGED)`` alone in ``c`` threads of this process (``cv2.imdecode`` releases
-the GIL; OpenCV's own threads off, as in the service; the server idle meanwhile), then posted by ``c`` client threads.
-``ratio`` = ingest frames/s ÷ decode-only frames/s. Both sides may use every CPU of the machine, but the ingest side
-also pays the HTTP client, the multipart upload, the robust region statistics, the per-frame estimate and a durable
-commit (an fsync per 201), and shares the CPUs with the client threads; so with one client the ratio is bounded by
-decode ÷ (decode + the rest of the path) whatever the CPU count. ``--server-workers N`` runs ``illumon serve
---workers N``; the server-stage columns then come from the one worker that answered ``/metrics``. The 1-minute load
-average (all processes of the machine) is printed with each row.
+decoded by ``cv2.imdecode(…, IMREAD_UNCHANGED)`` at full size alone in ``c`` threads of this process
+(``cv2.imdecode`` releases the GIL; OpenCV's own threads off, as in the service; the server idle meanwhile), then
+posted by ``c`` client threads. ``ratio`` = ingest frames/s ÷ decode-only frames/s. Both sides may use every CPU of the
+machine, but the ingest side also pays the HTTP client, the multipart upload, the robust region statistics, the
+per-frame estimate and a durable commit (an fsync per transaction), and shares the CPUs with the client threads; so
+with one client the ratio is bounded by decode ÷ (decode + the rest of the path) whatever the CPU count.
+
+JPEG runs once per ``--jpeg-reduction`` value, each on its own server started with that
+``ILLUMON_JPEG_MAX_REDUCTION`` (default ``1,2``: full size, then half size where the regions allow); the ``ingest
+decode`` column is the scale the server reports having decoded at (``illumon_ingest_decodes_total``; ``?`` for a
+server that does not count them), while ``decode f/s`` and ``ratio`` stay against the full-size decode.
+``dec cpu`` / ``srv cpu`` / ``cli cpu`` are CPU milliseconds per frame of the decode-only run (this process), of the
+server (its process and children, from ``/proc``) and of the posting client: unlike wall time they hardly depend on
+what else loads the machine. ``f/commit`` is the mean number of frames per durable commit. ``--server-workers N`` runs
+``illumon serve --workers N``; the server-stage columns then come from the one worker that answered ``/metrics``. The
+1-minute load average (all processes of the machine) is printed with each row.
 Frames: a textured gradient background (JPEG ≈ 0.23 MB at quality 90), 16 patches rendered with measured spectra
 (Nikon D5100, Granada daylight, Munsell) where ``../shared/data`` exists (synthetic spectra otherwise), noise and a
-moving clutter rectangle.
+moving clutter rectangle. The accuracy of the reduced decode is measured by ``benchmarks/reduced_decode.py``.
 """
 
 from __future__ import annotations

@@ -50,8 +50,9 @@ class Settings(BaseSettings):
     jpeg_max_reduction: int = 1
     """Decode 8-bit JPEG frames at up to 1/N of their size (libjpeg DCT scaling) when every region keeps at least 32
     decoded pixels per side; region edges that cut decoded pixels are weighted by coverage. 1 (default): always full
-    size. 2 decodes 1920×1080 ~35 % faster; the region means then average codes over 2×2 pixels before linearising,
-    off by ~0.04 % (median) on smooth regions but up to ~0.5 % on finely textured ones (README, *Ingest speed*)."""
+    size. 2 decodes 1920×1080 ~35 % faster; the region means then average codes over 2×2 pixels before linearising:
+    ~0.04 % (median) from the full decode's on smooth regions, ~0.2 % (p95 0.6 %) on finely textured ones, and the
+    white up to ~0.06° (README, *Ingest speed*)."""
 
     @field_validator("jpeg_max_reduction")
     @classmethod

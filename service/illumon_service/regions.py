@@ -10,6 +10,12 @@ A frame's region value is the mean linear camera value of its pixels after remov
 A region is missing for the frame (``None``) when fewer than ``min_fraction`` of its pixels survive: mostly clipped or
 mostly occluded. Images are PNG, JPEG or TIFF, 8- or 16-bit, decoded by OpenCV; black and white levels of the camera's
 response are in the image's units (a white level ≤ 255 given for a 16-bit image is scaled by 257).
+
+Integer images take :func:`_region_means_cv` (OpenCV on each region's pixels, the GIL released; all regions' medians
+and MADs at once), which gives the values of the per-region numpy reference :func:`_robust_mean_codes`
+(``_PER_REGION``); float images take :func:`_robust_mean`. A JPEG may be decoded at 1/2, 1/4 or 1/8 size
+(:func:`jpeg_reduction`, :func:`decode_frame`); :func:`region_means` then maps the regions onto the decoded pixels,
+weighting those a region cuts by the fraction inside it.
 """
 
 from __future__ import annotations

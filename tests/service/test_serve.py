@@ -82,3 +82,34 @@ def test_admin_token_from_env_or_file(tmp_path):
     assert admin_token(Settings(data_dir=tmp_path, admin_token="abc")) == "abc"
     t = admin_token(Settings(data_dir=tmp_path))
     assert admin_token(Settings(data_dir=tmp_path)) == t
+
+
+def test_serve_workers_answer_without_delayed_ack_stalls(tmp_path):
+    """`illumon serve --workers 2` disables Nagle's algorithm on its connections: uvicorn's shared socket otherwise
+    leaves it on, and on a keep-alive connection each answer's last segment waited for the client's delayed ACK
+    (≥ 40 ms per request instead of a few)."""
+    import http.client
+    import statistics
+
+    from illumon_service.process import stop_process
+
+    port = free_port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("ILLUMON_")}
+    proc = subprocess.Popen([str(ILLUMON), "serve", "--host", "127.0.0.1", "--port", str(port), "--data-dir",
+                             str(tmp_path), "--log-level", "warning", "--workers", "2"],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        wait_healthy(proc, f"http://127.0.0.1:{port}", timeout=60, describe=lambda: proc.stderr.read())
+        conn = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+        seconds = []
+        for _ in range(15):
+            t0 = time.perf_counter()
+            conn.request("GET", "/healthz")
+            resp = conn.getresponse()
+            resp.read()
+            seconds.append(time.perf_counter() - t0)
+            assert resp.status == 200
+        conn.close()
+        assert statistics.median(seconds) < 0.025, [round(1e3 * s, 1) for s in seconds]
+    finally:
+        stop_process(proc)

@@ -5,9 +5,11 @@ Run: ``python benchmarks/ingest.py [--quick] [--frames N] [--concurrency 1,4] [-
 [--server-workers N]``. Prints a table and writes ``benchmarks/results/ingest.json``.
 
 The service is a real ``illumon serve`` process on a free loopback port (SQLite in a temporary folder, WAL,
-``synchronous=FULL``: every 201 is on disk). Each camera first gets 12 frames and a refit, so every timed frame goes
-through the whole path: multipart upload, decode, robust means of 16 regions of 120×120, per-frame estimate with the
-scene model, durable commit (concurrent frames share one: group commit). Clients are threads of this process, each
+``synchronous=FULL``: every 201 is on disk). Each camera first gets 12 frames and a refit, then a few untimed frames
+over as many connections as the most clients (every server process loads the scene model at the first frame it
+estimates), so every timed frame goes through the whole path in the steady state: multipart upload, decode, robust
+means of 16 regions of 120×120, per-frame estimate with the scene model, durable commit (concurrent frames share one:
+group commit). Clients are threads of this process, each
 posting over its own HTTP/1.1 keep-alive ``http.client`` connection with a hand-assembled multipart body (well under
 a millisecond of client CPU per JPEG frame, so that the client takes little CPU from the server it measures).
 
@@ -270,6 +272,15 @@ def main() -> None:
                     job = http.post(f"/v1/cameras/{cam}/refit", headers=auth).json()["job_id"]
                     while http.get(f"/v1/jobs/{job}", headers=auth).json()["state"] not in ("done", "failed"):
                         time.sleep(0.2)
+                    # Warm-up, not timed: each server process loads the new scene model (and builds its solver) at
+                    # the first frame it estimates; a few frames over as many connections as the most clients reach
+                    # every worker.
+                    warm = FramePoster(port, cam, auth)
+                    try:
+                        run_parallel(lambda d, warm=warm, ctype=ctype: warm(d, ctype, next_time()),
+                                     frames[:12] if kind == "jpeg" else frames[:2 * max(levels)], max(levels))
+                    finally:
+                        warm.close()
                     timed = frames[12:]
                     mb = float(np.mean([len(f) for f in timed]) / 1e6)
                     for c in levels:

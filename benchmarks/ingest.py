@@ -28,7 +28,7 @@ server that does not count them), while ``decode f/s`` and ``ratio`` stay agains
 ``dec cpu`` / ``srv cpu`` / ``cli cpu`` are CPU milliseconds per frame of the decode-only run (this process), of the
 server (its process and children, from ``/proc``) and of the posting client: unlike wall time they hardly depend on
 what else loads the machine. ``f/commit`` is the mean number of frames per durable commit. ``--server-workers N`` runs
-``illumon serve --workers N``; the server-stage columns then come from the one worker that answered ``/metrics``. The
+``illumon serve --workers N`` (its ``/metrics`` sums the workers' published figures, read after a 1.2 s wait). The
 1-minute load average (all processes of the machine) is printed with each row.
 Frames: a textured gradient background (JPEG ≈ 0.23 MB at quality 90), 16 patches rendered with measured spectra
 (Nikon D5100, Granada daylight, Munsell) where ``../shared/data`` exists (synthetic spectra otherwise), noise and a
@@ -287,7 +287,7 @@ def main() -> None:
                         dec_cpu = time.process_time()
                         dec_wall, dec_lat = run_parallel(decode_once, timed, c)
                         dec_cpu = time.process_time() - dec_cpu
-                        m0 = _server_ingest(http)
+                        m0 = _server_ingest(http, args.server_workers)
                         srv_cpu, cli_cpu = _cpu_seconds(servers[reduction][0].pid), time.process_time()
                         poster = FramePoster(port, cam, auth)
                         try:
@@ -296,7 +296,7 @@ def main() -> None:
                         finally:
                             poster.close()
                         srv_cpu, cli_cpu = _cpu_seconds(servers[reduction][0].pid) - srv_cpu, time.process_time() - cli_cpu
-                        m1 = _server_ingest(http)
+                        m1 = _server_ingest(http, args.server_workers)
                         scales = [s for s in m1["decodes"] if m1["decodes"][s] > m0["decodes"].get(s, 0.0)]
                         row = {"format": kind, "mb": mb, "clients": c, "frames": n, "jpeg_max_reduction": reduction,
                                "ingest_decode": ",".join(sorted(scales)) or "?",
@@ -333,9 +333,12 @@ def main() -> None:
 STAGES = ("receive", "decode", "regions", "estimate", "commit")
 
 
-def _server_ingest(http: httpx.Client) -> dict:
+def _server_ingest(http: httpx.Client, workers: int = 1) -> dict:
     """(sum, count) of the service's ``illumon_ingest_seconds`` summary (key ``total``) and of each ingest stage, and
-    the count of decodes per scale (key ``decodes``: {"1/1": n, "1/2": n, …})."""
+    the count of decodes per scale (key ``decodes``: {"1/1": n, "1/2": n, …}). With several worker processes
+    ``/metrics`` sums what each published, at most a second ago: wait that out first."""
+    if workers > 1:
+        time.sleep(1.2)
     text = http.get("/metrics").text
     vals = {ln.split()[0]: float(ln.split()[1]) for ln in text.splitlines() if ln.startswith("illumon_ingest_")}
     out: dict = {"total": (vals.get("illumon_ingest_seconds_sum", 0.0), vals.get("illumon_ingest_seconds_count", 0.0))}

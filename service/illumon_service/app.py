@@ -81,7 +81,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
     engine = make_engine(settings.resolved_database_url)
     sessions = make_session_factory(engine)
-    metrics = Metrics()
+    metrics = Metrics(settings.metrics_dir)
     runner = JobRunner(sessions, settings, metrics)
 
     @asynccontextmanager

@@ -41,6 +41,12 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     make_engine(settings.resolved_database_url).dispose()
     admin_token(settings)
     os.environ["ILLUMON_DATA_DIR"] = str(Path(settings.data_dir).resolve())
+    # Each worker publishes its metrics here and /metrics sums them; counts start again with this server.
+    metrics_dir = Path(settings.data_dir).resolve() / "metrics"
+    metrics_dir.mkdir(exist_ok=True)
+    for old in metrics_dir.glob("*.json"):
+        old.unlink()
+    os.environ["ILLUMON_METRICS_DIR"] = str(metrics_dir)
     if settings.database_url:
         os.environ["ILLUMON_DATABASE_URL"] = settings.database_url
     import socket
@@ -79,7 +85,7 @@ def add_serve_command(subparsers: argparse._SubParsersAction) -> None:
     serve.add_argument("--data-dir", help="folder for the SQLite database, admin token and models (./var)")
     serve.add_argument("--database-url", help="SQLAlchemy URL, e.g. postgresql+psycopg://… (SQLite by default)")
     serve.add_argument("--workers", type=int, default=1,
-                       help="worker processes (1); SQLite in WAL mode is shared, /metrics is per process")
+                       help="worker processes (1); SQLite in WAL mode is shared, /metrics sums all workers")
     serve.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
     serve.set_defaults(func=_cmd_serve)
 

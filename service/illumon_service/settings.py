@@ -47,6 +47,9 @@ class Settings(BaseSettings):
     """A region is missing in a frame when fewer than this fraction of its pixels are usable."""
     clip_fraction: float = Field(default=0.98, gt=0.0, le=1.0)
     """Pixels at or above this fraction of the white level in any channel count as clipped."""
+    metrics_dir: Path | None = None
+    """Folder where each worker process publishes its metrics so that ``/metrics`` sums all of them; ``illumon serve
+    --workers N`` sets it to ``data_dir/metrics`` (one process: unset, metrics stay in memory)."""
     jpeg_max_reduction: int = 1
     """Decode 8-bit JPEG frames at up to 1/N of their size (libjpeg DCT scaling) when every region keeps at least 32
     decoded pixels per side; region edges that cut decoded pixels are weighted by coverage. 1 (default): always full

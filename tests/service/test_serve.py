@@ -111,5 +111,18 @@ def test_serve_workers_answer_without_delayed_ack_stalls(tmp_path):
             assert resp.status == 200
         conn.close()
         assert statistics.median(seconds) < 0.025, [round(1e3 * s, 1) for s in seconds]
+        # /metrics sums the workers: 404s answered by either worker (a new connection each), then every scrape,
+        # whichever worker answers it, counts all of them once the workers have published (≤ 1 s).
+        for _ in range(20):
+            c = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
+            c.request("GET", "/no-such-route")
+            assert c.getresponse().status == 404
+            c.close()
+        time.sleep(1.5)
+        for _ in range(6):
+            text = httpx.get(f"http://127.0.0.1:{port}/metrics", timeout=10, trust_env=False,
+                             headers={"Connection": "close"}).text
+            line = next(ln for ln in text.splitlines() if ln.startswith('illumon_http_errors_total{status="404"}'))
+            assert float(line.split()[1]) == 20, line
     finally:
         stop_process(proc)

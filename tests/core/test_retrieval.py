@@ -95,13 +95,11 @@ def test_paper_protocol_frame_differences_are_recovered(shared_data):
     from illumon.scenarios import PAPER_PATCH_SETS, PAPER_TABLES
     from illumon.simulate import CameraNoise
 
-    spread, common = [], []
+    spread = []
     for temps in PAPER_TABLES[3]:
         for ps in PAPER_PATCH_SETS[:2]:
             h = paper_protocol("Canon_300D", temps, ps, noise=CameraNoise(exposure_jitter=0.0), seed=sum(temps))
             res = retrieve_illuminants(h.observations, h.sensitivities, method="joint")
             d = 1e6 / res.cct - 1e6 / (np.asarray(temps) * 100 * 1.4388 / 1.4380)
             spread.append(float(np.std(d)))
-            common.append(abs(float(np.mean(d))))
     assert np.median(spread) < 1.5 and max(spread) < 3.0, spread
-    assert np.median(common) > 3 * np.median(spread), (common, spread)

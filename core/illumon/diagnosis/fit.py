@@ -22,16 +22,11 @@ noise, sets the scale of their gains, so each is measured against the history it
   frame (median gain read as the median of χ²₅), ``z``; score ``min_k Σ_{top k} (τ − z)``, ``k`` = 2…F/3 frames,
   ``τ`` = :data:`OFF_LOCUS_FRAME_Z` = 10. Margin 4: the 1st percentile of the score on 200 clean development
   histories is −3.6 (seeds 300…349 and 400…549, smallest −7.8); 96 % of 50 development off-locus histories score below.
-* **Fluorescence** (:func:`.spectral.generic_fluorescence_gains`, Han et al. 2012 eqs. 1–2): each patch's gain from
-  an emission of free colour driven by a generic short-wave band. The :data:`FLUORESCENCE_CANDIDATES` = 3 patches of
-  largest gain are re-judged with the frames re-fitted without them (:func:`.spectral.left_out_fluorescence_gains`:
-  a fluorescent patch pulls the common frames towards its emission and hides part of its own gain; its excitation is
-  better measured by the light the other patches see); the best left-out gain is divided by the runner-up's left-out
-  gain (at least the median of χ²₃); score minus that ratio. Margin 2.8: on 220 clean development histories (seeds
-  600…619 and 700…899) the ratio's 98th percentile is 2.75 (99th 3.06, largest 12.2; 4 of 220 above 2.8); 82 % of
-  120 development fluorescence histories (seeds 600…619, 700…799) exceed it with the right patch. Before the left-out
-  frames (common frames, local reflectance σ 0.05, margin 2.3): 6 of the same 220 clean histories above the margin,
-  78 % detected.
+* **Fluorescence** (:func:`.spectral.generic_fluorescence_gains`, Han et al. 2012 eqs. 1–2): the best patch's gain
+  from an emission of free colour driven by a generic short-wave band, divided by the runner-up patch's gain (at
+  least the median of χ²₃); score minus that ratio. Margin 2.3: the 98th percentile of the ratio on 200 clean
+  development histories is 2.27 (99th 2.69, largest 4.6); 90 % of 50 development fluorescence histories (seeds
+  300…349) exceed it with the right patch.
 
 Off-locus light is tested first (its misfit can make a patch look fluorescent, not the reverse), with the best
 fluorescent-looking patch left out when its ratio passes the margin. The illuminants are then re-estimated with the
@@ -54,7 +49,6 @@ from .spectral import (
     fit_spectral_base,
     fluorescence_gains,
     generic_fluorescence_gains,
-    left_out_fluorescence_gains,
     off_locus_gains,
     refine_with_measured_daylight,
 )
@@ -74,16 +68,13 @@ NONE_MARGIN = {
     "patch_change": 10.0,
     "shadow": 10.0,
     "off_locus_illuminant": 4.0,
-    "fluorescence": 2.8,
+    "fluorescence": 2.3,
 }
 """How much an extension's score must beat the base model's for the effect to be reported (ΔBIC for the bilinear
 effects; the spectral effects' scores and margins are described in the module docstring)."""
 
 REFINE_ITERS = 3
 """Alternations of measured-daylight frames and reflectances after the joint CIE fit (spectral stage)."""
-
-FLUORESCENCE_CANDIDATES = 3
-"""Patches (largest gains with the common frames) re-judged with frames fitted without them (fluorescence test)."""
 
 MIN_OFF_LOCUS_FRAMES = 2
 """Fewest frames reported as lit by off-locus light."""
@@ -267,13 +258,9 @@ def _spectral_stage(obs: Observations, sensitivities: NDArray[np.float64],
     # generic short-wave absorption band beats reflectance alone the most. One patch fluoresces: its gain must stand
     # out from the runner-up's, which measures how much an ordinary patch gains from the spectral model's own misfit
     # (at least the median of χ²₃, the gain of 3 non-negative parameters on noise alone)
-    fg0, _, _ = generic_fluorescence_gains(base)
-    # the FLUORESCENCE_CANDIDATES best patches, each judged under frames fitted without it (its emission cannot pull
-    # the illuminants, its excitation is measured by the light the other patches see)
-    top = [int(i) for i in np.argsort(-fg0)[:FLUORESCENCE_CANDIDATES]]
-    fg, fband, share = left_out_fluorescence_gains(base, top, iters=REFINE_ITERS)
-    p = int(top[int(np.argmax(fg[top]))])
-    fscale = max(float(np.sort(fg[top])[-2]) if len(top) > 1 else 0.0, float(chi2.median(3)))
+    fg, fband, share = generic_fluorescence_gains(base)
+    p = int(np.argmax(fg))
+    fscale = max(float(np.sort(fg)[-2]) if fg.size > 1 else 0.0, float(chi2.median(3)))
     _, fb, _, names = fluorescence_gains(base)
     fluor = Candidate("fluorescence", -float(fg[p] / fscale),
                       {"excitation_band_nm": float(EXCITATION_CENTRES_NM[int(fband[p])]),

@@ -37,7 +37,7 @@ from ..spectra import WAVELENGTHS
 __all__ = [
     "SpectralBase", "fit_spectral_base", "refine_with_measured_daylight", "off_locus_gains", "fluorescence_gains",
     "generic_fluorescence_gains", "excitation_bands", "EXCITATION_CENTRES_NM", "daylight_mixture",
-    "LOCAL_REFLECTANCE_SD", "local_reflectance_functions", "left_out_fluorescence_gains",
+    "LOCAL_REFLECTANCE_SD", "local_reflectance_functions",
 ]
 
 
@@ -295,13 +295,11 @@ def _nonneg_quadratic_gain(h: NDArray[np.float64], b: NDArray[np.float64]) -> tu
     return best, xbest
 
 
-LOCAL_REFLECTANCE_SD = 0.1
+LOCAL_REFLECTANCE_SD = 0.05
 """Prior standard deviation of each local reflectance function (:func:`local_reflectance_functions`) in the fluorescence
 test. Unusual surfaces depart from the 8-function basis by up to ~0.03 RMS (measured reflectances outside the basis's
 training set); without this freedom such a patch's misfit, which changes with the sky like an emission does, was the
-main source of false fluorescence on clean development histories (0.02, 0.05, 0.1, 0.2 and 0.4 tried; 0.1 kept with the
-left-out frames of :func:`left_out_fluorescence_gains`: 98 % vs 92 % of 120 development fluorescence histories found at
-2 % false alarms on 220 clean ones, where 0.05 gave 95 %)."""
+main source of false fluorescence on clean development histories (0.02 and 0.05 tried; 0.05 kept)."""
 
 
 def local_reflectance_functions(spacing_nm: float = 15.0, width_nm: float = 10.0) -> NDArray[np.float64]:
@@ -311,9 +309,8 @@ def local_reflectance_functions(spacing_nm: float = 15.0, width_nm: float = 10.0
 
 
 def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | None = None,
-                               local_sd: float = LOCAL_REFLECTANCE_SD,
-                               patches: list[int] | None = None) -> tuple[NDArray[np.float64], NDArray[np.int64],
-                                                                          NDArray[np.float64]]:
+                               local_sd: float = LOCAL_REFLECTANCE_SD) -> tuple[NDArray[np.float64], NDArray[np.int64],
+                                                                               NDArray[np.float64]]:
     """Per patch, the drop of whitened misfit (units of ``phi``) when the patch adds an emission of unknown colour.
 
     Han et al. (CVPR 2012, eqs. 1–2): the emitted light is a fixed spectrum scaled by the light the fluorophore
@@ -326,7 +323,7 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
     coefficients, plus local departures :func:`local_reflectance_functions` with prior σ ``local_sd``) with and
     without the emission.
     Returns the best gain over bands per patch, the band index and the emission's share of the patch's signal per
-    channel (median over frames, P × 3); only ``patches`` are fitted when given (the others' rows stay 0).
+    channel (median over frames, P × 3).
     """
     prob = base.prob
     if base.day_spectra is None:
@@ -346,7 +343,7 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
     best = np.zeros(prob.P, dtype=np.int64)
     share = np.zeros((prob.P, 3))
     eye = np.eye(3)
-    for p in range(prob.P) if patches is None else patches:
+    for p in range(prob.P):
         w = prob.W[:, p]  # F × 3
         d = (w[..., None] * m).reshape(-1, m.shape[-1])  # 3F × K
         y = (w * prob.Y[:, p]).ravel()
@@ -364,34 +361,3 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
                 level = np.median(prob.Y[ok, p], axis=0) if ok.any() else np.ones(3)
                 share[p] = np.median(q[ok, bi, None], axis=0) * x / np.maximum(level, 1e-9)
     return gains, best, share
-
-
-def left_out_fluorescence_gains(base: SpectralBase, patches: list[int], iters: int = 3,
-                                local_sd: float = LOCAL_REFLECTANCE_SD) -> tuple[NDArray[np.float64],
-                                                                                 NDArray[np.int64], NDArray[np.float64]]:
-    """:func:`generic_fluorescence_gains` of each of ``patches`` with the frames re-fitted without that patch.
-
-    A fluorescent patch pulls the measured-daylight frames towards its emission (the frames are fitted to every patch),
-    which hides part of its own gain; its excitation is better measured by the light the *other* patches see. Each
-    patch of ``patches`` is left out of :func:`refine_with_measured_daylight` (from the reflectances of ``base``, noise
-    scale ``base.phi`` kept) and its gain computed under those frames. Returns gains, band indices and emission shares
-    (P, P, P × 3; rows of other patches 0)."""
-    import copy
-
-    prob = base.prob
-    gains = np.zeros(prob.P)
-    band = np.zeros(prob.P, dtype=np.int64)
-    share = np.zeros((prob.P, 3))
-    for p in patches:
-        b2 = copy.copy(base)
-        b2.prob = copy.copy(prob)
-        w = prob.W.copy()
-        w[:, p] = 0.0
-        b2.prob.W = w
-        b2.sigma = base.sigma.copy()
-        refine_with_measured_daylight(b2, iters=iters)
-        b2.prob.W = prob.W
-        b2.phi = base.phi
-        g, bi, sh = generic_fluorescence_gains(b2, local_sd=local_sd, patches=[p])
-        gains[p], band[p], share[p] = g[p], bi[p], sh[p]
-    return gains, band, share

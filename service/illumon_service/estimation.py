@@ -116,12 +116,26 @@ def _solver(scene: Any, region_ids: list[str]) -> Any:
     return hit
 
 
+def json_safe(value: Any) -> Any:
+    """``value`` with every non-finite float replaced by ``None`` (JSON has no infinity: PostgreSQL's JSON type and
+    strict JSON parsers refuse ``Infinity``). An unbounded interval end — a 95 % CCT interval reaching past infinite
+    temperature (reciprocal temperature ≤ 0) — is then ``null``."""
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
 def _intervals(result: Any, extra: dict, i: int) -> dict | None:
+    """95 % intervals of frame ``i`` (``cct_lo`` … ``gain_hi``); an unbounded end is ``None``."""
     out: dict[str, Any] = {k: float(np.asarray(v)[i]) for k, v in (extra or {}).items() if k != "confidence"}
     for k in ("gain_lo", "gain_hi"):
         if k in result.info:
             out[k] = [float(v) for v in np.asarray(result.info[k])[i]]
-    return out or None
+    return json_safe(out) or None
 
 
 def estimate_frame(

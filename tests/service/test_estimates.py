@@ -77,3 +77,41 @@ def test_new_frame_estimated_by_scene_model(populated):
     ill = c.get(f"/v1/cameras/{cam}/illuminant", headers=bearer(token)).json()
     assert ill["frame_id"] == r.json()["frame_id"]
     assert ill["intervals"]["cct_lo"] <= ill["cct_k"] <= ill["intervals"]["cct_hi"]
+
+
+def test_unbounded_interval_is_null():
+    """A 95 % CCT interval reaching past infinite temperature has no upper end: JSON null, which PostgreSQL's JSON
+    type and strict parsers accept (``Infinity`` made PostgreSQL refuse the frame: a 500 in the crash test)."""
+    from illumon_service.estimation import _intervals, json_safe
+
+    class Result:
+        info = {"gain_lo": np.array([[0.9, 1.0, 0.8]]), "gain_hi": np.array([[1.1, 1.0, np.inf]])}
+
+    extra = {"cct_lo": np.array([6766.7]), "cct_hi": np.array([np.inf]), "duv_lo": np.array([-0.002]),
+             "duv_hi": np.array([0.004]), "confidence": np.array([0.03])}
+    out = _intervals(Result(), extra, 0)
+    assert out == {"cct_lo": 6766.7, "cct_hi": None, "duv_lo": -0.002, "duv_hi": 0.004,
+                   "gain_lo": [0.9, 1.0, 0.8], "gain_hi": [1.1, 1.0, None]}
+    assert json_safe({"a": [float("nan"), -float("inf"), 1.5], "b": "x", "c": None}) == {"a": [None, None, 1.5],
+                                                                                          "b": "x", "c": None}
+
+
+def test_illuminant_with_stored_infinite_interval(populated):
+    """Rows stored before unbounded ends became null (SQLite keeps ``Infinity``) still answer valid JSON, with null
+    for the unbounded end (the route cleans them; FastAPI's own serialiser also writes null)."""
+    from illumon_service.storage import Estimate
+    from sqlalchemy import select
+
+    c, cam, token = populated.client, populated.camera_id, populated.token
+    sessions = c.app.state.sessions
+    with sessions() as s, s.begin():
+        e = s.scalars(select(Estimate).where(Estimate.camera_id == cam).order_by(Estimate.taken_at.desc())).first()
+        saved = e.intervals
+        e.intervals = {**(saved or {}), "cct_hi": float("inf")}
+    try:
+        r = c.get(f"/v1/cameras/{cam}/illuminant", headers=bearer(token))
+        assert r.status_code == 200, r.text
+        assert r.json()["intervals"]["cct_hi"] is None
+    finally:
+        with sessions() as s, s.begin():
+            s.get(Estimate, e.frame_id).intervals = saved

@@ -155,8 +155,17 @@ def _check_after_crashes(server: Server, ledger: Ledger, cams: list[int]) -> dic
     for cam in cams:
         ids = {f["frame_id"] for f in stored.values() if f["camera"] == cam}
         assert {e["frame_id"] for e in est[cam]} <= ids
-    assert not ledger.bad, ledger.bad[:5]
+    assert not ledger.bad, (ledger.bad[:5], _server_errors(server.data_dir.parent))
     return {"acknowledged": len(ledger.acked), "stored": len(stored)}
+
+
+def _server_errors(folder: Path) -> list[str]:
+    """The logged tracebacks of every server run whose log is in ``folder`` (for a failure message)."""
+    out = []
+    for log in sorted(folder.glob("illumon-serve-*.log")):
+        text = log.read_text(errors="replace")
+        out += [text[max(0, i - 200) : i + 3000] for i in range(len(text)) if text.startswith("Traceback", i)]
+    return out[:3]
 
 
 def test_kill9_sqlite(tmp_path):

@@ -115,3 +115,17 @@ def test_illuminant_with_stored_infinite_interval(populated):
     finally:
         with sessions() as s, s.begin():
             s.get(Estimate, e.frame_id).intervals = saved
+
+
+def test_date_times_must_be_iso_text(populated):
+    """`since`/`until`/`at` and a body's `taken_at` are ISO 8601 text (the schema's `date-time`); pydantic would
+    otherwise read `0.0` as a Unix time (schemathesis found `until=0.0` accepted)."""
+    c, cam, token = populated.client, populated.camera_id, populated.token
+    for path, param in ((f"/v1/cameras/{cam}/frames", "until"), (f"/v1/cameras/{cam}/estimates", "since"),
+                        (f"/v1/cameras/{cam}/illuminant", "at"), (f"/v1/cameras/{cam}/wb-gains", "at")):
+        r = c.get(path, params={param: "0.0"}, headers=bearer(token))
+        assert r.status_code == 422, (path, r.text)
+        assert "ISO 8601" in r.text
+        assert c.get(path, params={param: "2025-06-01T12:00:00Z"}, headers=bearer(token)).status_code in (200, 404)
+    r = c.post(f"/v1/cameras/{cam}/observations", json={"taken_at": 1700000000, "patches": {}}, headers=bearer(token))
+    assert r.status_code == 422 and "ISO 8601" in r.text, r.text

@@ -5,7 +5,25 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
+
+
+def _iso_text(value: Any) -> Any:
+    """Let only ISO 8601 text (or a datetime) through: pydantic's lax mode would read a number, or numeric text such
+    as ``0.0``, as a Unix time, which the OpenAPI schema (``string``, ``date-time``) does not allow."""
+    if isinstance(value, (int, float)):
+        raise ValueError("expected an ISO 8601 date-time string such as 2025-06-01T12:00:00Z, not a number")
+    if isinstance(value, str):
+        try:
+            float(value)
+        except ValueError:
+            return value
+        raise ValueError(f"{value!r} is a number; expected an ISO 8601 date-time such as 2025-06-01T12:00:00Z")
+    return value
+
+
+IsoDateTime = Annotated[datetime, BeforeValidator(_iso_text)]
+"""A date-time given as ISO 8601 text (naive means UTC); numbers and numeric text answer 422."""
 
 __all__ = [
     "SensitivitiesIn", "RegionIn", "ResponseIn", "CameraIn", "RegionsIn", "ObservationIn", "ErrorOut", "ERROR_RESPONSES",
@@ -97,7 +115,7 @@ class RegionsIn(_Strict):
 class ObservationIn(_Strict):
     """Region means measured by the client: linear values divided by ``white_level`` (default 1: already 0…1)."""
 
-    taken_at: datetime | None = None
+    taken_at: IsoDateTime | None = None
     patches: dict[str, Annotated[list[NonNegative], Field(min_length=3, max_length=3)] | None] = Field(min_length=1)
     white_level: float = Field(default=1.0, gt=0, allow_inf_nan=False)
 

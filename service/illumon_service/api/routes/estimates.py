@@ -11,7 +11,7 @@ from sqlalchemy.orm import Session
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import GRID_WAVELENGTHS, json_safe
 from ...storage import Estimate, as_utc
-from ..schemas import ERROR_RESPONSES
+from ..schemas import ERROR_RESPONSES, IsoDateTime
 
 router = APIRouter(prefix="/v1/cameras", tags=["estimates"], responses=ERROR_RESPONSES)
 
@@ -55,7 +55,7 @@ def nearest_estimate(session: Session, camera_id: int, at: datetime | None) -> E
 
 @router.get("/{camera_id}/estimates")
 def list_estimates(camera_id: int, session: SessionDep, principal: PrincipalDep,
-                   since: datetime | None = None, until: datetime | None = None, limit: int = 10000) -> list[dict]:
+                   since: IsoDateTime | None = None, until: IsoDateTime | None = None, limit: int = 10000) -> list[dict]:
     """Estimates in ``since`` ≤ taken_at ≤ ``until``, oldest first."""
     camera_for(session, principal, camera_id)
     q = select(Estimate).where(Estimate.camera_id == camera_id)
@@ -68,7 +68,7 @@ def list_estimates(camera_id: int, session: SessionDep, principal: PrincipalDep,
 
 
 @router.get("/{camera_id}/illuminant")
-def get_illuminant(camera_id: int, session: SessionDep, principal: PrincipalDep, at: datetime | None = None) -> dict:
+def get_illuminant(camera_id: int, session: SessionDep, principal: PrincipalDep, at: IsoDateTime | None = None) -> dict:
     """The estimate nearest ``at`` with its spectrum (relative, 100 at 560 nm) and intervals where known."""
     camera_for(session, principal, camera_id)
     e = nearest_estimate(session, camera_id, at)

@@ -15,7 +15,7 @@ from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import estimate_frame
 from ...regions import ImageError, Region, RegionError, decode_frame, region_means, response_for, sniff_format
 from ...storage import Camera, Estimate, Frame, as_utc
-from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, ObservationIn
+from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, IsoDateTime, ObservationIn
 from .estimates import estimate_out
 
 router = APIRouter(prefix="/v1/cameras", tags=["frames"], responses=ERROR_RESPONSES)
@@ -219,8 +219,8 @@ def post_observations(camera_id: int, body: ObservationIn, request: Request, ses
 
 
 @router.get("/{camera_id}/frames")
-def list_frames(camera_id: int, session: SessionDep, principal: PrincipalDep, since: datetime | None = None,
-                until: datetime | None = None, limit: int = 1000) -> list[dict]:
+def list_frames(camera_id: int, session: SessionDep, principal: PrincipalDep, since: IsoDateTime | None = None,
+                until: IsoDateTime | None = None, limit: int = 1000) -> list[dict]:
     """Stored frames (region means, linear 0…1) in ``since`` ≤ taken_at ≤ ``until``, oldest first."""
     camera_for(session, principal, camera_id)
     q = select(Frame).where(Frame.camera_id == camera_id)

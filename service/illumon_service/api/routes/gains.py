@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-from datetime import datetime
-
 from fastapi import APIRouter, HTTPException, Query
 from illumon.gains import all_conventions
 
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...storage import as_utc
-from ..schemas import ERROR_RESPONSES
+from ..schemas import ERROR_RESPONSES, IsoDateTime
 from .estimates import nearest_estimate
 
 router = APIRouter(prefix="/v1/cameras", tags=["gains"], responses=ERROR_RESPONSES)
@@ -33,7 +31,7 @@ def wb_gains(
     camera_id: int,
     session: SessionDep,
     principal: PrincipalDep,
-    at: datetime | None = None,
+    at: IsoDateTime | None = None,
     onvif_range: str | None = Query(None, description="vendor CrGain/CbGain range 'lo,hi' (e.g. '0,255')"),
     v4l2_unity: int = Query(1000, gt=0, le=1_000_000, description="red/blue_balance value of unity gain"),
 ) -> dict:

@@ -29,7 +29,7 @@ from illumon.daylight import daylight_model
 from illumon.reflectance import ReflectanceBasis, colourchecker_reflectances, reflectance_basis
 from illumon.retrieval import retrieve_illuminants
 from illumon.retrieval.joint import JointProblem
-from illumon.scenarios import PAPER_PATCH_SETS, PAPER_TABLES, measured_daylight_history, paper_protocol
+from illumon.scenarios import PAPER_PATCH_SETS, PAPER_TABLES, measured_daylight_history, paper_cct, paper_protocol
 from illumon.simulate import CameraNoise
 from scipy.optimize import least_squares
 
@@ -87,11 +87,6 @@ def _shift_range(h, mired: np.ndarray, shifts: np.ndarray) -> float:
     return float(np.ptp(costs))
 
 
-def _mired(temps: tuple[int, ...]) -> np.ndarray:
-    """Reciprocal temperatures (MK⁻¹) of the protocol's illuminants (as :func:`paper_protocol` renders them)."""
-    return 1e6 / (np.asarray(temps, dtype=float) * 100 * 1.4388 / 1.4380)
-
-
 def analysis(camera: str, patch_sets: list[tuple[int, ...]]) -> dict:
     """What limits the paper protocol: noise-free images, trusted data, an oracle basis; data-term range per table."""
     variants = {
@@ -111,7 +106,7 @@ def analysis(camera: str, patch_sets: list[tuple[int, ...]]) -> dict:
                     h = paper_protocol(camera, temps, ps, noise=None)
                     res = retrieve_illuminants(h.observations, h.sensitivities, method="joint", **kw)
                     per_table.setdefault(table, []).extend(angular_error_deg(res.white, h.true_white))
-                    d = 1e6 / res.cct - _mired(temps)
+                    d = 1e6 / res.cct - 1e6 / paper_cct(temps)
                     common.append(float(np.mean(d)))
                     spread.append(float(np.std(d)))
         out["variants"][name] = {str(t): _stats(v) for t, v in per_table.items()}
@@ -121,7 +116,7 @@ def analysis(camera: str, patch_sets: list[tuple[int, ...]]) -> dict:
                                     "within_case_sd_median": float(np.median(spread))}
     for table, cases in PAPER_TABLES.items():
         out["shift_range"][str(table)] = float(np.median([
-            _shift_range(paper_protocol(camera, temps, patch_sets[0], noise=None), _mired(temps), shifts)
+            _shift_range(paper_protocol(camera, temps, patch_sets[0], noise=None), 1e6 / paper_cct(temps), shifts)
             for temps in cases
         ]))
     return out

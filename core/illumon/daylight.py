@@ -30,6 +30,7 @@ __all__ = [
     "cie_d_weights",
     "daylight_spectrum",
     "daylight_locus_xy",
+    "cie_d_cct",
     "daylight_locus_duv",
     "xy_from_cct_duv",
     "cct_duv_from_xy",
@@ -103,6 +104,12 @@ def daylight_locus_xy(cct: ArrayLike) -> NDArray[np.float64]:
     )
     y = -3.000 * x**2 + 2.870 * x - 0.275
     return np.stack([x, y], axis=-1)
+
+
+def cie_d_cct(nominal: ArrayLike) -> NDArray[np.float64]:
+    """Correlated colour temperature (K) of the CIE illuminant named by a nominal temperature (D65: 6500 K → 6504 K):
+    the nominal value × 1.4388/1.4380, the change of the radiation constant c₂ since the D series was defined."""
+    return np.asarray(nominal, dtype=float) * 1.4388 / 1.4380
 
 
 # --- Planckian locus table -----------------------------------------------------------------------------------------
@@ -259,7 +266,7 @@ class ThetaCurve:
 @lru_cache(maxsize=1)
 def theta_curve() -> ThetaCurve:
     """Build the θ curve from CIE D40, D45, …, D100 (13 illuminants, nominal temperatures × 1.4388/1.438)."""
-    temps = np.arange(4000, 10001, 500) * 1.4388 / 1.4380
+    temps = cie_d_cct(np.arange(4000, 10001, 500))
     spds = daylight_spectrum(daylight_locus_xy(temps))
     spds = spds / np.linalg.norm(spds, axis=1, keepdims=True)
     mean = spds.mean(0)

@@ -13,11 +13,11 @@ from __future__ import annotations
 import numpy as np
 
 from . import datasets
-from .daylight import daylight_locus_xy, daylight_spectrum
+from .daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum
 from .reflectance import colourchecker_reflectances, unseen_reflectances
 from .simulate import DEFAULT_NOISE, CameraNoise, SimulatedHistory, simulate_history
 
-__all__ = ["PAPER_TABLES", "PAPER_PATCH_SETS", "paper_protocol", "measured_daylight_history"]
+__all__ = ["PAPER_TABLES", "PAPER_PATCH_SETS", "paper_cct", "paper_protocol", "measured_daylight_history"]
 
 PAPER_TABLES: dict[int, list[tuple[int, ...]]] = {
     1: [(40, 50), (40, 90), (40, 100), (65, 80), (65, 90), (65, 100), (80, 90), (80, 100)],
@@ -38,12 +38,17 @@ PAPER_PATCH_SETS: list[tuple[int, ...]] = [
 """Which 6 ColorChecker patches (0-based, standard order) stand for the paper's unspecified 6 patches."""
 
 
+def paper_cct(temps_hundreds: tuple[int, ...]) -> np.ndarray:
+    """Correlated colour temperatures (K) of the protocol's CIE illuminants D40…D100 (:func:`~illumon.daylight.cie_d_cct`
+    of the nominal temperatures, given in hundreds of K)."""
+    return cie_d_cct(np.asarray(temps_hundreds, dtype=float) * 100)
+
+
 def paper_protocol(
     camera: str, temps_hundreds: tuple[int, ...], patches: tuple[int, ...], *, noise: CameraNoise | None, seed: int = 0
 ) -> SimulatedHistory:
-    """One case of the paper's protocol: CIE D illuminants (nominal temperatures × 1.4388/1.4380) on a ColorChecker."""
-    t = np.asarray(temps_hundreds, dtype=float) * 100 * 1.4388 / 1.4380
-    e = daylight_spectrum(daylight_locus_xy(t))
+    """One case of the paper's protocol: CIE D illuminants (:func:`paper_cct`) on a ColorChecker."""
+    e = daylight_spectrum(daylight_locus_xy(paper_cct(temps_hundreds)))
     _, cc = colourchecker_reflectances("BabelColor Average")
     return simulate_history(datasets.load_camera(camera), e, cc[list(patches)], noise=noise, rng=seed)
 

@@ -29,7 +29,7 @@ def test_daylight_locus_duv_positive_around_d65():
 
 def test_theta_curve_passes_through_d_series():
     curve = daylight.theta_curve()
-    t = np.array([4000, 6500, 10000]) * 1.4388 / 1.438
+    t = daylight.cie_d_cct([4000, 6500, 10000])
     spd = daylight.daylight_spectrum(daylight.daylight_locus_xy(t))
     theta = curve.theta_of(spd / np.linalg.norm(spd, axis=1, keepdims=True))
     back = curve.spectrum(theta)

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._blas import single_blas_thread
-from ..daylight import daylight_locus_xy, daylight_spectrum, theta_curve
+from ..daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum, theta_curve
 from ..observations import Observations
 from ..reflectance import ReflectanceBasis, reflectance_basis
 from .common import RetrievalResult, imaging_operators, make_result
@@ -22,7 +22,7 @@ __all__ = ["illuminant_retrieval_Marguier2007", "marguier_error"]
 
 
 def _d65_operator(sensitivities: NDArray[np.float64], rb: ReflectanceBasis) -> NDArray[np.float64]:
-    d65 = daylight_spectrum(daylight_locus_xy(6500 * 1.4388 / 1.4380))
+    d65 = daylight_spectrum(daylight_locus_xy(cie_d_cct(6500)))
     return np.einsum("lc,l,lj->cj", sensitivities, d65, rb.functions)
 
 

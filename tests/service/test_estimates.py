@@ -98,7 +98,7 @@ def test_unbounded_interval_is_null():
 
 def test_illuminant_with_stored_infinite_interval(populated):
     """Rows stored before unbounded ends became null (SQLite keeps ``Infinity``) still answer valid JSON, with null
-    for the unbounded end (the route cleans them; FastAPI's own serialiser also writes null)."""
+    for the unbounded end (FastAPI's serialiser writes non-finite floats as null)."""
     from illumon_service.storage import Estimate
     from sqlalchemy import select
 

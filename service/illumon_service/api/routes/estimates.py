@@ -9,7 +9,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from ...deps import PrincipalDep, SessionDep, camera_for
-from ...estimation import GRID_WAVELENGTHS, json_safe
+from ...estimation import GRID_WAVELENGTHS
 from ...storage import Estimate, as_utc
 from ..schemas import ERROR_RESPONSES, IsoDateTime
 
@@ -74,5 +74,5 @@ def get_illuminant(camera_id: int, session: SessionDep, principal: PrincipalDep,
     e = nearest_estimate(session, camera_id, at)
     out = estimate_out(e)
     out["spectrum"] = {"wavelength_nm": GRID_WAVELENGTHS, "values": e.spectrum}
-    out["intervals"] = json_safe(e.intervals)  # rows written before unbounded ends became null may hold infinity
+    out["intervals"] = e.intervals
     return out

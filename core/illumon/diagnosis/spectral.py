@@ -86,11 +86,12 @@ def _generic_basis(n: int = 10, width_nm: float = 30.0) -> NDArray[np.float64]:
     return np.exp(-0.5 * ((WAVELENGTHS[:, None] - centres[None, :]) / width_nm) ** 2)
 
 
-def _daylight_basis() -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+def _daylight_basis() -> NDArray[np.float64]:
+    """The shipped measured-daylight mean and components (61 × (1 + J)), the basis of :func:`daylight_mixture`."""
     from ..sensitivity.prior import default_daylight_prior
 
     dp = default_daylight_prior()
-    return np.column_stack([dp.mean, dp.components]), dp.coefficient_mean, np.linalg.inv(dp.coefficient_covariance)
+    return np.column_stack([dp.mean, dp.components])
 
 
 @lru_cache(maxsize=1)
@@ -115,7 +116,7 @@ def _daylight_frames(base: SpectralBase, sigma: NDArray[np.float64]) -> tuple[ND
     (F × (1+J)), the cost (data / φ + the component's χ² + ln det Σ_k − 2 ln w_k, relative to the smallest such
     constant) and the data misfit."""
     prob = base.prob
-    day_basis, _, _ = _daylight_basis()
+    day_basis = _daylight_basis()
     weights, means, covs = daylight_mixture()
     j = day_basis.shape[1] - 1
     cov_inv = np.linalg.inv(covs)
@@ -152,7 +153,7 @@ def refine_with_measured_daylight(base: SpectralBase, iters: int = 3) -> Spectra
     joint CIE fit, so the tests below see less daylight-model error; updates ``base`` in place (``sigma``, ``phi``,
     ``day_spectra``)."""
     prob = base.prob
-    day_basis, _, _ = _daylight_basis()
+    day_basis = _daylight_basis()
     sigma = base.sigma
     for _ in range(iters):
         xs, _, data = _daylight_frames(base, sigma)
@@ -193,7 +194,7 @@ def off_locus_gains(base: SpectralBase) -> tuple[NDArray[np.float64], int]:
         coef, *_ = np.linalg.lstsq(a, b, rcond=None)
         gains[f] = day[f] - float(((b - a @ coef) ** 2).sum()) / base.phi
     if base.day_spectra is None:
-        base.day_spectra = xs @ _daylight_basis()[0].T
+        base.day_spectra = xs @ _daylight_basis().T
     return gains, g.shape[1] - xs.shape[1]
 
 
@@ -248,7 +249,6 @@ def fluorescence_gains(base: SpectralBase) -> tuple[NDArray[np.float64], NDArray
         nmat = d.T @ d + lam
         rhs = d.T @ y + lam @ mu
         sig = np.linalg.solve(nmat, rhs)
-        r0 = float(((y - d @ sig) ** 2).sum() + (sig - mu) @ lam @ (sig - mu))
         g = (w[:, None, :] * (k[:, None, None] * q[:, :, None] * wcol[None, :, :])).transpose(1, 0, 2).reshape(J, -1)
         # eliminate σ: the gain of one extra column g is (gᵀ r)² / (gᵀ g − gᵀ D N⁻¹ Dᵀ g) with r the base residual
         res = y - d @ sig
@@ -262,7 +262,6 @@ def fluorescence_gains(base: SpectralBase) -> tuple[NDArray[np.float64], NDArray
         best[p] = j
         green = np.median(prob.Y[:, p, 1]) if prob.present[:, p].any() else 1.0
         strength[p] = float(s[j] * np.median(k * q[:, j] * wcol[j, 1]) / max(green, 1e-9)) if s[j] > 0 else 0.0
-        _ = r0
     return gains, best, strength, names
 
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import sqlite3
 import subprocess
@@ -164,7 +165,7 @@ def _server_errors(folder: Path) -> list[str]:
     out = []
     for log in sorted(folder.glob("illumon-serve-*.log")):
         text = log.read_text(errors="replace")
-        out += [text[max(0, i - 200) : i + 3000] for i in range(len(text)) if text.startswith("Traceback", i)]
+        out += [text[max(0, m.start() - 200) : m.start() + 3000] for m in re.finditer("Traceback", text)]
     return out[:3]
 
 

@@ -19,13 +19,14 @@ from svc_helpers import encode_png, grid_regions
 ILLUMON = Path(sys.executable).with_name("illumon")
 
 
-def _start(data_dir: Path, port: int) -> subprocess.Popen:
+def _start(data_dir: Path, port: int, *extra: str, timeout: float = 30) -> subprocess.Popen:
+    """``illumon serve`` (plus ``extra`` arguments) on ``port``, once it answers ``/healthz``."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("ILLUMON_")}
     cmd = [str(ILLUMON), "serve", "--host", "127.0.0.1", "--port", str(port), "--data-dir", str(data_dir),
-           "--log-level", "warning"]
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+           "--log-level", "warning", *extra]
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     try:
-        wait_healthy(proc, f"http://127.0.0.1:{port}", timeout=30, describe=lambda: proc.stderr.read())
+        wait_healthy(proc, f"http://127.0.0.1:{port}", timeout=timeout, describe=lambda: proc.stderr.read())
     except RuntimeError as exc:
         raise AssertionError(str(exc)) from None
     return proc
@@ -94,12 +95,8 @@ def test_serve_workers_answer_without_delayed_ack_stalls(tmp_path):
     from illumon_service.process import stop_process
 
     port = free_port()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("ILLUMON_")}
-    proc = subprocess.Popen([str(ILLUMON), "serve", "--host", "127.0.0.1", "--port", str(port), "--data-dir",
-                             str(tmp_path), "--log-level", "warning", "--workers", "2"],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    proc = _start(tmp_path, port, "--workers", "2", timeout=60)
     try:
-        wait_healthy(proc, f"http://127.0.0.1:{port}", timeout=60, describe=lambda: proc.stderr.read())
         conn = http.client.HTTPConnection("127.0.0.1", port, timeout=10)
         seconds = []
         for _ in range(15):

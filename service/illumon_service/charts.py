@@ -1,7 +1,8 @@
 """Server-side SVG time charts for the status page (no JavaScript, no external assets).
 
 A chart is an ``<svg>`` with a ``viewBox`` (the page's CSS gives it ``width: 100%``), one polyline per series, an
-optional shaded band per series (an interval, drawn where it is known), horizontal reference lines, "nice" value
+optional shaded band per series (an interval, drawn where it is known), both broken at gaps much longer than the usual
+spacing of the points (:func:`gap_breaks`), horizontal reference lines, "nice" value
 ticks and UTC time ticks. Colours come from CSS classes (``series-0`` …, ``band-0`` …, ``ref``), so a Content
 Security Policy without inline styles holds.
 """
@@ -16,7 +17,7 @@ from html import escape
 
 from markupsafe import Markup
 
-__all__ = ["Series", "time_chart", "nice_ticks", "time_ticks"]
+__all__ = ["Series", "time_chart", "nice_ticks", "time_ticks", "gap_breaks", "GAP_FACTOR"]
 
 WIDTH, HEIGHT = 720, 230
 LEFT, RIGHT, TOP, BOTTOM = 64, 14, 26, 30
@@ -103,10 +104,30 @@ def _fmt(v: float, step: float) -> str:
     return f"{v:.{decimals}f}" if step < 1 else f"{v:,.0f}".replace(",", "\u2009")
 
 
-def _band_runs(xs: list[float], lo: Sequence[float | None], hi: Sequence[float | None]) -> list[list[int]]:
+GAP_FACTOR = 10.0
+"""A line or band is broken where consecutive points lie more than this many times the series' median spacing
+apart (a camera offline for months, or the night of a daytime-only camera): nothing was measured in between."""
+
+
+def gap_breaks(times: Sequence[datetime], factor: float = GAP_FACTOR) -> set[int]:
+    """Indices ``i`` of ``times`` (in time order) preceded by a gap longer than ``factor`` × the median spacing."""
+    ts = [t.timestamp() for t in times]
+    steps = [b - a for a, b in zip(ts, ts[1:], strict=False)]
+    positive = sorted(d for d in steps if d > 0)
+    if len(positive) < 2:
+        return set()
+    usual = positive[len(positive) // 2]
+    return {i + 1 for i, d in enumerate(steps) if d > factor * usual}
+
+
+def _band_runs(xs: list[float], lo: Sequence[float | None], hi: Sequence[float | None],
+               breaks: set[int] = frozenset()) -> list[list[int]]:
     runs: list[list[int]] = []
     cur: list[int] = []
     for i in range(len(xs)):
+        if cur and i in breaks:
+            runs.append(cur)
+            cur = []
         if lo[i] is not None and hi[i] is not None:
             cur.append(i)
         elif cur:
@@ -169,7 +190,7 @@ def time_chart(series: Sequence[Series], *, title: str, unit: str = "", refs: Se
     for s in series:
         xs = [fr.x(t.timestamp()) for t in s.times]
         if s.lo is not None and s.hi is not None:
-            for run in _band_runs(xs, s.lo, s.hi):
+            for run in _band_runs(xs, s.lo, s.hi, gap_breaks(s.times)):
                 up = [f"{xs[i]:.1f},{fr.y(float(s.hi[i])):.1f}" for i in run]  # type: ignore[arg-type]
                 down = [f"{xs[i]:.1f},{fr.y(float(s.lo[i])):.1f}" for i in reversed(run)]  # type: ignore[arg-type]
                 if len(run) == 1:
@@ -179,11 +200,21 @@ def time_chart(series: Sequence[Series], *, title: str, unit: str = "", refs: Se
                 else:
                     parts.append(f'<polygon class="{s.band_css}" points="{" ".join(up + down)}"/>')
     for s in series:
-        pts = [(fr.x(t.timestamp()), fr.y(float(v))) for t, v in zip(s.times, s.values, strict=True)
-               if v is not None and math.isfinite(v)]
+        breaks = gap_breaks(s.times)
+        pts, runs = [], [[]]
+        for i, (t, v) in enumerate(zip(s.times, s.values, strict=True)):
+            if i in breaks and runs[-1]:
+                runs.append([])
+            if v is not None and math.isfinite(v):
+                pts.append((fr.x(t.timestamp()), fr.y(float(v))))
+                runs[-1].append(pts[-1])
         if not pts:
             continue
-        parts.append(f'<polyline class="{s.css} line" points="{" ".join(f"{x:.1f},{y:.1f}" for x, y in pts)}"/>')
+        for run in runs:
+            if len(run) > 1:
+                parts.append(f'<polyline class="{s.css} line" points="{" ".join(f"{x:.1f},{y:.1f}" for x, y in run)}"/>')
+            elif run and len(pts) > 400:  # an isolated point, where dots are not drawn
+                parts.append(f'<circle class="{s.css} dot" cx="{run[0][0]:.1f}" cy="{run[0][1]:.1f}" r="2.2"/>')
         if len(pts) <= 400:
             parts.append("".join(f'<circle class="{s.css} dot" cx="{x:.1f}" cy="{y:.1f}" r="2.2"/>' for x, y in pts))
     # legend

@@ -29,6 +29,9 @@ from illumon.spectra import WAVELENGTHS
 from numpy.typing import NDArray
 
 __all__ = [
+    "RefitInputError",
+    "RESPONSE_CHECK_FRAMES",
+    "check_response",
     "model_path",
     "model_available",
     "sensitivities_array",
@@ -38,6 +41,11 @@ __all__ = [
 ]
 
 log = logging.getLogger("illumon_service.estimation")
+
+
+class RefitInputError(ValueError):
+    """A refit that cannot run because of what the user stored (too few frames, no usable region): an ordinary
+    condition, reported in the job's summary and logged in one line, never with a traceback."""
 
 
 def model_path(data_dir: Path | str, camera_id: int) -> Path:
@@ -261,12 +269,17 @@ def refit_estimates(
     :func:`illumon.retrieval.retrieve_illuminants` over all the given frames (``illumon estimate --method``; the
     joint fit grows faster than linearly: keep such histories to a few hundred frames) and then fit a model too.
 
-    Frames with fewer than two regions seen are left out. Raises ``ValueError`` when fewer than two frames remain.
+    Frames with fewer than two regions seen are left out. Raises :class:`RefitInputError` when fewer than two frames
+    remain.
     """
+    if len(frames) < 2:
+        raise RefitInputError(f"refit needs at least two frames with two regions seen; {len(frames)} stored: post "
+                              "frames (POST /v1/cameras/{id}/frames), then refit")
     obs = build_observations(frames, region_ids)
     usable = np.flatnonzero(obs.present.sum(axis=1) >= 2)
     if usable.size < 2:
-        raise ValueError(f"refit needs at least two frames with two regions seen; {usable.size} available")
+        raise RefitInputError(f"refit needs at least two frames with two regions seen; {usable.size} available "
+                              f"(of {len(frames)} stored): post more frames, then refit")
     if usable.size < len(frames):
         obs = obs.subset(usable)
     skipped = len(frames) - int(usable.size)
@@ -299,3 +312,65 @@ def retrieve(obs: Observations, css: NDArray[np.float64], method: str, kwargs: d
 
 GRID_WAVELENGTHS = [float(v) for v in WAVELENGTHS]
 """Wavelengths (nm) of stored spectra."""
+
+
+RESPONSE_CHECK_FRAMES = 48
+"""Frames (spread evenly over the history) the tone-response check diagnoses; ~2 s on 48 frames × 8 regions."""
+
+
+def check_response(
+    frames: Sequence[tuple[str, str, dict[str, Any]]],
+    region_ids: Sequence[str],
+    sensitivities: NDArray[np.float64],
+    encoding: str,
+    max_frames: int = RESPONSE_CHECK_FRAMES,
+) -> dict:
+    """Does the stored history (values linearised with the declared response) still look non-linear?
+
+    Runs the diagnosis (:func:`illumon.diagnosis.fit.diagnose`, its bilinear stage's tone-curve test: the history is
+    fitted as ``y = x^(1/γ)`` of a rank-4 linear model and γ is accepted by ΔBIC, Schwarz 1978) on at most
+    ``max_frames`` frames spread evenly over the history. When the tone curve beats the linear model by the
+    diagnosis's own margin (ΔBIC < −15, :data:`illumon.diagnosis.fit.NONE_MARGIN`) — whichever effect the diagnosis
+    finally names: an sRGB curve read as linear also fits as a *negative* black offset, often better — the
+    declared ``encoding`` does not match what the camera sends: γ > 1 means the values are still tone-encoded
+    (a camera sending sRGB declared ``linear``), γ < 1 that they were linearised once too often.
+
+    Returns
+    -------
+    dict
+        ``{"checked", "effect"`` (the diagnosis's answer), ``"tone_score"`` (ΔBIC of the tone curve), ``"gamma"``
+        (when the tone curve is supported), ``"warnings": [str, ...], "reason"}``;
+        ``checked`` is false (and ``reason`` says why) when the history is too short (the diagnosis needs 6 frames
+        and 3 regions) or the diagnosis fails.
+    """
+    from illumon.diagnosis.fit import NONE_MARGIN, RANK, diagnose
+
+    obs = build_observations(frames, region_ids)
+    keep = np.flatnonzero(obs.present.sum(axis=1) >= 3)
+    if keep.size > max_frames:
+        keep = keep[np.round(np.linspace(0, keep.size - 1, max_frames)).astype(int)]
+    out: dict[str, Any] = {"checked": False, "effect": None, "gamma": None, "warnings": [], "reason": ""}
+    if keep.size < RANK + 2 or len(region_ids) < 3:
+        out["reason"] = f"tone response not checked: needs {RANK + 2} frames with 3 regions seen, {keep.size} stored"
+        return out
+    obs = _seen_patches(obs.subset(keep))
+    try:
+        diag = diagnose(obs, sensitivities, reestimate=False)
+    except Exception as exc:  # noqa: BLE001 - a check that cannot run must not fail the refit
+        log.warning("tone-response check failed: %s", exc)
+        out["reason"] = f"tone response not checked: {exc}"
+        return out
+    tone = next(c for c in diag.candidates if c.effect == "nonlinear_response")
+    out.update(checked=True, effect=diag.effect, tone_score=round(float(tone.score), 1))
+    if tone.score < -NONE_MARGIN["nonlinear_response"]:
+        g = float(tone.parameters["gamma"])
+        out["gamma"] = g
+        if g > 1:
+            hint = (f"the frames still look tone-encoded (values ≈ linear^(1/{g:.2f})) although the camera is declared "
+                    f"'{encoding}': most cameras send sRGB-encoded JPEG; register it with response encoding 'srgb' (or "
+                    "'gamma'), else every estimate is off")
+        else:
+            hint = (f"the frames look linearised twice (values ≈ linear^(1/{g:.2f})) with the declared response '{encoding}': "
+                    "the camera probably sends linear (raw) values; declare response encoding 'linear'")
+        out["warnings"].append(hint)
+    return out

@@ -20,7 +20,7 @@ from pathlib import Path
 from sqlalchemy import delete, insert, select
 from sqlalchemy.orm import Session, sessionmaker
 
-from .estimation import model_path, refit_estimates, sensitivities_array
+from .estimation import RefitInputError, check_response, model_path, refit_estimates, sensitivities_array
 from .metrics import Metrics
 from .settings import Settings
 from .storage import Camera, Estimate, Frame, Job, as_utc, make_engine, make_session_factory, utcnow
@@ -80,7 +80,14 @@ def refit_camera(
     Returns
     -------
     dict
-        Frames estimated, skipped, method, timings (``seconds``, ``read_s``, ``fit_s``, ``write_s``).
+        Frames estimated, skipped, method, timings (``seconds``, ``read_s``, ``fit_s``, ``write_s``), the check of the
+        declared tone response (``response_check``, :func:`~.estimation.check_response`) and ``warnings`` (one
+        sentence each, shown with the camera and on the status page).
+
+    Raises
+    ------
+    RefitInputError
+        Too few usable frames.
     """
     t0 = time.perf_counter()
     report = progress or (lambda _p: None)
@@ -94,6 +101,7 @@ def refit_camera(
         ).all()
         region_ids = [r["id"] for r in cam.regions]
         css = sensitivities_array(cam.sensitivities)
+        encoding = (cam.response or {}).get("encoding", "linear")
     rows.reverse()
     frames = [(str(fid), as_utc(t).isoformat(), patches) for fid, t, patches in rows]
     times = {str(fid): t for fid, t, _ in rows}
@@ -103,6 +111,9 @@ def refit_camera(
         frames, region_ids, css, method=method, model_file=model_path(data_dir, camera_id),
         max_fit_frames=max_fit_frames,
     )
+    check = check_response(frames, region_ids, css, encoding)
+    summary["response_check"] = {k: v for k, v in check.items() if k != "warnings"}
+    summary["warnings"] = check["warnings"]
     t_fit = time.perf_counter()
     report(0.8)
     items = list(estimates.items())
@@ -171,7 +182,10 @@ class JobRunner:
                 progress=lambda p: self._set(job_id, progress=p),
             )
         except Exception as exc:  # noqa: BLE001 - a failed job is reported in its summary, never raised
-            log.exception("refit of camera %s failed", camera_id)
+            if isinstance(exc, RefitInputError):  # the user's history, not a fault: one line
+                log.warning("refit of camera %s failed: %s", camera_id, exc)
+            else:
+                log.exception("refit of camera %s failed", camera_id)
             self.metrics.inc("illumon_refit_total", labels='outcome="failed"')
             self._set(job_id, state="failed", summary={"error": str(exc)}, finished_at=utcnow())
             return

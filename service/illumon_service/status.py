@@ -14,7 +14,9 @@ function of an :class:`AlertContext` (the camera, its recent frames and its late
 * ``non_daylight`` — the latest estimate is more than 0.02 in Duv off the Planckian locus: not daylight (or a
   wrong camera set-up);
 * ``low_confidence`` — the latest estimate's confidence is below 0.5;
-* ``no_estimate`` — frames are stored but none is estimated yet (no refit has run).
+* ``no_estimate`` — frames are stored but none is estimated yet (no refit has run);
+* ``refit_warning`` — a warning of the latest refit, e.g. a stored history that still looks non-linear for the
+  camera's declared tone response (:func:`~.estimation.check_response`: every estimate is then off).
 
 A later diagnosis of the history (patch change, shadow, clipping, … from ``illumon.diagnosis``) is one more rule
 appended to :data:`ALERT_RULES` that turns stored diagnosis results into :class:`Alert` objects; nothing else in the
@@ -34,7 +36,7 @@ from sqlalchemy.orm import Session
 from .api.routes.estimates import estimate_out
 from .deps import Principal
 from .settings import Settings
-from .storage import Camera, Estimate, Frame, as_utc
+from .storage import Camera, Estimate, Frame, as_utc, refit_warnings
 
 __all__ = [
     "Alert",
@@ -84,6 +86,8 @@ class AlertContext:
     latest: Estimate | None
     settings: Settings
     frame_count: int
+    refit_warnings: list[str] = field(default_factory=list)
+    """Warnings of the camera's latest finished refit (:func:`~.storage.refit_warnings`)."""
 
 
 def _regions_missing(ctx: AlertContext) -> list[Alert]:
@@ -137,8 +141,12 @@ def _no_estimate(ctx: AlertContext) -> list[Alert]:
                   f"{ctx.frame_count} frames stored, none estimated: run a refit", severity="info")]
 
 
+def _refit_warning(ctx: AlertContext) -> list[Alert]:
+    return [Alert("refit_warning", "Check set-up", w) for w in ctx.refit_warnings]
+
+
 ALERT_RULES: list[Callable[[AlertContext], list[Alert]]] = [
-    _regions_missing, _clipping, _non_daylight, _low_confidence, _no_estimate,
+    _refit_warning, _regions_missing, _clipping, _non_daylight, _low_confidence, _no_estimate,
 ]
 """Rules producing a camera's alerts, in display order; append a rule to add a kind of alert."""
 
@@ -178,7 +186,7 @@ def camera_status(session: Session, cam: Camera, settings: Settings) -> CameraSt
     ).all())
     count = session.scalar(select(func.count()).select_from(Frame).where(Frame.camera_id == cam.id)) or 0
     latest = _latest_estimate(session, cam.id)
-    ctx = AlertContext(cam, frames, latest, settings, int(count))
+    ctx = AlertContext(cam, frames, latest, settings, int(count), refit_warnings(session, cam.id))
     alerts = [a for rule in ALERT_RULES for a in rule(ctx)]
     out = None
     if latest is not None:

@@ -118,3 +118,53 @@ def test_malformed_json_and_multipart(client):
     h = {**bearer(cam["token"]), "content-type": "multipart/form-data; boundary=xyz"}
     r = client.post(f"/v1/cameras/{cam['id']}/frames", content=b"garbage--xyz\r\nfoo", headers=h)
     assert r.status_code == 400 and r.json()["detail"]
+
+
+def test_list_cameras(client):
+    """Issue 19: there was no route listing cameras. The admin sees every camera, a camera token its own."""
+    assert client.get("/v1/cameras", headers=admin_headers()).json() == []
+    a = client.post("/v1/cameras", json=camera_body(_css(), grid_regions(), name="a"), headers=admin_headers()).json()
+    b = client.post("/v1/cameras", json=camera_body(_css(), grid_regions(), name="b"), headers=admin_headers()).json()
+    listed = client.get("/v1/cameras", headers=admin_headers()).json()
+    assert [(c["id"], c["name"]) for c in listed] == [(a["id"], "a"), (b["id"], "b")]
+    assert all("token" not in c and c["warnings"] == [] for c in listed)
+    assert listed[0] == client.get(f"/v1/cameras/{a['id']}", headers=admin_headers()).json()
+    assert [c["id"] for c in client.get("/v1/cameras", headers=bearer(b["token"])).json()] == [b["id"]]
+    assert client.get("/v1/cameras").status_code == 401
+
+
+def test_default_response_is_srgb(client):
+    """Issue 19: the default tone response was ``linear``, wrong for every ordinary (sRGB JPEG) camera."""
+    body = camera_body(_css(), grid_regions())
+    del body["response"]
+    cam = client.post("/v1/cameras", json=body, headers=admin_headers()).json()
+    got = client.get(f"/v1/cameras/{cam['id']}", headers=admin_headers()).json()
+    assert got["response"]["encoding"] == "srgb" and got["response"]["white_level"] is None
+
+
+def test_nonlinear_history_warns(tmp_path, scene, populated):
+    """Issue 19: frames sent sRGB-encoded by a camera declared ``linear`` gave wrong estimates silently. The refit's
+    check of the tone response now warns in the job, the camera's JSON and the status page; the same frames with the
+    right declaration (the ``populated`` camera, sRGB) raise no warning."""
+    from fastapi.testclient import TestClient
+    from illumon_service.app import create_app
+    from svc_helpers import make_settings, post_image, register
+
+    ok = populated.job["summary"]
+    assert ok["response_check"]["checked"] and ok["response_check"]["gamma"] is None
+    assert ok["warnings"] == []
+    assert populated.client.get(f"/v1/cameras/{populated.camera_id}", headers=admin_headers()).json()["warnings"] == []
+    with TestClient(create_app(make_settings(tmp_path))) as c:
+        cid, token = register(c, scene.css, scene.regions, encoding="linear")
+        for img, t in zip(scene.images, scene.times, strict=True):
+            assert post_image(c, cid, token, img, t).status_code == 201
+        job = c.get(f"/v1/jobs/{c.post(f'/v1/cameras/{cid}/refit', headers=bearer(token)).json()['job_id']}",
+                    headers=bearer(token)).json()
+        assert job["state"] == "done"
+        check = job["summary"]["response_check"]
+        assert check["tone_score"] < -15 and 1.8 < check["gamma"] < 3.0, check
+        (warning,) = job["summary"]["warnings"]
+        assert "'linear'" in warning and "'srgb'" in warning
+        assert c.get(f"/v1/cameras/{cid}", headers=bearer(token)).json()["warnings"] == [warning]
+        page = c.get(f"/cameras/{cid}", headers=bearer(token))
+        assert page.status_code == 200 and "Check set-up" in page.text

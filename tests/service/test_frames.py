@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 
+import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
@@ -39,9 +40,9 @@ def test_post_frame(client, cam):
 
 def test_jpeg_and_tiff_16bit(client, cam):
     cid, token = cam
-    img = np.full((SIZE[1], SIZE[0], 3), 120, np.uint8)
+    img = np.full((SIZE[1], SIZE[0], 3), (120, 100, 80), np.uint8)
     assert post_image(client, cid, token, encode_png(img, ".jpg"), content_type="image/jpeg").status_code == 201
-    img16 = np.full((SIZE[1], SIZE[0], 3), 30000, np.uint16)
+    img16 = np.full((SIZE[1], SIZE[0], 3), (30000, 25000, 20000), np.uint16)
     r = post_image(client, cid, token, encode_png(img16, ".tiff"), content_type="image/tiff")
     assert r.status_code == 201, r.text
     v = r.json()["regions"]["r0"]
@@ -160,3 +161,53 @@ def test_reduced_jpeg_decode_setting(tmp_path):
             assert r.status_code == 422 and "outside" in r.json()["detail"], r.text
     for key, value in values[1].items():
         np.testing.assert_allclose(values[8][key], value, rtol=0.01)  # ~0.3 %: codes averaged before linearising
+
+
+def _grey_upload(kind: str) -> tuple[bytes, str]:
+    """A grey frame: a single-channel PNG or JPEG, or a grey image saved as three identical channels."""
+    rng = np.random.default_rng(3)
+    grey = np.clip(100 + 20 * rng.standard_normal((SIZE[1], SIZE[0])), 0, 255).astype(np.uint8)
+    if kind == "rgb":
+        return encode_png(np.repeat(grey[:, :, None], 3, axis=2)), "image/png"
+    ok, buf = cv2.imencode(f".{kind}", grey)  # one channel
+    assert ok
+    return buf.tobytes(), f"image/{kind}"
+
+
+@pytest.mark.parametrize("kind", ["png", "jpeg", "rgb"])
+def test_grey_frame_refused(client, cam, kind):
+    """Issue 19: a grey image was stored with a confident estimate; it is refused (422, why), nothing stored."""
+    cid, token = cam
+    data, ctype = _grey_upload(kind)
+    r = post_image(client, cid, token, data, content_type=ctype)
+    assert r.status_code == 422, r.text
+    assert "grey" in r.json()["detail"] and "RGB" in r.json()["detail"]
+    assert client.get(f"/v1/cameras/{cid}/frames", headers=bearer(token)).json() == []
+    assert post_image(client, cid, token, _image(), None).status_code == 201  # a colour frame still goes in
+
+
+def test_observation_with_every_region_null_refused(client, cam):
+    """Issue 19: an observation with every region null was stored (201, a frame with no data)."""
+    cid, token = cam
+    body = {"taken_at": "2025-06-01T12:00:00Z", "patches": {"r0": None, "r1": None}}
+    r = client.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token))
+    assert r.status_code == 422
+    assert "every region is null" in r.json()["detail"]
+    assert client.get(f"/v1/cameras/{cid}/frames", headers=bearer(token)).json() == []
+    body["patches"]["r0"] = [0.1, 0.2, 0.3]
+    r = client.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token))
+    assert r.status_code == 201 and r.json()["usable_regions"] == 1
+    assert "only one region" in r.json()["warnings"][0]
+
+
+def test_frame_with_nothing_usable_says_so(client, cam):
+    """A frame whose every region is clipped is stored (it was taken) but the answer says nothing was usable."""
+    cid, token = cam
+    img = np.full((SIZE[1], SIZE[0], 3), (255, 250, 255), np.uint8)
+    r = post_image(client, cid, token, encode_png(img), None)
+    assert r.status_code == 201, r.text
+    out = r.json()
+    assert out["usable_regions"] == 0 and all(v is None for v in out["regions"].values())
+    assert "no region was usable" in out["warnings"][0]
+    good = post_image(client, cid, token, _image(), None).json()
+    assert good["usable_regions"] == len(grid_regions()) and good["warnings"] == []

@@ -51,3 +51,31 @@ def test_core_conventions():
     assert g["dng"]["AsShotNeutral"] == [0.5, 1.0, 0.8]
     with pytest.raises(ValueError):
         all_conventions([0.0, 1.0, 1.0], 5000.0)
+
+
+def test_v4l2_temperature_clamp_is_said(client):
+    """Issue 19: a 9806 K estimate answered white_balance_temperature 6500 with no word; the answer now says so."""
+    from datetime import datetime, timezone
+
+    from illumon_service.storage import Estimate, Frame
+    from svc_helpers import grid_regions, register
+
+    cid, token = register(client, np.ones((61, 3)), grid_regions())
+    t = datetime(2025, 6, 1, 12, tzinfo=timezone.utc)
+    with client.app.state.sessions() as s, s.begin():
+        for i, cct in enumerate((9806.0, 5000.0)):
+            f = Frame(camera_id=cid, taken_at=t.replace(hour=12 + i), patches={})
+            s.add(f)
+            s.flush()
+            s.add(Estimate(frame_id=f.id, camera_id=cid, taken_at=f.taken_at, cct_k=cct, duv=0.0, xy=[0.3, 0.3],
+                           white_rgb=[0.8, 1.0, 0.9], gains_rgb=[1.25, 1.0, 1 / 0.9], confidence=0.9, spectrum=[],
+                           intervals=None, source="test"))
+    hot = client.get(f"/v1/cameras/{cid}/wb-gains", params={"at": "2025-06-01T12:00:00Z"}, headers=bearer(token)).json()
+    v = hot["v4l2"]
+    assert v["white_balance_temperature"] == 6500 and v["temperature_clamped"] is True
+    assert v["temperature_range_k"] == [2800, 6500]
+    assert len(hot["notes"]) == 1 and "9806 K" in hot["notes"][0] and "2800–6500 K" in hot["notes"][0]
+    assert v["red_balance"] == 1250  # the gains themselves are not clamped
+    mild = client.get(f"/v1/cameras/{cid}/wb-gains", params={"at": "2025-06-01T13:00:00Z"}, headers=bearer(token)).json()
+    assert mild["v4l2"]["white_balance_temperature"] == 5000 and mild["v4l2"]["temperature_clamped"] is False
+    assert mild["notes"] == []

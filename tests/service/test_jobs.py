@@ -115,3 +115,17 @@ def test_admin_token_generated_once_under_races(tmp_path):
     assert len(tokens) == 1 and (tmp_path / "admin_token").read_text().strip() in tokens
     assert (tmp_path / "admin_token").stat().st_mode & 0o777 == 0o600
     assert not list(tmp_path.glob(".admin_token-*"))
+
+
+def test_refit_without_frames_logs_one_line(client, caplog):
+    """Issue 19: a refit of a camera without frames (an ordinary user error) printed a full traceback; one line now."""
+    cid, token = register(client, np.ones((61, 3)), grid_regions())
+    caplog.clear()
+    with caplog.at_level("INFO", logger="illumon_service"):
+        job_id = client.post(f"/v1/cameras/{cid}/refit", headers=bearer(token)).json()["job_id"]
+    job = client.get(f"/v1/jobs/{job_id}", headers=bearer(token)).json()
+    assert job["state"] == "failed" and "0 stored" in job["summary"]["error"]
+    mine = [r for r in caplog.records if r.name.startswith("illumon_service")]
+    assert len(mine) == 1, [r.getMessage() for r in mine]
+    assert mine[0].levelname == "WARNING" and mine[0].exc_info is None
+    assert f"refit of camera {cid} failed" in mine[0].getMessage() and "\n" not in mine[0].getMessage()

@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import pytest
 from fastapi.testclient import TestClient
 from illumon_service.app import create_app
-from illumon_service.charts import Series, nice_ticks, time_chart, time_ticks
+from illumon_service.charts import Series, gap_breaks, nice_ticks, time_chart, time_ticks
 from illumon_service.demo import demo_cameras
 from illumon_service.status import ALERT_RULES, AlertContext
 from svc_helpers import ADMIN, admin_headers, bearer, make_settings
@@ -203,3 +203,19 @@ def test_time_chart() -> None:
     assert "no estimates yet" in str(time_chart([], title="CCT"))
     ticks, label = time_ticks(t0.timestamp(), (t0 + timedelta(days=1)).timestamp())
     assert [label(t) for t in ticks] == ["06:00", "12:00", "18:00", "06-22", "06:00"]  # midnight shows the date
+
+
+def test_time_chart_breaks_at_gaps() -> None:
+    """Issue 19: a 17-month gap between frames was bridged by one line and band; lines and bands break at gaps much
+    longer than the usual spacing, and only there."""
+    t0 = datetime(2024, 1, 10, 8, tzinfo=timezone.utc)
+    first = [t0 + timedelta(minutes=20 * i) for i in range(6)]
+    later = [first[-1] + timedelta(days=520) + timedelta(minutes=20 * i) for i in range(6)]
+    ts = first + later
+    vals = [5000.0 + 10 * i for i in range(12)]
+    svg = str(time_chart([Series("CCT", ts, vals, [v - 100 for v in vals], [v + 100 for v in vals])], title="CCT"))
+    assert svg.count("<polyline") == 2 and svg.count("<polygon") == 2
+    assert gap_breaks(ts) == {6}
+    steady = [t0 + timedelta(minutes=20 * i + (7 if i % 3 == 0 else 0)) for i in range(12)]  # uneven, no gap
+    svg = str(time_chart([Series("CCT", steady, vals, [v - 100 for v in vals], [v + 100 for v in vals])], title="CCT"))
+    assert svg.count("<polyline") == 1 and svg.count("<polygon") == 1

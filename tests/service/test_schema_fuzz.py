@@ -31,7 +31,7 @@ def _app():
     with TestClient(app) as c:
         r = c.post("/v1/cameras", json=camera_body(css, grid_regions()), headers={"Authorization": f"Bearer {ADMIN}"})
         cam, token = r.json()["id"], r.json()["token"]
-        img = encode_png(np.full((240, 320, 3), 120, np.uint8))
+        img = encode_png(np.full((240, 320, 3), (120, 110, 100), np.uint8))
         for i in range(3):
             c.post(f"/v1/cameras/{cam}/frames", files={"image": ("f.png", img, "image/png")},
                    data={"taken_at": f"2025-06-01T1{i}:00:00Z"}, headers={"Authorization": f"Bearer {token}"})

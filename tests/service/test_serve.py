@@ -52,7 +52,7 @@ def test_serve_durable(tmp_path):
         body = {"name": "cam", "sensitivities": {"wavelength_nm": wl, "r": ones, "g": ones, "b": ones},
                 "regions": grid_regions(), "response": {"encoding": "srgb"}}
         cam = http.post(f"{base}/v1/cameras", json=body, headers=admin).json()
-        img = encode_png(np.full((240, 320, 3), 90, np.uint8))
+        img = encode_png(np.full((240, 320, 3), (90, 80, 70), np.uint8))
         r = http.post(f"{base}/v1/cameras/{cam['id']}/frames", files={"image": ("a.png", img, "image/png")},
                        data={"taken_at": "2025-06-01T10:00:00Z"}, headers={"Authorization": f"Bearer {cam['token']}"})
         assert r.status_code == 201, r.text

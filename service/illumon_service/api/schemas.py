@@ -27,7 +27,7 @@ IsoDateTime = Annotated[datetime, BeforeValidator(_iso_text)]
 
 __all__ = [
     "SensitivitiesIn", "RegionIn", "ResponseIn", "CameraIn", "RegionsIn", "ObservationIn", "ErrorOut", "ERROR_RESPONSES",
-    "FRAME_UPLOAD",
+    "FRAME_UPLOAD", "MAX_LIST",
 ]
 
 Finite = Annotated[float, Field(allow_inf_nan=False)]
@@ -57,6 +57,9 @@ class SensitivitiesIn(_Strict):
         return self
 
 
+MAX_LIST = 100_000
+"""Largest ``limit`` of a list route (``/frames``, ``/estimates``); outside 1…MAX_LIST answers 422."""
+
 MAX_SIDE = 1_000_000
 """Largest region coordinate or side in pixels (beyond any image the service accepts)."""
 
@@ -79,9 +82,14 @@ def _unique(regions: list[RegionIn]) -> list[RegionIn]:
 
 
 class ResponseIn(_Strict):
-    """Tone response; levels in the image's units (white level defaults to the image's full scale)."""
+    """Tone response; levels in the image's units (white level defaults to the image's full scale).
 
-    encoding: Literal["linear", "srgb", "gamma"] = "linear"
+    The default is what an ordinary camera's JPEG or PNG holds: sRGB-encoded values over the image's full scale
+    (8-bit: 0…255). Declare ``linear`` for raw or linear (e.g. 16-bit scientific) output; a refit warns when the
+    stored history still looks non-linear for the declared encoding.
+    """
+
+    encoding: Literal["linear", "srgb", "gamma"] = "srgb"
     gamma: float = Field(default=2.2, gt=0, allow_inf_nan=False)
     black_level: float = Field(default=0.0, ge=0, allow_inf_nan=False)
     white_level: float | None = Field(default=None, gt=0, allow_inf_nan=False)
@@ -117,6 +125,7 @@ class ObservationIn(_Strict):
 
     taken_at: IsoDateTime | None = None
     patches: dict[str, Annotated[list[NonNegative], Field(min_length=3, max_length=3)] | None] = Field(min_length=1)
+    """Region id → ``[r, g, b]``, or ``null`` where the region is not usable; at least one must have a value."""
     white_level: float = Field(default=1.0, gt=0, allow_inf_nan=False)
 
 
@@ -148,7 +157,8 @@ FRAME_UPLOAD: dict[str, Any] = {
                     "required": ["image"],
                     "properties": {
                         "image": {"type": "string", "format": "binary",
-                                  "description": "PNG, JPEG or TIFF, 8- or 16-bit, RGB or grey"},
+                                  "description": "PNG, JPEG or TIFF, 8- or 16-bit, RGB (a grey, "
+                                                 "single-channel image answers 422)"},
                         "taken_at": {"type": "string", "format": "date-time",
                                      "description": "ISO 8601; naive means UTC; now when absent"},
                     },

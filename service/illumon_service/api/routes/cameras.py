@@ -5,23 +5,32 @@ from __future__ import annotations
 import numpy as np
 from fastapi import APIRouter, HTTPException, status
 from illumon.spectra import SpectralInputError, sensitivities_from_arrays
+from sqlalchemy.orm import Session
 
 from ...deps import AdminDep, PrincipalDep, SessionDep, camera_for
-from ...storage import Camera, as_utc, hash_token, new_token
+from ...status import visible_cameras
+from ...storage import Camera, as_utc, hash_token, new_token, refit_warnings
 from ..schemas import ERROR_RESPONSES, CameraIn, RegionsIn
 
 router = APIRouter(prefix="/v1/cameras", tags=["cameras"], responses=ERROR_RESPONSES)
 
 
-def camera_out(cam: Camera) -> dict:
-    """Public view of a camera (never its token)."""
+def camera_out(cam: Camera, session: Session) -> dict:
+    """Public view of a camera (never its token), with the warnings of its latest refit."""
     return {
         "id": cam.id,
         "name": cam.name,
         "regions": cam.regions,
         "response": cam.response,
         "created_at": as_utc(cam.created_at).isoformat(),
+        "warnings": refit_warnings(session, cam.id),
     }
+
+
+@router.get("")
+def list_cameras(session: SessionDep, principal: PrincipalDep) -> list[dict]:
+    """The cameras the caller may see (every camera for the admin, its own for a camera token), by id."""
+    return [camera_out(cam, session) for cam in visible_cameras(session, principal)]
 
 
 @router.post("", status_code=status.HTTP_201_CREATED)
@@ -50,7 +59,7 @@ def register_camera(body: CameraIn, session: SessionDep, _admin: AdminDep) -> di
 @router.get("/{camera_id}")
 def get_camera(camera_id: int, session: SessionDep, principal: PrincipalDep) -> dict:
     """A camera's configuration."""
-    return camera_out(camera_for(session, principal, camera_id))
+    return camera_out(camera_for(session, principal, camera_id), session)
 
 
 @router.put("/{camera_id}/regions")
@@ -59,4 +68,4 @@ def put_regions(camera_id: int, body: RegionsIn, session: SessionDep, principal:
     cam = camera_for(session, principal, camera_id)
     cam.regions = [r.model_dump() for r in body.regions]
     session.commit()
-    return camera_out(cam)
+    return camera_out(cam, session)

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 from datetime import datetime, timezone
 
-from fastapi import APIRouter, HTTPException
+from fastapi import APIRouter, HTTPException, Query
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import GRID_WAVELENGTHS
 from ...storage import Estimate, as_utc
-from ..schemas import ERROR_RESPONSES, IsoDateTime
+from ..schemas import ERROR_RESPONSES, MAX_LIST, IsoDateTime
 
 router = APIRouter(prefix="/v1/cameras", tags=["estimates"], responses=ERROR_RESPONSES)
 
@@ -55,7 +55,8 @@ def nearest_estimate(session: Session, camera_id: int, at: datetime | None) -> E
 
 @router.get("/{camera_id}/estimates")
 def list_estimates(camera_id: int, session: SessionDep, principal: PrincipalDep,
-                   since: IsoDateTime | None = None, until: IsoDateTime | None = None, limit: int = 10000) -> list[dict]:
+                   since: IsoDateTime | None = None, until: IsoDateTime | None = None,
+                   limit: int = Query(10000, ge=1, le=MAX_LIST, description=f"1…{MAX_LIST} estimates")) -> list[dict]:
     """Estimates in ``since`` ≤ taken_at ≤ ``until``, oldest first."""
     camera_for(session, principal, camera_id)
     q = select(Estimate).where(Estimate.camera_id == camera_id)
@@ -63,7 +64,7 @@ def list_estimates(camera_id: int, session: SessionDep, principal: PrincipalDep,
         q = q.where(Estimate.taken_at >= _utc(since))
     if until is not None:
         q = q.where(Estimate.taken_at <= _utc(until))
-    rows = session.scalars(q.order_by(Estimate.taken_at, Estimate.frame_id).limit(max(1, min(limit, 100000)))).all()
+    rows = session.scalars(q.order_by(Estimate.taken_at, Estimate.frame_id).limit(limit)).all()
     return [estimate_out(e) for e in rows]
 
 

@@ -6,7 +6,7 @@ import time
 from datetime import datetime, timezone
 from pathlib import Path
 
-from fastapi import APIRouter, HTTPException, Request, status
+from fastapi import APIRouter, HTTPException, Query, Request, status
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
@@ -15,7 +15,7 @@ from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import estimate_frame
 from ...regions import ImageError, Region, RegionError, decode_frame, region_means, response_for, sniff_format
 from ...storage import Camera, Estimate, Frame, as_utc
-from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, IsoDateTime, ObservationIn
+from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, IsoDateTime, ObservationIn
 from .estimates import estimate_out
 
 router = APIRouter(prefix="/v1/cameras", tags=["frames"], responses=ERROR_RESPONSES)
@@ -115,6 +115,13 @@ def _store(
     """
     settings = request.app.state.settings
     metrics = request.app.state.metrics
+    usable = sum(v is not None for v in patches.values())
+    warnings = []
+    if usable == 0:
+        warnings.append("no region was usable in this frame (each mostly clipped, occluded or dark): it is stored but "
+                        "adds nothing to the estimates")
+    elif usable < 2:
+        warnings.append("only one region was usable: a frame needs two to be estimated")
     t0 = time.perf_counter()
     est = estimate_frame(settings.data_dir, cam.id, "new", taken_at.isoformat(), patches,
                          [r["id"] for r in cam.regions])
@@ -145,7 +152,9 @@ def _store(
             "frame_id": frame.id,
             "taken_at": as_utc(frame.taken_at).isoformat(),
             "regions": patches,
+            "usable_regions": usable,
             "estimate": estimate_out(row) if row is not None else None,
+            "warnings": warnings,
         }
 
     out = request.app.state.commits.submit(write)
@@ -207,12 +216,16 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
 @router.post("/{camera_id}/observations", status_code=status.HTTP_201_CREATED)
 def post_observations(camera_id: int, body: ObservationIn, request: Request, session: SessionDep,
                       principal: PrincipalDep) -> dict:
-    """Ingest region means measured by the client (linear values; ``null`` for a missing region)."""
+    """Ingest region means measured by the client (linear values; ``null`` for a missing region; 422 when every
+    region is ``null``)."""
     cam = camera_for(session, principal, camera_id)
     known = {r["id"] for r in cam.regions}
     unknown = sorted(set(body.patches) - known)
     if unknown:
         raise HTTPException(422, f"unknown region id(s) {', '.join(map(repr, unknown))}; known: {sorted(known)}")
+    if all(v is None for v in body.patches.values()):
+        raise HTTPException(422, "every region is null: the observation holds no value to store; send at least one "
+                                 "region's [r, g, b]")
     patches = {k: (None if v is None else [x / body.white_level for x in v]) for k, v in body.patches.items()}
     taken_at = parse_time(body.taken_at.isoformat() if body.taken_at else None)
     return _store(request, session, cam, taken_at, patches, None)
@@ -220,7 +233,8 @@ def post_observations(camera_id: int, body: ObservationIn, request: Request, ses
 
 @router.get("/{camera_id}/frames")
 def list_frames(camera_id: int, session: SessionDep, principal: PrincipalDep, since: IsoDateTime | None = None,
-                until: IsoDateTime | None = None, limit: int = 1000) -> list[dict]:
+                until: IsoDateTime | None = None,
+                limit: int = Query(1000, ge=1, le=MAX_LIST, description=f"1…{MAX_LIST} frames")) -> list[dict]:
     """Stored frames (region means, linear 0…1) in ``since`` ≤ taken_at ≤ ``until``, oldest first."""
     camera_for(session, principal, camera_id)
     q = select(Frame).where(Frame.camera_id == camera_id)
@@ -228,6 +242,6 @@ def list_frames(camera_id: int, session: SessionDep, principal: PrincipalDep, si
         q = q.where(Frame.taken_at >= parse_time(since.isoformat()))
     if until is not None:
         q = q.where(Frame.taken_at <= parse_time(until.isoformat()))
-    rows = session.scalars(q.order_by(Frame.taken_at, Frame.id).limit(max(1, min(limit, 100000)))).all()
+    rows = session.scalars(q.order_by(Frame.taken_at, Frame.id).limit(limit)).all()
     return [{"frame_id": f.id, "taken_at": as_utc(f.taken_at).isoformat(), "regions": f.patches,
              "width": f.width, "height": f.height} for f in rows]

@@ -31,6 +31,7 @@ import json
 import math
 import time
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,7 +40,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._blas import single_blas_thread
-from .camera import gains_from_white
+from .camera.calibration import calibrate_scene_model
+from .camera.formation import gains_from_white
+from .camera.references import check_known_reflectances
 from .daylight import MIRED_RANGE, CIEDaylight, _planck, cie_d_weights, daylight_locus_duv, xy_from_cct_duv
 from .observations import Observations
 from .reflectance import ReflectanceBasis, reflectance_basis
@@ -338,6 +341,10 @@ class SceneModel:
         Data it was fitted on: frame count, frames used for the reflectance fit, time span, illuminant spread.
     identifiability
         Spread of the history's reciprocal temperatures, condition of the joint problem, ``determined`` and warnings.
+    camera
+        How the camera was calibrated (:class:`illumon.camera.calibration.CameraCalibration`): ``"measured"``,
+        ``"grey"``, ``"chart"`` or ``"none"``, the transform ``T`` of the effective sensitivities
+        ``sensitivities = C0 T`` and its uncertainty.
     version
         Format version (:data:`MODEL_VERSION`).
     history_estimate
@@ -356,6 +363,7 @@ class SceneModel:
     training: dict = field(default_factory=dict)
     identifiability: dict = field(default_factory=dict)
     version: int = MODEL_VERSION
+    camera: dict = field(default_factory=lambda: {"calibration": "measured"})
     history_estimate: tuple[RetrievalResult, dict] | None = field(default=None, repr=False, compare=False)
 
     # -- serialisation --
@@ -369,6 +377,7 @@ class SceneModel:
             "noise": self.noise,
             "training": self.training,
             "identifiability": self.identifiability,
+            "camera": self.camera,
             "patches": list(self.patches),
             "reflectance_coefficients": {p: self.coefficients[i].tolist() for i, p in enumerate(self.patches)},
             "reflectance_covariance": {p: self.covariance[i].tolist() for i, p in enumerate(self.patches)},
@@ -398,6 +407,7 @@ class SceneModel:
                 patches=patches, coefficients=coef, covariance=cov, sensitivities=css, grid=grid,  # type: ignore[arg-type]
                 basis=basis, daylight=dict(d["daylight"]), noise=dict(d["noise"]), training=dict(d.get("training", {})),
                 identifiability=dict(d.get("identifiability", {})), version=int(d["version"]),
+                camera=dict(d.get("camera", {"calibration": "measured"})),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{source}: malformed scene model ({exc})") from None
@@ -517,12 +527,12 @@ def _assemble(
     wh = [a @ solver.w for a in (a0, a1, a2)]
     gains = [gains_from_white(w) for w in wh]
     jg = np.stack([(gains[1] - gains[0]) / h[0], (gains[2] - gains[0]) / h[1]], axis=-1)  # F × 3 × 2
-    sg = np.sqrt(
-        np.clip(np.einsum("fci,fij,fcj->fc", jg, cov[:, :2, :2], jg), 0, None) + (gains[0] * me["log_gain"]) ** 2
-    )
+    # the camera model's own uncertainty (an unmeasured camera's sensitivities; a reference pins most of it)
+    log_gain = math.hypot(me["log_gain"], me.get("camera_log_gain", 0.0))
+    sg = np.sqrt(np.clip(np.einsum("fci,fij,fcj->fc", jg, cov[:, :2, :2], jg), 0, None) + (gains[0] * log_gain) ** 2)
     unit = [w / np.linalg.norm(w, axis=1, keepdims=True) for w in wh]
     ju = np.stack([(unit[1] - unit[0]) / h[0], (unit[2] - unit[0]) / h[1]], axis=-1)
-    tr = np.einsum("fci,fij,fcj->f", ju, cov[:, :2, :2], ju) + 2 * me["log_gain"] ** 2  # angular variance (rad²)
+    tr = np.einsum("fci,fij,fcj->f", ju, cov[:, :2, :2], ju) + 2 * log_gain**2  # angular variance (rad²)
     rho = math.radians(1.0)
     confidence = 1.0 - np.exp(-(rho**2) / np.clip(tr, 1e-30, None))  # Rayleigh with σ² = tr/2
     nan = np.full(len(mired), np.nan)
@@ -577,11 +587,11 @@ def _reflectance_posterior(
     return np.linalg.solve(prec, rhs[..., None])[..., 0], prec
 
 
-@single_blas_thread
 def fit_scene_model(
     obs: Observations,
-    sensitivities: NDArray[np.float64],
+    sensitivities: NDArray[np.float64] | None,
     *,
+    known_reflectances: Mapping[str, NDArray[np.float64]] | None = None,
     daylight: CIEDaylight | None = None,
     relative_error: float = 0.02,
     absolute_error: float = 0.002,
@@ -594,9 +604,15 @@ def fit_scene_model(
     Parameters
     ----------
     obs
-        Observations of static patches (at least two frames, each patch seen in at least one frame).
+        Observations of static patches (at least two frames, each patch seen in at least one frame), linear, in the
+        camera's output space.
     sensitivities
-        Camera sensitivities on the grid (61 × 3).
+        Measured camera sensitivities on the grid (61 × 3), or ``None`` for a camera nobody measured: then the prior
+        from the measured cameras is used and refined from the data (:mod:`illumon.camera.calibration`).
+    known_reflectances
+        References of known reflectance (patch id → spectrum on the grid, 0…1) that appear in some frames of ``obs``,
+        typically one: a grey card pins each channel's scale, a chart also a 3 × 3 colour matrix. Their patches are
+        not part of the learned scene.
     daylight
         CIE daylight model with its prior; the default :class:`~illumon.daylight.CIEDaylight`.
     relative_error, absolute_error
@@ -609,7 +625,35 @@ def fit_scene_model(
     Returns
     -------
     SceneModel
+        Its ``camera`` says how the camera was calibrated; estimates and gains are in the observations' RGB space.
     """
+    kwargs = dict(daylight=daylight, relative_error=relative_error, absolute_error=absolute_error,
+                  max_fit_frames=max_fit_frames, iterations=iterations, tol=tol)
+    known = check_known_reflectances(known_reflectances, "known reflectances") if known_reflectances else {}
+    missing = [p for p in known if p not in obs.patches]
+    if missing:
+        raise ValueError(f"known patch(es) never observed: {', '.join(missing)}")
+    if sensitivities is None or known:
+        return calibrate_scene_model(obs, sensitivities, known, lambda o, c: _fit_fixed_camera(o, c, **kwargs))
+    model, _ = _fit_fixed_camera(obs, np.asarray(sensitivities, dtype=float), **kwargs)
+    model.camera = {"calibration": "measured"}
+    return model
+
+
+@single_blas_thread
+def _fit_fixed_camera(
+    obs: Observations,
+    sensitivities: NDArray[np.float64],
+    *,
+    daylight: CIEDaylight | None = None,
+    relative_error: float = 0.02,
+    absolute_error: float = 0.002,
+    max_fit_frames: int = 300,
+    iterations: int = 40,
+    tol: float = 0.01,
+) -> tuple[SceneModel, NDArray[np.float64]]:
+    """:func:`fit_scene_model` for given (effective) sensitivities. Returns the model and every frame's
+    ``(mired, δ, log k)`` (F × 3) from the learned reflectances."""
     from .retrieval.joint import _gray_world_mired
 
     t0 = time.perf_counter()
@@ -762,8 +806,8 @@ def fit_scene_model(
         y, present, css, dm, rb, theta, coef, base_w2 / noise_scale**2, mired_all[ok]
     )
     for msg in model.identifiability["warnings"]:
-        warnings.warn(msg, IdentifiabilityWarning, stacklevel=2)
-    return model
+        warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
+    return model, res.info["theta"]
 
 
 def identifiability(

@@ -65,6 +65,14 @@ class Observations:
         )
 
 
+    def select_patches(self, patches: list[str]) -> Observations:
+        """The same frames with only ``patches`` (in that order)."""
+        cols = [self.patches.index(p) for p in patches]
+        return Observations(
+            frames=list(self.frames), patches=list(patches), values=self.values[:, cols], times=list(self.times)
+        )
+
+
 def _parse_time(value: str, where: str) -> str:
     if not value:
         return ""

@@ -1,0 +1,294 @@
+"""Cameras nobody measured: a prior from the measured cameras, refined by references of known reflectance.
+
+The camera's output channels are modelled as ``C_eff = C0 T``: ``C0`` are sensitivities known up to a 3 × 3 transform —
+the mean of the measured cameras for a camera nobody measured (:func:`prior_sensitivities`), or measured raw
+sensitivities — and ``T`` absorbs the rest: how this camera's channels differ from the mean ones and any fixed colour
+matrix the camera applies (a matrix ``M`` turns ``C`` into ``C Mᵀ``). Everything illumon estimates is then in the
+space of the observations themselves, the space the camera's own white-balance gains act in.
+
+``T`` is estimated jointly with the scene by block coordinate descent on the joint posterior (Y. Kinoshita & H. Kiya,
+"Bayesian spectral estimation": the sensitivity given illuminants and reflectances is linear with a Gaussian posterior,
+their eqs. 15–16, here in the 3-dimensional basis spanned by ``C0``'s columns, :func:`illumon.bayes.gaussian_posterior`):
+
+1. fit the scene (every frame's daylight and exposure, every patch's reflectance) with the current ``C0 T``, references
+   entering with their exact spectra;
+2. given the frames' daylight, the references' camera values are linear in ``T``: each output channel's row of ``T``
+   has a Gaussian posterior; a frame's unknown exposure is eliminated by alternation;
+3. repeat until the camera white moves by less than 0.01°.
+
+What a reference pins: a grey card (flat) only each channel's scale (``T`` diagonal); a chart with chromatic patches
+the whole 3 × 3 ``T``. Without references ``T`` stays at its prior mean (the identity) and the estimate carries the
+spread of the measured cameras as an extra, honest uncertainty (:data:`CAMERA_WHITE_SD`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..bayes import GaussianPrior, gaussian_posterior
+from ..daylight import CIEDaylight
+from ..observations import Observations
+from .formation import angular_error_deg
+from .references import references_kind
+
+__all__ = [
+    "CAMERA_WHITE_SD",
+    "CameraCalibration",
+    "prior_sensitivities",
+    "camera_transform_Kinoshita2023",
+    "calibrate_scene_model",
+]
+
+CAMERA_WHITE_SD = {"measured": 0.0, "grey": 0.005, "chart": 0.015, "none": 0.11}
+"""Standard deviation (log units per chromatic channel, r/g and b/g) of the camera white that the camera model itself
+leaves uncertain, added to every estimate's intervals and confidence. ``none``: the spread of the measured cameras'
+daylight whites around the mean camera's (see :func:`prior_white_spread`); ``grey`` and ``chart``: what a reference
+leaves, measured on development cameras (``python benchmarks/unmeasured.py``)."""
+
+
+@lru_cache(maxsize=1)
+def prior_sensitivities() -> NDArray[np.float64]:
+    """Mean of the measured cameras' max-normalised sensitivities (61 × 3): the camera nobody measured, a priori."""
+    from ..sensitivity.prior import default_camera_prior
+
+    return default_camera_prior().mean.copy()
+
+
+@dataclass
+class CameraCalibration:
+    """What was learned about the camera: ``C_eff = base @ transform``.
+
+    Attributes
+    ----------
+    kind
+        ``"measured"``, ``"grey"``, ``"chart"`` or ``"none"`` (prior only).
+    transform
+        ``T`` (3 × 3).
+    transform_sd
+        Posterior standard deviation of ``T``'s entries (3 × 3; 0 where fixed).
+    iterations
+        Outer iterations used.
+    white_change_deg
+        Last change of the D65 camera white between iterations.
+    """
+
+    kind: str
+    transform: NDArray[np.float64]
+    transform_sd: NDArray[np.float64]
+    iterations: int
+    white_change_deg: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready summary (stored in the scene model's ``camera``)."""
+        return {
+            "calibration": self.kind,
+            "transform": self.transform.tolist(),
+            "transform_sd": self.transform_sd.tolist(),
+            "iterations": self.iterations,
+            "white_change_deg": self.white_change_deg,
+            "white_sd_log": CAMERA_WHITE_SD[self.kind],
+        }
+
+
+def _d65_white(c: NDArray[np.float64]) -> NDArray[np.float64]:
+    e = CIEDaylight().spectra(np.array([[1e6 / 6504.0, 0.0]]))[0]
+    return e @ c
+
+
+def camera_transform_Kinoshita2023(
+    base: NDArray[np.float64],
+    spectra: NDArray[np.float64],
+    illuminants: NDArray[np.float64],
+    values: NDArray[np.float64],
+    *,
+    diagonal: bool,
+    relative_error: float = 0.02,
+    prior_sd: float = 1.0,
+    iterations: int = 20,
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Gaussian posterior of the transform ``T`` in ``C_eff = base @ T`` from references of known reflectance.
+
+    Kinoshita & Kiya's sensitivity posterior (eqs. 15–16) with each output channel's sensitivity in the basis of
+    ``base``'s three columns: given the illuminant of every frame, ``values[f, p, c] = s_f · Σ_j T[j, c] u[f, p, j]``
+    with ``u[f, p] = baseᵀ (E_f ⊙ R_p)``; the frames' exposures ``s_f`` are eliminated by alternation.
+
+    Parameters
+    ----------
+    base
+        Sensitivities known up to ``T`` (61 × 3).
+    spectra
+        Reference reflectances (P × 61).
+    illuminants
+        Illuminant spectra of the frames that show references (F × 61), any scale.
+    values
+        Their linear camera values (F × P × 3), NaN where a reference is not seen.
+    diagonal
+        Estimate only each channel's scale (grey cards) instead of the full 3 × 3.
+    relative_error
+        Relative noise of a reference's value (weights).
+    prior_sd
+        Prior standard deviation of ``T``'s entries around the identity (in units of the identity's entries).
+    iterations
+        Alternations between ``T`` and the exposures.
+
+    Returns
+    -------
+    transform, transform_sd
+        Posterior mean (3 × 3), normalised so the D65 white keeps its green, and standard deviations of its entries.
+    """
+    u = np.einsum("fl,pl,lj->fpj", illuminants, spectra, base)  # F × P × 3
+    ok = np.all(np.isfinite(values), axis=-1) & (values.max(axis=-1) > 0)
+    if not ok.any():
+        raise ValueError("no reference patch has a usable value")
+    s = np.array([
+        np.sum(values[f, ok[f], 1]) / max(np.sum(u[f, ok[f], 1]), 1e-300) if ok[f].any() else 1.0
+        for f in range(u.shape[0])
+    ])
+    t = np.eye(3)
+    sd = np.zeros((3, 3))
+    for _ in range(iterations):
+        t_new = np.zeros((3, 3))
+        for c in range(3):
+            d = (s[:, None, None] * u)[ok]  # n × 3
+            x = values[..., c][ok]
+            w = 1.0 / (relative_error * np.maximum(np.abs(x), 1e-3 * np.abs(x).max()))
+            dw, xw = d * w[:, None], x * w
+            if diagonal:
+                prior = GaussianPrior(np.array([1.0]) * t[c, c], np.array([[1.0 / prior_sd**2]]))
+                post = gaussian_posterior(dw[:, [c]], xw, prior, 1.0)
+                t_new[c, c] = post.mean[0]
+                sd[c, c] = math.sqrt(post.covariance[0, 0])
+            else:
+                prior = GaussianPrior(np.eye(3)[:, c] * t[c, c], np.eye(3) / prior_sd**2)
+                post = gaussian_posterior(dw, xw, prior, 1.0)
+                t_new[:, c] = post.mean
+                sd[:, c] = np.sqrt(np.diag(post.covariance))
+        t = t_new
+        pred = np.einsum("fpj,jc->fpc", u, t)
+        s = np.array([
+            np.sum(pred[f, ok[f]] * values[f, ok[f]]) / max(np.sum(pred[f, ok[f]] ** 2), 1e-300) if ok[f].any() else 1.0
+            for f in range(u.shape[0])
+        ])
+    norm = _d65_white(base)[1] / _d65_white(base @ t)[1]
+    return t * norm, sd * abs(norm)
+
+
+def _log_chroma(white: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.log(np.clip(white[..., [0, 2]], 1e-12, None) / np.clip(white[..., 1:2], 1e-12, None))
+
+
+@lru_cache(maxsize=1)
+def prior_white_spread() -> float:
+    """Standard deviation (log r/g and b/g, pooled) of the measured cameras' D65 whites around the mean camera's,
+    from the shipped camera prior's principal components (each camera max-normalised)."""
+    from ..sensitivity.prior import default_camera_prior
+
+    prior = default_camera_prior()
+    w0 = _d65_white(prior.mean)
+    jac = []
+    for j in range(prior.size):
+        d = prior.components[:, j].reshape(3, -1).T
+        jac.append((_log_chroma(_d65_white(prior.mean + 1e-3 * d)) - _log_chroma(w0)) / 1e-3)
+    cov = np.einsum("ji,j,jk->ik", np.array(jac), prior.variances, np.array(jac))
+    return float(np.sqrt(np.trace(cov) / 2))
+
+
+SCENE_AVERAGE_SD = 0.08
+"""Standard deviation (log r/g, b/g) of a real scene's average colour around the mean of measured surfaces: 0.03 (r/g)
+and 0.10 (b/g) for ten patches drawn from the unseen reflectances (ColorChecker, TCS, VS) under Granada daylight
+with six development cameras."""
+
+
+def _scene_average_transform(scene: Observations, base: NDArray[np.float64], model, theta) -> NDArray[np.float64]:
+    """Channel scales for a camera with no reference: the Gaussian posterior combining the camera prior (the mean
+    camera, spread :func:`prior_white_spread`) with the scene's average colour, expected to be that of the mean
+    measured reflectance under each frame's estimated daylight (gray-world made Bayesian; Buchsbaum 1980)."""
+    rb = model.reflectance_basis()
+    mean_reflectance = np.clip(rb.functions @ rb.prior_mean, 0.0, 1.0)
+    v = np.asarray(scene.values, dtype=float)
+    ok = np.all(np.isfinite(v), axis=-1).sum(axis=1) >= 2
+    if not ok.any():
+        return np.eye(3)
+    observed = _log_chroma(np.nanmean(np.where(np.isfinite(v[ok]), v[ok], np.nan), axis=1))
+    expected = _log_chroma(model.daylight_model().spectra(theta[ok, :2]) * mean_reflectance @ base)
+    shift = np.mean(observed - expected, axis=0)
+    s_cam = prior_white_spread()
+    gain = s_cam**2 / (s_cam**2 + SCENE_AVERAGE_SD**2)
+    log_t = gain * shift
+    return np.diag([math.exp(log_t[0]), 1.0, math.exp(log_t[1])])
+
+
+def calibrate_scene_model(
+    obs: Observations,
+    sensitivities: NDArray[np.float64] | None,
+    known: Mapping[str, NDArray[np.float64]],
+    fit: Callable[[Observations, NDArray[np.float64]], tuple],
+    *,
+    max_iterations: int = 6,
+    tol_deg: float = 0.02,
+):
+    """Fit a scene model for a camera known only up to ``T`` (see module docstring).
+
+    Parameters
+    ----------
+    obs
+        The history, references included (linear, the camera's output space).
+    sensitivities
+        Measured (raw) sensitivities, or ``None`` for the prior of the measured cameras.
+    known
+        References: patch id → reflectance (61,). Empty for none.
+    fit
+        ``fit(obs, effective_sensitivities) → (SceneModel, theta)`` with ``theta`` every frame's ``(mired, δ, log k)``
+        (:func:`illumon.model.fit_scene_model`'s fixed-camera fit).
+    max_iterations, tol_deg
+        Outer iterations and the convergence tolerance on the D65 camera white (degrees).
+
+    Returns
+    -------
+    SceneModel
+        With ``camera`` set from :meth:`CameraCalibration.to_dict`.
+    """
+    base = prior_sensitivities() if sensitivities is None else np.asarray(sensitivities, dtype=float)
+    kind = references_kind(known) if known else ("measured" if sensitivities is not None else "none")
+    t = np.eye(3)
+    sd = np.zeros((3, 3))
+    ids = [p for p in obs.patches if p in known]
+    scene = obs.select_patches([p for p in obs.patches if p not in known]) if ids else obs
+    model, theta = fit(scene, base)
+    change, it = 0.0, 0
+    if ids:
+        values = np.asarray(obs.values, dtype=float)[:, [obs.patches.index(p) for p in ids]]
+        seen = np.all(np.isfinite(values), axis=-1).any(axis=1)
+        frames = np.flatnonzero(seen & (np.all(np.isfinite(scene.values), axis=-1).sum(axis=1) >= 2))
+        if not frames.size:
+            raise ValueError(
+                "reference patches must appear in a frame that also shows at least two scene patches "
+                "(their daylight is estimated from the scene)"
+            )
+        spectra = np.stack([known[p] for p in ids])
+        dm = model.daylight_model()
+        for it in range(1, max_iterations + 1):  # noqa: B007
+            # The references are left out of the scene fit: a reference seen in one frame cannot tell a shift
+            # common to every frame's daylight from a change of T, so the frames' daylight comes from the scene
+            # (as without references) and T absorbs the rest, pinning the camera white of the reference frames.
+            t_new, sd = camera_transform_Kinoshita2023(
+                base, spectra, dm.spectra(theta[frames, :2]), values[frames], diagonal=(kind == "grey"),
+            )
+            change = float(angular_error_deg(_d65_white(base @ t), _d65_white(base @ t_new)))
+            t = t_new
+            model, theta = fit(scene, base @ t)
+            if change < tol_deg:
+                break
+    if kind == "none":
+        t = _scene_average_transform(scene, base, model, theta)
+        model, theta = fit(scene, base @ t)
+        it = 1
+    model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()
+    model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=CAMERA_WHITE_SD[kind])
+    return model

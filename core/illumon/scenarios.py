@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import datasets
-from .daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum
+from .daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum, theta_curve
 from .reflectance import colourchecker_reflectances, unseen_reflectances
 from .simulate import DEFAULT_NOISE, CameraNoise, SimulatedHistory, simulate_history
 
@@ -45,10 +45,26 @@ def paper_cct(temps_hundreds: tuple[int, ...]) -> np.ndarray:
 
 
 def paper_protocol(
-    camera: str, temps_hundreds: tuple[int, ...], patches: tuple[int, ...], *, noise: CameraNoise | None, seed: int = 0
+    camera: str,
+    temps_hundreds: tuple[int, ...],
+    patches: tuple[int, ...],
+    *,
+    noise: CameraNoise | None,
+    seed: int = 0,
+    illuminant_scale: str = "cie",
 ) -> SimulatedHistory:
-    """One case of the paper's protocol: CIE D illuminants (:func:`paper_cct`) on a ColorChecker."""
+    """One case of the paper's protocol: CIE D illuminants (:func:`paper_cct`) on a ColorChecker.
+
+    ``illuminant_scale`` sets each illuminant's brightness, which matters only without noise (the noise model's
+    auto-exposure rescales every frame): ``"cie"`` is the CIE normalisation (100 at 560 nm); ``"model"`` is the one
+    Marguier & Süsstrunk's model assumes, ``ε1 = 1`` on the θ-curve basis (:func:`illumon.daylight.theta_curve`,
+    built from unit-norm D40…D100), so that eq. (3) compares absolute responses at the scale they were rendered.
+    """
     e = daylight_spectrum(daylight_locus_xy(paper_cct(temps_hundreds)))
+    if illuminant_scale == "model":
+        e = e / np.linalg.lstsq(theta_curve().basis, e.T, rcond=None)[0][0][:, None]
+    elif illuminant_scale != "cie":
+        raise ValueError(f"illuminant_scale must be 'cie' or 'model', not {illuminant_scale!r}")
     _, cc = colourchecker_reflectances("BabelColor Average")
     return simulate_history(datasets.load_camera(camera), e, cc[list(patches)], noise=noise, rng=seed)
 

@@ -63,11 +63,37 @@ def test_relative_illuminants_are_determined_on_paper_protocol(shared_data):
     assert np.median(spread) < 1.5 and max(spread) < 3.0, spread
 
 
-def test_marguier2007_runs_and_beats_nothing_worse_than_random(shared_data):
-    h = paper_protocol("Canon_300D", (40, 90), (0, 1, 2, 3, 4, 5), noise=None)
+@pytest.mark.parametrize("temps", [(65, 80), (40, 90), (55, 65, 75, 95)])
+def test_marguier2007_descends_to_the_minimum_of_eq3(shared_data, temps):
+    """On the paper's protocol at the scale its model assumes (ε1 = 1, noise-free), the gradient descent ends at or
+    below the error of eq. (3) at the true angles, and the camera whites are within 2° (benchmarks/seeds.py: median
+    0.50°, max 1.7° over Tables 1–3). The fixed-rate descent it replaces stopped far above the truth's error (D65/D80:
+    35.7 against 1.7) with errors up to 8°."""
+    from illumon.daylight import theta_curve
+    from illumon.reflectance import reflectance_basis
+    from illumon.retrieval.common import imaging_operators
+    from illumon.retrieval.marguier2007 import _d65_operator, marguier_error
+
+    h = paper_protocol("Canon_300D", temps, (0, 1, 2, 3, 4, 5), noise=None, illuminant_scale="model")
     res = retrieve_illuminants(h.observations, h.sensitivities, method="marguier2007")
-    err = angular_error_deg(res.white, h.true_white)
-    assert np.all(err < 5.0)
+    curve, rb = theta_curve(), reflectance_basis()
+    y = h.observations.values / np.median(h.observations.values[..., 1])
+    at_truth = marguier_error(curve.theta_of(h.illuminants), y, h.observations.present,
+                              imaging_operators(h.sensitivities, curve.basis, rb)[0], _d65_operator(h.sensitivities, rb))
+    assert res.info["error"] <= 1.01 * at_truth, (res.info["error"], at_truth)
+    assert np.all(angular_error_deg(res.white, h.true_white) < 2.0)
+
+
+def test_paper_protocol_illuminant_scale(shared_data):
+    from illumon.daylight import theta_curve
+
+    h = paper_protocol("Canon_300D", (40, 100), (0, 1), noise=None, illuminant_scale="model")
+    eps1 = np.linalg.lstsq(theta_curve().basis, h.illuminants.T, rcond=None)[0][0]
+    assert np.allclose(eps1, 1.0)
+    cie = paper_protocol("Canon_300D", (40, 100), (0, 1), noise=None)
+    assert np.allclose(cie.illuminants[:, 32], 100.0, atol=0.5)  # 560 nm
+    with pytest.raises(ValueError, match="illuminant_scale"):
+        paper_protocol("Canon_300D", (40, 100), (0, 1), noise=None, illuminant_scale="lux")
 
 
 def test_dispatcher_rejects_one_frame_and_unknown_method():

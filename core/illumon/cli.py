@@ -73,15 +73,18 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     from .observations import read_observations
 
     obs = read_observations(args.observations, white_level=args.white_level)
+    known = read_known(args, obs)
+    if args.model and (known or args.sensitivities):
+        raise UsageError("--model already holds the camera; --sensitivities and --known-reflectances go with `illumon fit`")
     if args.model:
         try:
             from .model import estimate_with_model
         except ImportError as exc:  # pragma: no cover - the model module ships with the package
             raise UsageError(f"--model needs illumon.model ({exc})") from None
         result, extra = estimate_with_model(obs, args.model)
+    elif known or not args.sensitivities:
+        result, extra = _estimate_calibrated(args, obs, known)
     else:
-        if not args.sensitivities:
-            raise UsageError("estimate needs --sensitivities (or --model from `illumon fit`)")
         from .retrieval import retrieve_illuminants
         from .spectra import read_sensitivities
 
@@ -111,6 +114,53 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
     return 0
 
 
+def read_known(args: argparse.Namespace, obs) -> dict[str, np.ndarray]:
+    """``--known-reflectances`` of ``estimate``/``fit``: read, and check that every known patch is observed."""
+    if not getattr(args, "known_reflectances", None):
+        return {}
+    from .camera.references import read_known_reflectances
+
+    known = read_known_reflectances(args.known_reflectances)
+    missing = [p for p in known if p not in obs.patches]
+    if missing:
+        raise UsageError(
+            f"{args.known_reflectances}: known patch {missing[0]!r} never appears in {args.observations}"
+            + (f" (nor {len(missing) - 1} more)" if len(missing) > 1 else "")
+        )
+    return known
+
+
+def fit_camera_and_scene(args: argparse.Namespace, obs, known: dict[str, np.ndarray], **kwargs):
+    """Fit the scene model with measured (``--sensitivities``) or unmeasured sensitivities and references;
+    errors name the observations file."""
+    from .model import fit_scene_model
+    from .spectra import read_sensitivities
+
+    css = read_sensitivities(args.sensitivities) if args.sensitivities else None
+    if len(obs.frames) < 2:
+        raise UsageError(f"{args.observations}: only one frame; a history needs at least two")
+    try:
+        return fit_scene_model(obs, css, known_reflectances=known or None, **kwargs)
+    except ValueError as exc:
+        raise ValueError(f"{args.observations}: {exc}") from None
+
+
+def _estimate_calibrated(args: argparse.Namespace, obs, known: dict[str, np.ndarray]):
+    """``estimate`` for a camera nobody measured, or one with references: calibrate jointly with the scene
+    (:mod:`illumon.camera.calibration`); ``joint`` gives the fit's own estimates with intervals, other methods run
+    on the calibrated sensitivities."""
+    model = fit_camera_and_scene(args, obs, known)
+    scene = obs.select_patches(model.patches)
+    if args.method == "joint":
+        from .model import interval_columns
+
+        result, extra = model.history_estimate
+        return result, interval_columns(result, extra)
+    from .retrieval import retrieve_illuminants
+
+    return retrieve_illuminants(scene, model.sensitivities, method=args.method), None
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of the ``illumon`` command."""
     parser = argparse.ArgumentParser(
@@ -120,7 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     est = sub.add_parser("estimate", help="estimate every frame's illuminant and white-balance gains")
     est.add_argument("observations", help="OBSERVATIONS.csv with columns frame,time,patch,r,g,b")
-    est.add_argument("--sensitivities", help="camera sensitivities CSV wavelength_nm,r,g,b")
+    est.add_argument("--sensitivities", help="camera sensitivities CSV wavelength_nm,r,g,b (none: a camera nobody measured)")
+    est.add_argument("--known-reflectances", help="KNOWN.csv wavelength_nm,<patch id>,…: references of known reflectance")
     est.add_argument("--model", help="scene model JSON from `illumon fit` (per-frame estimates with intervals)")
     est.add_argument("--out", required=True, help="ESTIMATES.csv to write")
     est.add_argument("--method", default="joint", choices=["joint", "marguier2007", "gray_world"])

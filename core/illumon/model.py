@@ -592,6 +592,7 @@ def fit_scene_model(
     sensitivities: NDArray[np.float64] | None,
     *,
     known_reflectances: Mapping[str, NDArray[np.float64]] | None = None,
+    camera_prior_mean: NDArray[np.float64] | None = None,
     daylight: CIEDaylight | None = None,
     relative_error: float = 0.02,
     absolute_error: float = 0.002,
@@ -613,6 +614,9 @@ def fit_scene_model(
         References of known reflectance (patch id → spectrum on the grid, 0…1) that appear in some frames of ``obs``,
         typically one: a grey card pins each channel's scale, a chart also a 3 × 3 colour matrix. Their patches are
         not part of the learned scene.
+    camera_prior_mean
+        With ``sensitivities=None``: the unmeasured camera's prior sensitivities (default: the mean of the measured
+        cameras shipped with illumon).
     daylight
         CIE daylight model with its prior; the default :class:`~illumon.daylight.CIEDaylight`.
     relative_error, absolute_error
@@ -634,7 +638,8 @@ def fit_scene_model(
     if missing:
         raise ValueError(f"known patch(es) never observed: {', '.join(missing)}")
     if sensitivities is None or known:
-        return calibrate_scene_model(obs, sensitivities, known, lambda o, c: _fit_fixed_camera(o, c, **kwargs))
+        return calibrate_scene_model(obs, sensitivities, known, lambda o, c: _fit_fixed_camera(o, c, **kwargs),
+                                     prior_mean=camera_prior_mean)
     model, _ = _fit_fixed_camera(obs, np.asarray(sensitivities, dtype=float), **kwargs)
     model.camera = {"calibration": "measured"}
     return model
@@ -875,55 +880,74 @@ def identifiability(
 # --- CLI glue -------------------------------------------------------------------------------------------------------
 
 
+def interval_columns(result: RetrievalResult, extra: dict[str, NDArray[np.float64]]) -> dict[str, NDArray[np.float64]]:
+    """The ESTIMATES.csv interval columns of :meth:`SceneModel.estimate`'s output: ``cct_lo, cct_hi, duv_lo, duv_hi,
+    confidence`` then ``gain_r_lo, gain_r_hi, gain_b_lo, gain_b_hi`` (95 % intervals; the green gain is 1)."""
+    out = dict(extra)
+    for c, name in ((0, "r"), (2, "b")):
+        out[f"gain_{name}_lo"] = result.info["gain_lo"][:, c]
+        out[f"gain_{name}_hi"] = result.info["gain_hi"][:, c]
+    return out
+
+
 def estimate_with_model(obs: Observations, model_path: str | Path) -> tuple[RetrievalResult, dict[str, NDArray[np.float64]]]:
     """Per-frame estimates of ``obs`` with the model in ``model_path`` (``illumon estimate --model``).
 
-    Returns the result and the extra columns ``cct_lo, cct_hi, duv_lo, duv_hi, confidence`` (95 % intervals; see the
-    module docstring for ``confidence``), then ``gain_r_lo, gain_r_hi, gain_b_lo, gain_b_hi`` (95 % intervals of the
-    red and blue gains; the green gain is 1 by definition).
+    Returns the result and the extra columns of :func:`interval_columns` (see the module docstring for
+    ``confidence``).
     """
     model = SceneModel.load(model_path)
     try:
         res, extra = model.estimate(obs)
     except ValueError as exc:
         raise ValueError(f"{model_path}: {exc}") from None
-    extra = dict(extra)
-    for c, name in ((0, "r"), (2, "b")):
-        extra[f"gain_{name}_lo"] = res.info["gain_lo"][:, c]
-        extra[f"gain_{name}_hi"] = res.info["gain_hi"][:, c]
-    return res, extra
+    return res, interval_columns(res, extra)
 
 
 def _cmd_fit(args: argparse.Namespace) -> int:
+    from .cli import fit_camera_and_scene, read_known
     from .observations import read_observations
-    from .spectra import read_sensitivities
 
     obs = read_observations(args.observations, white_level=args.white_level)
-    css = read_sensitivities(args.sensitivities)
-    try:
-        model = fit_scene_model(obs, css, max_fit_frames=args.max_fit_frames)
-    except ValueError as exc:
-        raise ValueError(f"{args.observations}: {exc}") from None
+    model = fit_camera_and_scene(args, obs, read_known(args, obs), max_fit_frames=args.max_fit_frames)
     model.save(args.model)
     ident = model.identifiability
     tr = model.training
+    cam = model.camera.get("calibration", "measured")
     print(
         f"fitted {len(model.patches)} patches on {tr['frames_used_for_reflectances']} of {tr['frames']} frames; "
         f"CCT {tr['cct_p05']:.0f}–{tr['cct_p95']:.0f} K (5–95 %); noise ×{model.noise['noise_scale']:.2f}; "
-        f"condition {ident['condition']:.3g} → {args.model}"
+        f"condition {ident['condition']:.3g}; camera: {CAMERA_WORDS[cam]} → {args.model}"
     )
     for msg in ident["warnings"]:
         print(f"illumon: warning: {msg}")
+    if ident["warnings"]:
+        print(
+            "illumon: what this means: the frames' colour *differences* are still estimated, but the colour common to "
+            "the whole history (how warm or cool every frame is) comes from typical daylight and typical surfaces, not "
+            "from this scene; intervals and confidence already include that. Fix: fit on a longer history that spans "
+            "clear and overcast days, sunrise to noon (≥ 50 frames over several days), or add a grey card or chart "
+            "frame with --known-reflectances."
+        )
     return 0
 
 
+CAMERA_WORDS = {
+    "measured": "measured sensitivities",
+    "grey": "calibrated by a grey card (channel scales)",
+    "chart": "calibrated by a chart (3 × 3 matrix)",
+    "none": "nobody measured it and no reference: prior of the measured cameras, wide intervals",
+}
+
+
 def add_fit_command(subparsers: Any) -> None:
-    """Register ``illumon fit OBSERVATIONS.csv --sensitivities SENSITIVITIES.csv --model MODEL.json``."""
+    """Register ``illumon fit OBSERVATIONS.csv [--sensitivities S.csv] [--known-reflectances KNOWN.csv] --model M``."""
     from .cli import white_level_arg
 
     p = subparsers.add_parser("fit", help="learn a scene model (patch reflectances) from a history")
     p.add_argument("observations", help="OBSERVATIONS.csv with columns frame,time,patch,r,g,b")
-    p.add_argument("--sensitivities", required=True, help="camera sensitivities CSV wavelength_nm,r,g,b")
+    p.add_argument("--sensitivities", help="camera sensitivities CSV wavelength_nm,r,g,b (none: a camera nobody measured)")
+    p.add_argument("--known-reflectances", help="KNOWN.csv wavelength_nm,<patch id>,…: references of known reflectance")
     p.add_argument("--model", required=True, help="MODEL.json to write")
     p.add_argument("--white-level", type=white_level_arg, default=255.0, help="value of a saturated pixel (255)")
     p.add_argument("--max-fit-frames", type=int, default=300, help="frames used for the reflectance fit (300)")

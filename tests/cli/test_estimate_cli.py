@@ -56,3 +56,59 @@ def test_estimate_rejects_short_sensitivities(tmp_path, capsys):
     css.write_text("wavelength_nm,r,g,b\n420,1,1,1\n680,1,1,1\n")
     assert main(["estimate", str(obs), "--sensitivities", str(css), "--out", str(tmp_path / "e.csv")]) == 2
     assert "400–700" in capsys.readouterr().err
+
+
+def _grey_card_history(tmp_path):
+    """A measured camera's history with a grey card in the first frame; sensitivities are never written."""
+    from illumon.camera import camera_white, render
+    from illumon.observations import Observations
+    from illumon.spectra import WAVELENGTHS, write_spectral_csv
+
+    h = measured_daylight_history("Nikon_D5100", frames=20, patches=8, seed=8)
+    o = h.observations
+    card = np.full(61, 0.18)
+    grey = render(h.sensitivities, h.illuminants[0], card[None])[0] * h.exposures[0]
+    values = np.concatenate([o.values, np.full((20, 1, 3), np.nan)], axis=1)
+    values[0, -1] = grey
+    obs_path, known = tmp_path / "o.csv", tmp_path / "known.csv"
+    write_observations(obs_path, Observations(o.frames, o.patches + ["card"], values, o.times))
+    write_spectral_csv(known, WAVELENGTHS[::2], {"card": card[::2]})
+    return obs_path, known, camera_white(h.sensitivities, h.illuminants)
+
+
+def test_estimate_unmeasured_camera_with_grey_card(shared_data, tmp_path, capsys):
+    obs, known, truth = _grey_card_history(tmp_path)
+    out, out0 = tmp_path / "e.csv", tmp_path / "e0.csv"
+    assert main(["estimate", str(obs), "--known-reflectances", str(known), "--out", str(out)]) == 0
+    assert main(["estimate", str(obs), "--out", str(out0)]) == 0  # no sensitivities, no reference: prior only
+    res = {}
+    for path in (out, out0):
+        rows = list(csv.DictReader(path.open()))
+        assert len(rows) == 20 and all(float(r["gain_g"]) == 1.0 for r in rows)
+        white = np.array([[float(r[f"white_{c}"]) for c in "rgb"] for r in rows])
+        res[path] = (angular_error_deg(white, truth), np.array([float(r["confidence"]) for r in rows]))
+    err, conf = res[out]
+    assert np.median(err) < 0.6 and err.max() < 1.5  # measured 0.22 / 0.61
+    err0, conf0 = res[out0]
+    assert np.median(conf0) < 0.1 < np.median(conf)  # the uncalibrated camera says so
+    model = tmp_path / "m.json"
+    assert main(["fit", str(obs), "--known-reflectances", str(known), "--model", str(model)]) == 0
+    assert "grey card" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "known_body, message",
+    [
+        ("wavelength_nm,nowhere\n400,0.2\n700,0.2\n", "'nowhere' never appears"),
+        ("wavelength_nm,p00\n400,0.2\n550,1.4\n700,0.2\n", "outside 0…1"),
+        ("wavelength_nm,p00\n420,0.2\n700,0.2\n", "400–700"),
+    ],
+)
+def test_known_reflectances_bad_input(shared_data, tmp_path, capsys, known_body, message):
+    h = measured_daylight_history("Nikon_D5100", frames=4, patches=3, seed=1)
+    obs, known = tmp_path / "o.csv", tmp_path / "k.csv"
+    write_observations(obs, h.observations)
+    known.write_text(known_body)
+    code = main(["estimate", str(obs), "--known-reflectances", str(known), "--out", str(tmp_path / "e.csv")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and message in err and "\n" not in err and str(known) in err

@@ -230,6 +230,7 @@ def calibrate_scene_model(
     known: Mapping[str, NDArray[np.float64]],
     fit: Callable[[Observations, NDArray[np.float64]], tuple],
     *,
+    prior_mean: NDArray[np.float64] | None = None,
     max_iterations: int = 6,
     tol_deg: float = 0.02,
 ):
@@ -246,6 +247,9 @@ def calibrate_scene_model(
     fit
         ``fit(obs, effective_sensitivities) → (SceneModel, theta)`` with ``theta`` every frame's ``(mired, δ, log k)``
         (:func:`illumon.model.fit_scene_model`'s fixed-camera fit).
+    prior_mean
+        Sensitivities of "a camera nobody measured" (default :func:`prior_sensitivities`; benchmarks pass the mean
+        of the cameras of other manufacturers than the one scored).
     max_iterations, tol_deg
         Outer iterations and the convergence tolerance on the D65 camera white (degrees).
 
@@ -254,7 +258,10 @@ def calibrate_scene_model(
     SceneModel
         With ``camera`` set from :meth:`CameraCalibration.to_dict`.
     """
-    base = prior_sensitivities() if sensitivities is None else np.asarray(sensitivities, dtype=float)
+    if sensitivities is not None:
+        base = np.asarray(sensitivities, dtype=float)
+    else:
+        base = prior_sensitivities() if prior_mean is None else np.asarray(prior_mean, dtype=float)
     kind = references_kind(known) if known else ("measured" if sensitivities is not None else "none")
     t = np.eye(3)
     sd = np.zeros((3, 3))
@@ -291,4 +298,5 @@ def calibrate_scene_model(
         it = 1
     model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()
     model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=CAMERA_WHITE_SD[kind])
+    model.history_estimate = model.estimate(scene)  # with the camera's uncertainty in its intervals
     return model

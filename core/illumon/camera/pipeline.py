@@ -22,7 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["ENCODINGS", "ResponseCurve", "CameraPipeline", "undo_applied"]
+__all__ = ["ENCODINGS", "ResponseCurve", "CameraPipeline", "undo_applied", "srgb_matrix"]
 
 ENCODINGS = ("linear", "srgb", "gamma", "table")
 """Tone curves a :class:`ResponseCurve` knows."""
@@ -174,3 +174,24 @@ def undo_applied(
             else:
                 y = y @ (m @ np.diag(1.0 / g) @ mi).T
     return y
+
+
+def srgb_matrix(raw_sensitivities: ArrayLike) -> NDArray[np.float64]:
+    """The 3 × 3 colour matrix a camera maker would fit for these sensitivities: linear raw → linear sRGB, least
+    squares on the 24 ColorChecker patches under CIE D65 (colour-science's data), scaled so D65 white maps to grey
+    of the same green. For simulating processed output and as a starting point when raw sensitivities are measured."""
+    import colour
+
+    from ..reflectance import colourchecker_reflectances
+    from ..spectra import GRID
+
+    c = np.asarray(raw_sensitivities, dtype=float)
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(GRID).values
+    d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(GRID).values
+    _, cc = colourchecker_reflectances()
+    raw = (cc * d65) @ c
+    xyz = (cc * d65) @ cmfs
+    to_xyz = np.linalg.lstsq(raw, xyz, rcond=None)[0].T  # xyz ≈ M raw
+    m = np.asarray(colour.models.RGB_COLOURSPACE_sRGB.matrix_XYZ_to_RGB) @ to_xyz
+    white = m @ (d65 @ c)
+    return m * (d65 @ c)[1] / white[1]

@@ -77,7 +77,12 @@ def read_known_reflectances(path: str | Path) -> dict[str, NDArray[np.float64]]:
             f"{source}: patch {names[j]!r}: reflectance {values[i, j]:g} at {wl[i]:g} nm is outside 0…1"
         )
     try:
-        grid = resample_columns(wl, values, GRID)
+        if wl.size < 6:  # too few samples for colour-science's interpolators: straight lines between them
+            if wl[0] > GRID.start or wl[-1] < GRID.end:
+                raise SpectralInputError(f"data cover {wl[0]:g}–{wl[-1]:g} nm but {GRID.start:g}–{GRID.end:g} nm are needed")
+            grid = np.column_stack([np.interp(GRID.wavelengths, wl, v) for v in values.T])
+        else:
+            grid = resample_columns(wl, values, GRID)
     except SpectralInputError as exc:
         raise SpectralInputError(f"{source}: {exc}") from None
     return check_known_reflectances({n: grid[:, j] for j, n in enumerate(names)}, source)

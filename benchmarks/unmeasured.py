@@ -20,7 +20,7 @@ estimated and true camera white in the observations' own RGB space (what camera 
 over every frame. ``coverage`` is the fraction of frames within 1° beside the mean ``confidence`` the estimates
 claimed for it.
 
-    python benchmarks/unmeasured.py [--split score] [--seeds 2] [--quick]
+    python benchmarks/unmeasured.py [--split score] [--seeds 2] [--quick] [--cases grey,none]
 """
 
 from __future__ import annotations
@@ -126,6 +126,7 @@ def main() -> int:
     ap.add_argument("--split", choices=["dev", "score"], default="score")
     ap.add_argument("--seeds", type=int, default=2, help="histories per camera, case and simulator")
     ap.add_argument("--quick", action="store_true", help="three cameras, one seed")
+    ap.add_argument("--cases", default=",".join(CASES), help=f"comma-separated subset of {', '.join(CASES)}")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "unmeasured.json"))
     args = ap.parse_args()
     if datasets.shared_data_dir() is None:
@@ -135,8 +136,9 @@ def main() -> int:
     seeds = range(1) if args.quick else range(args.seeds)
     cams = cams[:3] if args.quick else cams
     base = 700_000 if args.split == "score" else 7_000
+    cases = [c for c in CASES if c in args.cases.split(",")]
     rows = [run_case(sim, cam, case, base + 100 * i + s)
-            for sim in ("illumon", "rawsim") for case in CASES for i, cam in enumerate(cams) for s in seeds]
+            for sim in ("illumon", "rawsim") for case in cases for i, cam in enumerate(cams) for s in seeds]
     table = summarise(rows)
     print(f"split {args.split}: {len(cams)} cameras × {len(list(seeds))} seeds, {FRAMES} frames × {PATCHES} patches")
     print(f"{'simulator':9} {'case':13} {'median':>7} {'p95':>6} {'max':>6} {'gw med':>7} {'gw max':>7} "

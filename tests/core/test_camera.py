@@ -117,8 +117,8 @@ def test_unmeasured_camera_calibrations(shared_data):
     """Three development histories (Nikon D700, D80, D5100; prior from other makers), every frame pooled: a grey card
     in one frame brings the camera white within a degree; a chart in one frame undoes an unknown colour matrix; with
     no reference the error stays below gray-world and the confidence says the estimate is not to be trusted.
-    Measured at commit time (median / max): grey 0.10 / 1.13, chart 0.66 / 3.10, none 5.58 (gray-world 8.36);
-    median confidence 0.54 (grey), 0.17 (chart), 0.01 (none)."""
+    Measured at commit time (median / max): grey 0.13 / 1.13, chart 0.76 / 3.10, none 4.54 / 5.10 (gray-world
+    median 8.36); median confidence 0.54 (grey), 0.17 (chart), 0.01 (none)."""
     err: dict[str, list] = {"grey": [], "chart": [], "none": []}
     gw, conf = [], {k: [] for k in err}
     for camera, seed in (("Nikon_D700", 11), ("Nikon_D80", 5), ("Nikon_D5100", 2)):

@@ -35,6 +35,8 @@ __all__ = [
     "model_path",
     "model_available",
     "sensitivities_array",
+    "undo_camera_gains",
+    "CALIBRATION_PREFIX",
     "build_observations",
     "estimate_frame",
     "refit_estimates",
@@ -58,9 +60,32 @@ def model_available(data_dir: Path | str, camera_id: int) -> bool:
     return model_path(data_dir, camera_id).is_file()
 
 
-def sensitivities_array(stored: Sequence[Sequence[float]]) -> NDArray[np.float64]:
-    """Stored sensitivities (61 lists of r, g, b on the grid) as an array."""
-    return np.asarray(stored, dtype=float)
+def sensitivities_array(stored: Sequence[Sequence[float]]) -> NDArray[np.float64] | None:
+    """Stored sensitivities (61 lists of r, g, b on the grid) as an array; ``None`` for a camera nobody measured."""
+    return np.asarray(stored, dtype=float) if len(stored) else None
+
+
+def undo_camera_gains(
+    patches: dict[str, Any], applied_gains: Sequence[float] | None, exposure: float | None,
+    matrix: Sequence[Sequence[float]] | None = None,
+) -> dict[str, Any]:
+    """Region means with the white-balance gains and exposure the camera applied divided out
+    (:func:`illumon.camera.undo_applied`; with the camera's colour ``matrix`` the gains are undone before it), so a
+    history stays consistent while the camera's own white balance changes — and the gains the service returns apply
+    to linear values as the camera delivers them at unit gains."""
+    if applied_gains is None and exposure is None:
+        return patches
+    from illumon.camera import undo_applied
+
+    ids = [k for k, v in patches.items() if v is not None]
+    if not ids:
+        return patches
+    out = undo_applied(np.array([patches[k] for k in ids], dtype=float), applied_gains, exposure, matrix)
+    return {**patches, **{k: [float(x) for x in v] for k, v in zip(ids, out, strict=True)}}
+
+
+CALIBRATION_PREFIX = "calibration-"
+"""Frame ids of calibration images in a refit's history (``calibration-<id>``); they get no stored estimate."""
 
 
 def build_observations(
@@ -186,10 +211,21 @@ def _seen_patches(obs: Observations) -> Observations:
     return Observations(list(obs.frames), [obs.patches[j] for j in keep], obs.values[:, keep].copy(), list(obs.times))
 
 
-def _fit_model(obs: Observations, css: NDArray[np.float64], path: Path, max_fit_frames: int = 300) -> str:
+def _known_seen(obs: Observations, known: dict[str, NDArray[np.float64]] | None) -> dict | None:
+    """The references among ``obs``'s patches (a reference never measured, e.g. every chart patch clipped, is left
+    out: the fit refuses a known patch it never sees)."""
+    if not known:
+        return None
+    return {k: v for k, v in known.items() if k in obs.patches} or None
+
+
+def _fit_model(obs: Observations, css: NDArray[np.float64] | None, path: Path, max_fit_frames: int = 300,
+               known: dict[str, NDArray[np.float64]] | None = None) -> str:
     """Fit and save a scene model with :mod:`illumon.model`; returns a status string."""
     try:
-        fitted = scene_model.fit_scene_model(_seen_patches(obs), css, max_fit_frames=max_fit_frames)
+        seen = _seen_patches(obs)
+        fitted = scene_model.fit_scene_model(seen, css, known_reflectances=_known_seen(seen, known),
+                                             max_fit_frames=max_fit_frames)
         _save_model(fitted, path)
     except Exception as exc:  # noqa: BLE001 - the retrieval's estimates still stand
         log.warning("scene model fit failed: %s", exc)
@@ -221,11 +257,14 @@ def _history_estimates(fitted: scene_model.SceneModel, obs: Observations) -> Ite
 
 
 def _refit_with_model(
-    obs: Observations, css: NDArray[np.float64], model_file: Path | None, max_fit_frames: int
+    obs: Observations, css: NDArray[np.float64] | None, model_file: Path | None, max_fit_frames: int,
+    known: dict[str, NDArray[np.float64]] | None = None,
 ) -> tuple[dict[str, dict], dict]:
     """Fit the scene model on the history (reflectances on ≤ ``max_fit_frames`` frames spread over the illuminant
     range), save it, and estimate every frame with it: ``illumon fit`` then ``illumon estimate --model``."""
-    fitted = scene_model.fit_scene_model(_seen_patches(obs), css, max_fit_frames=max_fit_frames)
+    seen = _seen_patches(obs)
+    fitted = scene_model.fit_scene_model(seen, css, known_reflectances=_known_seen(seen, known),
+                                         max_fit_frames=max_fit_frames)
     if model_file is not None:
         _save_model(fitted, model_file)
         _MODEL_CACHE.pop(str(model_file), None)
@@ -234,11 +273,12 @@ def _refit_with_model(
     for result, extra in _history_estimates(fitted, obs):
         ok = np.all(np.isfinite(result.white), axis=1)
         conf = np.asarray(extra["confidence"], dtype=float)
+        keep = ok & np.array([not str(fid).startswith(CALIBRATION_PREFIX) for fid in result.frames])
         out.update({
             fid: _row(result, i, conf[i], "refit:model", _intervals(result, extra, i))
-            for i, fid in enumerate(result.frames) if ok[i]
+            for i, fid in enumerate(result.frames) if keep[i]
         })
-        ccts.append(result.cct[ok])
+        ccts.append(result.cct[keep])
     cct = np.concatenate(ccts) if ccts else np.array([])
     summary = {
         "frames": len(out),
@@ -247,6 +287,7 @@ def _refit_with_model(
         "frames_used_for_reflectances": fitted.training.get("frames_used_for_reflectances"),
         "cct_k_median": float(np.median(cct)) if cct.size else None,
         "identifiability_warnings": list(fitted.identifiability.get("warnings", [])),
+        "camera": getattr(fitted, "camera", None) or {},
     }
     return out, summary
 
@@ -254,11 +295,13 @@ def _refit_with_model(
 def refit_estimates(
     frames: Sequence[tuple[str, str, dict[str, Any]]],
     region_ids: Sequence[str],
-    sensitivities: NDArray[np.float64],
+    sensitivities: NDArray[np.float64] | None,
     *,
     method: str = "model",
     model_file: Path | None = None,
     max_fit_frames: int = 300,
+    calibrations: Sequence[tuple[str, str, dict[str, Any]]] = (),
+    known_reflectances: dict[str, NDArray[np.float64]] | None = None,
 ) -> tuple[dict[str, dict], dict]:
     """Estimates of the given frames: ``({frame id: estimate}, summary)``.
 
@@ -269,9 +312,15 @@ def refit_estimates(
     :func:`illumon.retrieval.retrieve_illuminants` over all the given frames (``illumon estimate --method``; the
     joint fit grows faster than linearly: keep such histories to a few hundred frames) and then fit a model too.
 
-    Frames with fewer than two regions seen are left out. Raises :class:`RefitInputError` when fewer than two frames
-    remain.
+    ``sensitivities=None`` is a camera nobody measured (the model's prior from measured cameras). ``calibrations``
+    are extra frames (ids ``calibration-<id>``) holding only reference patches whose spectra ``known_reflectances``
+    gives (a ColorChecker, a grey card): they join the fit's history, pin the camera, and get no estimate of their
+    own. Frames with fewer than two regions seen are left out. Raises :class:`RefitInputError` when fewer than two
+    frames remain, or for a retrieval method on an unmeasured camera.
     """
+    if sensitivities is None and method != "model":
+        raise RefitInputError(f"refit method {method!r} needs measured sensitivities; this camera has none (use the "
+                              "default method 'model', which calibrates from the prior and calibration images)")
     if len(frames) < 2:
         raise RefitInputError(f"refit needs at least two frames with two regions seen; {len(frames)} stored: post "
                               "frames (POST /v1/cameras/{id}/frames), then refit")
@@ -284,7 +333,11 @@ def refit_estimates(
         obs = obs.subset(usable)
     skipped = len(frames) - int(usable.size)
     if method == "model":
-        out, summary = _refit_with_model(obs, sensitivities, model_file, max_fit_frames)
+        if calibrations:
+            ids = list(region_ids) + sorted({k for _, _, p in calibrations for k in p} - set(region_ids))
+            obs = build_observations([frames[i] for i in usable] + list(calibrations), ids)
+        out, summary = _refit_with_model(obs, sensitivities, model_file, max_fit_frames, known_reflectances)
+        summary["calibration_frames"] = len(calibrations)
         summary["skipped_frames"] = len(frames) - len(out)
         return out, summary
     kwargs = {"daylight": "cie"} if method == "joint" else {}
@@ -301,6 +354,7 @@ def refit_estimates(
     if model_file is not None:
         summary["model"] = _fit_model(obs, sensitivities, model_file, max_fit_frames)
     return out, summary
+
 
 
 def retrieve(obs: Observations, css: NDArray[np.float64], method: str, kwargs: dict) -> Any:
@@ -321,7 +375,7 @@ RESPONSE_CHECK_FRAMES = 48
 def check_response(
     frames: Sequence[tuple[str, str, dict[str, Any]]],
     region_ids: Sequence[str],
-    sensitivities: NDArray[np.float64],
+    sensitivities: NDArray[np.float64] | None,
     encoding: str,
     max_frames: int = RESPONSE_CHECK_FRAMES,
 ) -> dict:
@@ -355,6 +409,10 @@ def check_response(
         return out
     obs = _seen_patches(obs.subset(keep))
     try:
+        if sensitivities is None:  # unmeasured: the prior (the tone-curve test itself is camera-agnostic)
+            from illumon.camera.calibration import prior_sensitivities
+
+            sensitivities = prior_sensitivities()
         diag = diagnose(obs, sensitivities, reestimate=False)
     except Exception as exc:  # noqa: BLE001 - a check that cannot run must not fail the refit
         log.warning("tone-response check failed: %s", exc)

@@ -17,13 +17,22 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
+import numpy as np
 from sqlalchemy import delete, insert, select
 from sqlalchemy.orm import Session, sessionmaker
 
-from .estimation import RefitInputError, check_response, model_path, refit_estimates, sensitivities_array
+from .estimation import (
+    CALIBRATION_PREFIX,
+    RefitInputError,
+    check_response,
+    model_path,
+    refit_estimates,
+    sensitivities_array,
+    undo_camera_gains,
+)
 from .metrics import Metrics
 from .settings import Settings
-from .storage import Camera, Estimate, Frame, Job, as_utc, make_engine, make_session_factory, utcnow
+from .storage import Calibration, Camera, Estimate, Frame, Job, as_utc, make_engine, make_session_factory, utcnow
 
 __all__ = ["refit_camera", "JobRunner", "run_batch", "limit_blas_threads", "usable_cpus"]
 
@@ -96,24 +105,29 @@ def refit_camera(
         if cam is None:
             raise ValueError(f"unknown camera {camera_id}")
         rows = s.execute(
-            select(Frame.id, Frame.taken_at, Frame.patches).where(Frame.camera_id == camera_id)
+            select(Frame.id, Frame.taken_at, Frame.patches, Frame.applied_gains, Frame.exposure)
+            .where(Frame.camera_id == camera_id)
             .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(max_frames)
         ).all()
         region_ids = [r["id"] for r in cam.regions]
         css = sensitivities_array(cam.sensitivities)
         encoding = (cam.response or {}).get("encoding", "linear")
+        matrix = (cam.response or {}).get("matrix")
+        cals = s.scalars(select(Calibration).where(Calibration.camera_id == camera_id).order_by(Calibration.id)).all()
+        calibrations, known, cal_warnings = calibration_frames(cals, matrix)
     rows.reverse()
-    frames = [(str(fid), as_utc(t).isoformat(), patches) for fid, t, patches in rows]
-    times = {str(fid): t for fid, t, _ in rows}
+    frames = [(str(fid), as_utc(t).isoformat(), undo_camera_gains(patches, gains, exposure, matrix))
+              for fid, t, patches, gains, exposure in rows]
+    times = {str(fid): t for fid, t, *_ in rows}
     t_read = time.perf_counter()
     report(0.1)
     estimates, summary = refit_estimates(
         frames, region_ids, css, method=method, model_file=model_path(data_dir, camera_id),
-        max_fit_frames=max_fit_frames,
+        max_fit_frames=max_fit_frames, calibrations=calibrations, known_reflectances=known,
     )
     check = check_response(frames, region_ids, css, encoding)
     summary["response_check"] = {k: v for k, v in check.items() if k != "warnings"}
-    summary["warnings"] = check["warnings"]
+    summary["warnings"] = cal_warnings + check["warnings"]
     t_fit = time.perf_counter()
     report(0.8)
     items = list(estimates.items())
@@ -135,6 +149,36 @@ def refit_camera(
     })
     report(1.0)
     return summary
+
+
+def calibration_frames(
+    cals: list[Calibration], matrix: list | None = None
+) -> tuple[list[tuple[str, str, dict]], dict[str, np.ndarray], list[str]]:
+    """Stored calibrations as extra frames of a refit's history: ``calibration-<id>`` holding the reference patches
+    and the camera's regions seen in the same image (the camera's applied gains divided out); the known reflectances
+    of the references — the ColorChecker's (:func:`illumon.camera.colorchecker_references`, ids ``chart:01`` …) and
+    each grey card's (:func:`illumon.camera.grey_card_reference`, id ``grey:<calibration id>``); and a warning for
+    each calibration left out because its image shows fewer than two usable regions of the scene."""
+    from illumon.camera import colorchecker_references, grey_card_reference
+
+    frames, known, warnings = [], {}, []
+    chart = colorchecker_references()
+    for c in cals:
+        scene = {k: v for k, v in (c.scene or {}).items() if v is not None}
+        refs = {k: v for k, v in c.patches.items() if v is not None}
+        if len(scene) < 2 or not refs:
+            warnings.append(f"calibration {c.id} ({c.kind}) left out: its image shows fewer than two usable regions "
+                            "of the scene" if refs else f"calibration {c.id} ({c.kind}) left out: no usable patch")
+            continue
+        if c.kind == "grey":
+            pid = f"grey:{c.id}"
+            refs = {pid: refs["grey"]}
+            known.update(grey_card_reference(pid, c.reflectance or 0.18))
+        else:
+            known.update({k: chart[k] for k in refs})
+        patches = undo_camera_gains({**scene, **refs}, c.applied_gains, c.exposure, matrix)
+        frames.append((f"{CALIBRATION_PREFIX}{c.id}", as_utc(c.created_at).isoformat(), patches))
+    return frames, known, warnings
 
 
 class JobRunner:

@@ -33,7 +33,7 @@ from numpy.typing import NDArray
 
 __all__ = [
     "ImageError", "RegionError", "Region", "DecodedFrame", "sniff_format", "declared_size", "decode_image",
-    "decode_frame", "jpeg_reduction", "region_means", "response_for", "is_grey",
+    "decode_frame", "jpeg_reduction", "region_means", "response_for", "is_grey", "clip_level", "clipped_regions",
 ]
 
 MAGIC = {
@@ -271,7 +271,19 @@ def response_for(response: Mapping, full_scale: float) -> ResponseCurve:
         gamma=float(response.get("gamma") or 2.2),
         black_level=black,
         white_level=white,
+        table=tuple(response.get("table") or ()),
     )
+
+
+def clip_level(response: ResponseCurve, clip_fraction: float) -> float:
+    """The code at and above which a pixel counts as clipped: ``clip_fraction`` of the way from black to white."""
+    return response.black_level + clip_fraction * (response.white_level - response.black_level)
+
+
+def clipped_regions(image: NDArray, regions: Iterable[Region], response: ResponseCurve, clip_fraction: float) -> set[str]:
+    """Ids of the regions with at least one pixel at the clip level (:func:`clip_level`) in any channel."""
+    level = clip_level(response, clip_fraction)
+    return {r.id for r in regions if image[r.y : r.y + r.height, r.x : r.x + r.width].max() >= level}
 
 
 @lru_cache(maxsize=32)
@@ -532,7 +544,7 @@ def region_means(
         w, h = w * scale, h * scale
     integer = image.dtype in (np.uint8, np.uint16)
     lut = _lut(response, 256 if image.dtype == np.uint8 else 65536) if integer else None
-    clip_at = response.black_level + clip_fraction * (response.white_level - response.black_level)
+    clip_at = clip_level(response, clip_fraction)
     regions = list(regions)
     for r in regions:
         if r.x < 0 or r.y < 0 or r.x + r.width > w or r.y + r.height > h:

@@ -24,6 +24,7 @@ __all__ = [
     "Frame",
     "Estimate",
     "Job",
+    "Calibration",
     "make_engine",
     "make_session_factory",
     "hash_token",
@@ -65,7 +66,8 @@ class Base(DeclarativeBase):
 
 
 class Camera(Base):
-    """A registered fixed camera: its sensitivities (61 × 3 on the grid), regions and response curve."""
+    """A registered fixed camera: its sensitivities (61 × 3 on the grid; ``[]`` for a camera nobody measured), regions
+    and output pipeline (``response``: tone curve, black and white levels, and an optional 3 × 3 ``matrix``)."""
 
     __tablename__ = "cameras"
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
@@ -78,7 +80,9 @@ class Camera(Base):
 
 
 class Frame(Base):
-    """One ingested frame: region means (linear 0…1, ``null`` where missing) keyed by region id."""
+    """One ingested frame: region means (linear 0…1, ``null`` where missing) keyed by region id, as the camera output
+    them, with the white-balance gains (``applied_gains``, r g b) and relative ``exposure`` the camera says it applied
+    (divided out before estimating and fitting)."""
 
     __tablename__ = "frames"
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
@@ -88,6 +92,27 @@ class Frame(Base):
     width: Mapped[int | None] = mapped_column(Integer, nullable=True)
     height: Mapped[int | None] = mapped_column(Integer, nullable=True)
     image_path: Mapped[str | None] = mapped_column(String(500), nullable=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    applied_gains: Mapped[list | None] = mapped_column(JSON, nullable=True)
+    exposure: Mapped[float | None] = mapped_column(Float, nullable=True)
+
+
+class Calibration(Base):
+    """A calibration image's measurement: reference patches (``chart:01`` … or ``grey``) → linear mean r g b
+    (``null`` where unusable), the clipped ones, the camera's own regions in the same image (``scene``: they tie the
+    reference to the scene's daylight), and the camera's applied gains and exposure for that image."""
+
+    __tablename__ = "calibrations"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"), index=True)
+    kind: Mapped[str] = mapped_column(String(20))
+    patches: Mapped[dict] = mapped_column(JSON)
+    clipped: Mapped[list] = mapped_column(JSON)
+    scene: Mapped[dict] = mapped_column(JSON)
+    reflectance: Mapped[float | None] = mapped_column(Float, nullable=True)
+    applied_gains: Mapped[list | None] = mapped_column(JSON, nullable=True)
+    exposure: Mapped[float | None] = mapped_column(Float, nullable=True)
+    warnings: Mapped[list] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
 
@@ -140,7 +165,31 @@ def make_engine(url: str) -> Engine:
     else:
         engine = create_engine(url, pool_pre_ping=True)
     Base.metadata.create_all(engine)
+    add_missing_columns(engine)
     return engine
+
+
+def add_missing_columns(engine: Engine) -> list[str]:
+    """Add the nullable columns a newer version defines to the tables of an older database (``create_all`` creates
+    missing tables only); returns ``table.column`` of those added. Idempotent; safe when several processes race."""
+    from sqlalchemy import inspect, text
+    from sqlalchemy.exc import DBAPIError
+
+    added = []
+    for table in Base.metadata.sorted_tables:
+        have = {c["name"] for c in inspect(engine).get_columns(table.name)}
+        for col in table.columns:
+            if col.name in have or not col.nullable:
+                continue
+            ddl = f"ALTER TABLE {table.name} ADD COLUMN {col.name} {col.type.compile(engine.dialect)}"
+            try:
+                with engine.begin() as conn:
+                    conn.execute(text(ddl))
+            except DBAPIError:  # another process added it first
+                if col.name not in {c["name"] for c in inspect(engine).get_columns(table.name)}:
+                    raise
+            added.append(f"{table.name}.{col.name}")
+    return added
 
 
 def make_session_factory(engine: Engine) -> sessionmaker[Session]:

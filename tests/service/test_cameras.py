@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 
 import numpy as np
@@ -168,3 +169,40 @@ def test_nonlinear_history_warns(tmp_path, scene, populated):
         assert c.get(f"/v1/cameras/{cid}", headers=bearer(token)).json()["warnings"] == [warning]
         page = c.get(f"/cameras/{cid}", headers=bearer(token))
         assert page.status_code == 200 and "Check set-up" in page.text
+
+
+def test_unmeasured_camera_with_pipeline(client):
+    """Issue 15: a camera registered without sensitivities, with its pipeline (black and white level, a tone table and
+    a colour matrix): stored and shown; a frame encoded through the table is linearised by it."""
+    from svc_helpers import SIZE, encode_png, post_image
+
+    table = [(i / 16) ** 2.0 for i in range(17)]  # encoded → linear, evenly spaced codes from black to white
+    matrix = [[1.6, -0.4, -0.2], [-0.3, 1.5, -0.2], [0.0, -0.5, 1.5]]
+    body = camera_body(_css(), grid_regions())
+    del body["sensitivities"]
+    body["response"] = {"encoding": "table", "table": table, "black_level": 16, "white_level": 240, "matrix": matrix}
+    r = client.post("/v1/cameras", json=body, headers=admin_headers())
+    assert r.status_code == 201, r.text
+    cam = client.get(f"/v1/cameras/{r.json()['id']}", headers=admin_headers()).json()
+    assert cam["sensitivities"] == "unmeasured" and cam["calibration"] == "none" and cam["calibrations"] == []
+    assert cam["response"]["table"] == table and cam["response"]["matrix"] == matrix
+    assert cam["response"]["black_level"] == 16 and cam["response"]["white_level"] == 240
+    linear = np.array([0.25, 0.09, 0.49])  # codes 16 + 224·(0.5, 0.3, 0.7)
+    img = np.full((SIZE[1], SIZE[0], 3), np.round(16 + 224 * np.sqrt(linear)), np.uint8)
+    out = post_image(client, cam["id"], r.json()["token"], encode_png(img), None).json()
+    np.testing.assert_allclose(out["regions"]["r0"], linear, atol=0.004)
+
+
+def test_bad_pipelines_refused(client):
+    for response, word in (({"encoding": "table"}, "table"), ({"encoding": "srgb", "table": [0, 1]}, "table"),
+                           ({"encoding": "table", "table": [0, 0.5, 0.4, 1]}, "non-decreasing"),
+                           ({"encoding": "table", "table": [0, 1.5]}, "less than or equal"),
+                           ({"matrix": [[1, 2, 3], [2, 4, 6], [0, 0, 1]]}, "singular"),
+                           ({"matrix": [[1, 0], [0, 1]]}, "at least 3"),
+                           ({"matrix": [[1, 0, 0], [0, float("nan"), 0], [0, 0, 1]]}, "finite")):
+        body = camera_body(_css(), grid_regions())
+        body["response"] = response
+        r = client.post("/v1/cameras", content=json.dumps(body).replace("NaN", "NaN"), headers={
+            **admin_headers(), "content-type": "application/json"})
+        assert r.status_code == 422, (response, r.text)
+        assert word in json.dumps(r.json()["detail"]), (response, r.json())

@@ -211,3 +211,37 @@ def test_frame_with_nothing_usable_says_so(client, cam):
     assert "no region was usable" in out["warnings"][0]
     good = post_image(client, cid, token, _image(), None).json()
     assert good["usable_regions"] == len(grid_regions()) and good["warnings"] == []
+
+
+def test_applied_gains_and_exposure_stored(client, cam):
+    """Issue 15: a frame's applied white-balance gains and exposure (form fields) are stored with it and shown."""
+    cid, token = cam
+    r = client.post(f"/v1/cameras/{cid}/frames", files={"image": ("f.png", _image(), "image/png")},
+                    data={"applied_gains": "1.9, 1, 1.4", "exposure": "0.5"}, headers=bearer(token))
+    assert r.status_code == 201, r.text
+    assert r.json()["applied_gains"] == [1.9, 1.0, 1.4] and r.json()["exposure"] == 0.5
+    (f,) = client.get(f"/v1/cameras/{cid}/frames", headers=bearer(token)).json()
+    assert f["applied_gains"] == [1.9, 1.0, 1.4] and f["exposure"] == 0.5
+    body = {"patches": {"r0": [0.1, 0.2, 0.3]}, "applied_gains": [1, 2, 0], "exposure": 1}
+    assert client.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token)).status_code == 422
+
+
+def test_old_database_gains_columns_added(tmp_path):
+    """A database of the previous version (frames without applied_gains / exposure) is upgraded in place at start."""
+    import sqlite3
+
+    db = tmp_path / "illumon.sqlite3"
+    with TestClient(create_app(make_settings(tmp_path))):
+        pass
+    con = sqlite3.connect(db)
+    con.execute("ALTER TABLE frames DROP COLUMN applied_gains")
+    con.execute("ALTER TABLE frames DROP COLUMN exposure")
+    con.commit()
+    con.close()
+    with TestClient(create_app(make_settings(tmp_path))) as c:
+        cid, token = register(c, _css(), grid_regions())
+        r = c.post(f"/v1/cameras/{cid}/frames", files={"image": ("f.png", _image(), "image/png")},
+                   data={"applied_gains": "1.5,1,1.2"}, headers=bearer(token))
+        assert r.status_code == 201, r.text
+    cols = {row[1] for row in sqlite3.connect(db).execute("PRAGMA table_info(frames)")}
+    assert {"applied_gains", "exposure"} <= cols

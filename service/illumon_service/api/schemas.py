@@ -5,6 +5,7 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
+import numpy as np
 from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
 
@@ -27,11 +28,16 @@ IsoDateTime = Annotated[datetime, BeforeValidator(_iso_text)]
 
 __all__ = [
     "SensitivitiesIn", "RegionIn", "ResponseIn", "CameraIn", "RegionsIn", "ObservationIn", "ErrorOut", "ERROR_RESPONSES",
-    "FRAME_UPLOAD", "MAX_LIST",
+    "FRAME_UPLOAD", "MAX_LIST", "multipart_body", "CAMERA_APPLIED",
 ]
 
-Finite = Annotated[float, Field(allow_inf_nan=False)]
-NonNegative = Annotated[float, Field(allow_inf_nan=False, ge=0)]
+# strict: JSON numbers only (pydantic's lax mode would read true/false or numeric text as numbers, which the OpenAPI
+# schema does not allow)
+Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]
+NonNegative = Annotated[float, Field(allow_inf_nan=False, ge=0, strict=True)]
+Positive = Annotated[float, Field(allow_inf_nan=False, gt=0, strict=True)]
+Gains = Annotated[list[Positive], Field(min_length=3, max_length=3)]
+"""r, g, b multipliers a camera applied to linear values (positive, finite)."""
 
 
 class _Strict(BaseModel):
@@ -68,10 +74,10 @@ class RegionIn(_Strict):
     """A rectangle of static scene in pixels (origin top-left)."""
 
     id: str = Field(min_length=1, max_length=100)
-    x: int = Field(ge=0, le=MAX_SIDE)
-    y: int = Field(ge=0, le=MAX_SIDE)
-    width: int = Field(gt=0, le=MAX_SIDE)
-    height: int = Field(gt=0, le=MAX_SIDE)
+    x: int = Field(ge=0, le=MAX_SIDE, strict=True)
+    y: int = Field(ge=0, le=MAX_SIDE, strict=True)
+    width: int = Field(gt=0, le=MAX_SIDE, strict=True)
+    height: int = Field(gt=0, le=MAX_SIDE, strict=True)
 
 
 def _unique(regions: list[RegionIn]) -> list[RegionIn]:
@@ -82,30 +88,45 @@ def _unique(regions: list[RegionIn]) -> list[RegionIn]:
 
 
 class ResponseIn(_Strict):
-    """Tone response; levels in the image's units (white level defaults to the image's full scale).
+    """The camera's output pipeline: tone curve, levels in the image's units (white level defaults to the image's
+    full scale) and, optionally, the fixed 3 × 3 colour matrix it applies (output = ``matrix`` @ sensor RGB).
 
     The default is what an ordinary camera's JPEG or PNG holds: sRGB-encoded values over the image's full scale
-    (8-bit: 0…255). Declare ``linear`` for raw or linear (e.g. 16-bit scientific) output; a refit warns when the
-    stored history still looks non-linear for the declared encoding.
+    (8-bit: 0…255). Declare ``linear`` for raw or linear (e.g. 16-bit scientific) output, ``gamma`` with ``gamma``,
+    or ``table`` with ``table``: the linear value (0…1, non-decreasing) of encoded values spaced evenly from the black
+    to the white level. A refit warns when the stored history still looks non-linear for the declared encoding.
     """
 
-    encoding: Literal["linear", "srgb", "gamma"] = "srgb"
-    gamma: float = Field(default=2.2, gt=0, allow_inf_nan=False)
-    black_level: float = Field(default=0.0, ge=0, allow_inf_nan=False)
-    white_level: float | None = Field(default=None, gt=0, allow_inf_nan=False)
+    encoding: Literal["linear", "srgb", "gamma", "table"] = "srgb"
+    gamma: float = Field(default=2.2, gt=0, allow_inf_nan=False, strict=True)
+    black_level: float = Field(default=0.0, ge=0, allow_inf_nan=False, strict=True)
+    white_level: float | None = Field(default=None, gt=0, allow_inf_nan=False, strict=True)
+    table: list[Annotated[float, Field(allow_inf_nan=False, ge=0, le=1, strict=True)]] | None = Field(
+        default=None, min_length=2, max_length=65536)
+    matrix: list[Annotated[list[Finite], Field(min_length=3, max_length=3)]] | None = Field(
+        default=None, min_length=3, max_length=3)
 
     @model_validator(mode="after")
     def _levels(self) -> ResponseIn:
         if self.white_level is not None and self.white_level <= self.black_level:
             raise ValueError("white_level must exceed black_level")
+        if (self.encoding == "table") != (self.table is not None):
+            raise ValueError("give 'table' exactly when encoding is 'table'")
+        if self.table is not None and (any(b < a for a, b in zip(self.table, self.table[1:], strict=False))
+                                       or self.table[-1] <= 0):
+            raise ValueError("table must be non-decreasing and end above 0")
+        if self.matrix is not None:
+            if abs(np.linalg.det(np.asarray(self.matrix))) < 1e-9:
+                raise ValueError("matrix is singular")
         return self
 
 
 class CameraIn(_Strict):
-    """Registration of a camera."""
+    """Registration of a camera; without ``sensitivities`` the camera is unmeasured (a prior from measured cameras,
+    pinned by a calibration image: ``POST /v1/cameras/{id}/calibration``)."""
 
     name: str = Field(min_length=1, max_length=200)
-    sensitivities: SensitivitiesIn
+    sensitivities: SensitivitiesIn | None = None
     regions: list[RegionIn] = Field(min_length=1, max_length=500)
     response: ResponseIn = ResponseIn()
 
@@ -126,7 +147,11 @@ class ObservationIn(_Strict):
     taken_at: IsoDateTime | None = None
     patches: dict[str, Annotated[list[NonNegative], Field(min_length=3, max_length=3)] | None] = Field(min_length=1)
     """Region id → ``[r, g, b]``, or ``null`` where the region is not usable; at least one must have a value."""
-    white_level: float = Field(default=1.0, gt=0, allow_inf_nan=False)
+    white_level: float = Field(default=1.0, gt=0, allow_inf_nan=False, strict=True)
+    applied_gains: Gains | None = None
+    """White-balance gains (r, g, b) the camera applied to linear values in this frame; divided out."""
+    exposure: Positive | None = None
+    """Relative exposure the camera applied in this frame; divided out."""
 
 
 class ErrorOut(BaseModel):
@@ -147,24 +172,24 @@ ERROR_RESPONSES: dict[int | str, dict[str, Any]] = {
 }
 """Error answers documented on every ``/v1`` route (the OpenAPI schema lists what the routes really answer)."""
 
-FRAME_UPLOAD: dict[str, Any] = {
-    "requestBody": {
-        "required": True,
-        "content": {
-            "multipart/form-data": {
-                "schema": {
-                    "type": "object",
-                    "required": ["image"],
-                    "properties": {
-                        "image": {"type": "string", "format": "binary",
-                                  "description": "PNG, JPEG or TIFF, 8- or 16-bit, RGB (a grey, "
-                                                 "single-channel image answers 422)"},
-                        "taken_at": {"type": "string", "format": "date-time",
-                                     "description": "ISO 8601; naive means UTC; now when absent"},
-                    },
-                }
-            }
-        },
-    }
+def multipart_body(required: list[str], properties: dict[str, dict]) -> dict[str, Any]:
+    """``openapi_extra`` of a route whose ``multipart/form-data`` body is parsed by hand (FastAPI cannot infer it)."""
+    schema = {"type": "object", "required": required, "properties": properties}
+    return {"requestBody": {"required": True, "content": {"multipart/form-data": {"schema": schema}}}}
+
+
+CAMERA_APPLIED: dict[str, dict] = {
+    "applied_gains": {"type": "string", "pattern": r"^[^,]+,[^,]+,[^,]+$",
+                      "description": "'r,g,b': white-balance gains the camera applied to linear values (positive); "
+                                     "divided out"},
+    "exposure": {"type": "string", "description": "relative exposure the camera applied (positive); divided out"},
 }
+"""Form fields of an upload saying what the camera itself applied to the image."""
+
+FRAME_UPLOAD: dict[str, Any] = multipart_body(["image"], {
+    "image": {"type": "string", "format": "binary",
+              "description": "PNG, JPEG or TIFF, 8- or 16-bit, RGB (a grey, single-channel image answers 422)"},
+    "taken_at": {"type": "string", "format": "date-time", "description": "ISO 8601; naive means UTC; now when absent"},
+    **CAMERA_APPLIED,
+})
 """OpenAPI request body of ``POST /v1/cameras/{id}/frames`` (parsed by hand, so FastAPI cannot infer it)."""

@@ -5,23 +5,34 @@ from __future__ import annotations
 import numpy as np
 from fastapi import APIRouter, HTTPException, status
 from illumon.spectra import SpectralInputError, sensitivities_from_arrays
+from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from ...deps import AdminDep, PrincipalDep, SessionDep, camera_for
 from ...status import visible_cameras
-from ...storage import Camera, as_utc, hash_token, new_token, refit_warnings
+from ...storage import Calibration, Camera, as_utc, hash_token, new_token, refit_warnings
 from ..schemas import ERROR_RESPONSES, CameraIn, RegionsIn
 
 router = APIRouter(prefix="/v1/cameras", tags=["cameras"], responses=ERROR_RESPONSES)
 
 
 def camera_out(cam: Camera, session: Session) -> dict:
-    """Public view of a camera (never its token), with the warnings of its latest refit."""
+    """Public view of a camera (never its token): its pipeline, whether its sensitivities were measured, its stored
+    calibrations, what calibrates it (``calibration``: ``chart`` | ``grey`` | ``measured`` | ``none``) and the
+    warnings of its latest refit."""
+    cals = session.scalars(select(Calibration).where(Calibration.camera_id == cam.id).order_by(Calibration.id)).all()
+    kinds = {c.kind for c in cals}
+    measured = bool(cam.sensitivities)
     return {
         "id": cam.id,
         "name": cam.name,
         "regions": cam.regions,
         "response": cam.response,
+        "sensitivities": "measured" if measured else "unmeasured",
+        "calibration": ("chart" if "colorchecker" in kinds else "grey" if "grey" in kinds
+                        else "measured" if measured else "none"),
+        "calibrations": [{"calibration_id": c.id, "kind": c.kind, "created_at": as_utc(c.created_at).isoformat()}
+                         for c in cals],
         "created_at": as_utc(cam.created_at).isoformat(),
         "warnings": refit_warnings(session, cam.id),
     }
@@ -37,17 +48,20 @@ def list_cameras(session: SessionDep, principal: PrincipalDep) -> list[dict]:
 def register_camera(body: CameraIn, session: SessionDep, _admin: AdminDep) -> dict:
     """Register a camera (admin); the answer carries the camera token, shown only once."""
     s = body.sensitivities
-    try:
-        css = sensitivities_from_arrays(s.wavelength_nm, np.column_stack([s.r, s.g, s.b]), source="sensitivities")
-    except SpectralInputError as exc:
-        raise HTTPException(422, str(exc)) from None
-    except (ValueError, AssertionError) as exc:  # colour-science's interpolators reject some samplings this way
-        raise HTTPException(422, f"sensitivities: cannot be resampled onto 400–700 nm at 5 nm ({exc})") from None
+    css: list = []  # unmeasured: a prior from the measured cameras, pinned by calibration images
+    if s is not None:
+        try:
+            css = sensitivities_from_arrays(s.wavelength_nm, np.column_stack([s.r, s.g, s.b]),
+                                            source="sensitivities").tolist()
+        except SpectralInputError as exc:
+            raise HTTPException(422, str(exc)) from None
+        except (ValueError, AssertionError) as exc:  # colour-science's interpolators reject some samplings this way
+            raise HTTPException(422, f"sensitivities: cannot be resampled onto 400–700 nm at 5 nm ({exc})") from None
     token = new_token()
     cam = Camera(
         name=body.name,
         token_hash=hash_token(token),
-        sensitivities=css.tolist(),
+        sensitivities=css,
         regions=[r.model_dump() for r in body.regions],
         response=body.response.model_dump(),
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import time
 from datetime import datetime, timezone
 from pathlib import Path
@@ -12,7 +13,7 @@ from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from ...deps import PrincipalDep, SessionDep, camera_for
-from ...estimation import estimate_frame
+from ...estimation import estimate_frame, undo_camera_gains
 from ...regions import ImageError, Region, RegionError, decode_frame, region_means, response_for, sniff_format
 from ...storage import Camera, Estimate, Frame, as_utc
 from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, IsoDateTime, ObservationIn
@@ -103,11 +104,40 @@ async def read_multipart(request: Request, limit: int) -> tuple[dict[str, str], 
     return fields, files
 
 
+def parse_gains(text: str | None, field: str = "applied_gains") -> list[float] | None:
+    """``"r,g,b"`` → three positive finite multipliers (``None`` when absent); 422 otherwise."""
+    if text is None or not text.strip():
+        return None
+    try:
+        gains = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise HTTPException(422, f"{field} {text!r}: expected three numbers 'r,g,b'") from None
+    if len(gains) != 3 or not all(math.isfinite(g) and g > 0 for g in gains):
+        raise HTTPException(422, f"{field} {text!r}: expected three positive finite numbers 'r,g,b'")
+    return gains
+
+
+def parse_positive(text: str | None, field: str = "exposure") -> float | None:
+    """A form field holding a positive finite number (``None`` when absent), e.g. the relative exposure; 422
+    otherwise."""
+    if text is None or not text.strip():
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise HTTPException(422, f"{field} {text!r}: expected a positive number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise HTTPException(422, f"{field} {text!r}: expected a positive finite number")
+    return value
+
+
 def _store(
     request: Request, session: Session, cam: Camera, taken_at: datetime, patches: dict, size: tuple[int, int] | None,
-    image: bytes | bytearray | None = None, fmt: str | None = None,
+    image: bytes | bytearray | None = None, fmt: str | None = None, applied_gains: list[float] | None = None,
+    exposure: float | None = None,
 ) -> dict:
-    """Estimate a frame if a model exists, store it durably, and build the 201 answer.
+    """Estimate a frame if a model exists (the camera's applied gains and exposure divided out first), store it
+    durably with them, and build the 201 answer.
 
     The estimate comes first (it needs no frame id); the rows are then written through the app's
     :class:`~illumon_service.storage.GroupCommit`, which returns once they are committed (concurrent ingests share
@@ -123,7 +153,8 @@ def _store(
     elif usable < 2:
         warnings.append("only one region was usable: a frame needs two to be estimated")
     t0 = time.perf_counter()
-    est = estimate_frame(settings.data_dir, cam.id, "new", taken_at.isoformat(), patches,
+    est = estimate_frame(settings.data_dir, cam.id, "new", taken_at.isoformat(),
+                         undo_camera_gains(patches, applied_gains, exposure, (cam.response or {}).get("matrix")),
                          [r["id"] for r in cam.regions])
     t1 = time.perf_counter()
     metrics.observe("illumon_estimate_seconds", t1 - t0)
@@ -134,7 +165,8 @@ def _store(
 
     def write(session: Session) -> dict:
         frame = Frame(camera_id=cam.id, taken_at=taken_at, patches=patches,
-                      width=size[0] if size else None, height=size[1] if size else None)
+                      width=size[0] if size else None, height=size[1] if size else None,
+                      applied_gains=applied_gains, exposure=exposure)
         session.add(frame)
         session.flush()
         if image is not None and settings.keep_images:
@@ -152,6 +184,8 @@ def _store(
             "frame_id": frame.id,
             "taken_at": as_utc(frame.taken_at).isoformat(),
             "regions": patches,
+            "applied_gains": applied_gains,
+            "exposure": exposure,
             "usable_regions": usable,
             "estimate": estimate_out(row) if row is not None else None,
             "warnings": warnings,
@@ -165,7 +199,8 @@ def _store(
 
 @router.post("/{camera_id}/frames", status_code=status.HTTP_201_CREATED, openapi_extra=FRAME_UPLOAD)
 async def post_frame(camera_id: int, request: Request, session: SessionDep, principal: PrincipalDep) -> dict:
-    """Ingest one image (multipart ``image`` and optional ``taken_at``): robust region means, then an estimate."""
+    """Ingest one image (multipart ``image``; optional ``taken_at``, ``applied_gains`` "r,g,b" and ``exposure``, which
+    the camera applied and the service divides out): robust region means, then an estimate."""
     t_start = time.perf_counter()
     settings = request.app.state.settings
     cam = await run_in_threadpool(camera_for, session, principal, camera_id)
@@ -185,6 +220,8 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
     if len(data) > limit:
         raise HTTPException(413, f"image exceeds the upload limit of {limit} bytes")
     taken_at = parse_time(fields.get("taken_at"))
+    applied_gains = parse_gains(fields.get("applied_gains"))
+    exposure = parse_positive(fields.get("exposure"))
     metrics = request.app.state.metrics
     metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t_start, labels='stage="receive"')
 
@@ -206,7 +243,8 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
             raise HTTPException(exc.status, str(exc)) from None
         except RegionError as exc:
             raise HTTPException(422, str(exc)) from None
-        return _store(request, session, cam, taken_at, patches, frame.size, data, sniff_format(data))
+        return _store(request, session, cam, taken_at, patches, frame.size, data, sniff_format(data), applied_gains,
+                      exposure)
 
     out = await run_in_threadpool(work)
     request.app.state.metrics.observe("illumon_ingest_seconds", time.perf_counter() - t_start)
@@ -228,7 +266,8 @@ def post_observations(camera_id: int, body: ObservationIn, request: Request, ses
                                  "region's [r, g, b]")
     patches = {k: (None if v is None else [x / body.white_level for x in v]) for k, v in body.patches.items()}
     taken_at = parse_time(body.taken_at.isoformat() if body.taken_at else None)
-    return _store(request, session, cam, taken_at, patches, None)
+    return _store(request, session, cam, taken_at, patches, None, applied_gains=body.applied_gains,
+                  exposure=body.exposure)
 
 
 @router.get("/{camera_id}/frames")
@@ -244,4 +283,5 @@ def list_frames(camera_id: int, session: SessionDep, principal: PrincipalDep, si
         q = q.where(Frame.taken_at <= parse_time(until.isoformat()))
     rows = session.scalars(q.order_by(Frame.taken_at, Frame.id).limit(limit)).all()
     return [{"frame_id": f.id, "taken_at": as_utc(f.taken_at).isoformat(), "regions": f.patches,
-             "width": f.width, "height": f.height} for f in rows]
+             "width": f.width, "height": f.height, "applied_gains": f.applied_gains, "exposure": f.exposure}
+            for f in rows]

@@ -82,6 +82,11 @@ Laplace ≈ 1.9) and 8.8 MK⁻¹ (40-frame fits, Laplace ≈ 2.7), mean −1.6 a
 ≈ 2.4 leaves 7.5 MK⁻¹ for the prior's bias."""
 
 
+CENSORED = 2.0
+"""A channel value below this many absolute noise levels (0.4 % of the history's median green) is taken as censored
+at 0 — a dark channel clipped after the black level or a colour matrix — and carries no weight."""
+
+
 class IdentifiabilityWarning(UserWarning):
     """The fitted history cannot determine the illuminants (too little illuminant variation or an ill-posed fit)."""
 
@@ -223,6 +228,7 @@ class FrameSolver:
         """
         yy = np.where(present[..., None], y, 0.0)
         var = (self.noise_scale**2) * ((self.rel * yy) ** 2 + self.abs**2)  # F × P × 3
+        var = np.where(yy < CENSORED * self.abs, 1e12, var)  # censored at 0: no weight
         b = None
         for it in range(2 if self.H is not None else 1):
             if it == 0:
@@ -684,6 +690,7 @@ def _fit_fixed_camera(
     present = present_all[sub]
     yz = np.where(present[..., None], y, 0.0)
     base_w2 = np.where(present[..., None], 1.0 / ((relative_error * yz) ** 2 + absolute_error**2), 0.0)
+    base_w2[yz < CENSORED * absolute_error] = 0.0  # censored at 0 (dark channels after the black level): no weight
     k_ops, w_ops = imaging_operators(css, dm.basis, rb)
     lam = np.linalg.inv(rb.prior_covariance)
     mu = rb.prior_mean

@@ -52,6 +52,10 @@ daylight whites around the mean camera's (see :func:`prior_white_spread`); ``gre
 leaves, measured on development cameras (``python benchmarks/unmeasured.py``)."""
 
 
+CLIPPED = 0.995
+"""Reference values at or above this (observations are 0…1 of the white level) are taken as clipped."""
+
+
 @lru_cache(maxsize=1)
 def prior_sensitivities() -> NDArray[np.float64]:
     """Mean of the measured cameras' max-normalised sensitivities (61 × 3): the camera nobody measured, a priori."""
@@ -157,7 +161,10 @@ def camera_transform_Kinoshita2023(
         for c in range(3):
             d = (s[:, None, None] * u)[ok]  # n × 3
             x = values[..., c][ok]
-            w = 1.0 / (relative_error * np.maximum(np.abs(x), 1e-3 * np.abs(x).max()))
+            # Censored values carry no weight: clipped at 0 after the black level (dark patches under a colour
+            # matrix) or at the white level (1 on the observations' scale).
+            usable = (x > 1e-3 * x.max()) & (x < CLIPPED)
+            w = np.where(usable, 1.0 / (relative_error * np.maximum(x, 1e-12)), 0.0)
             dw, xw = d * w[:, None], x * w
             if diagonal:
                 prior = GaussianPrior(np.array([1.0]) * t[c, c], np.array([[1.0 / prior_sd**2]]))
@@ -171,8 +178,9 @@ def camera_transform_Kinoshita2023(
                 sd[:, c] = np.sqrt(np.diag(post.covariance))
         t = t_new
         pred = np.einsum("fpj,jc->fpc", u, t)
+        good = ok[..., None] & (values > 1e-3 * np.nanmax(values)) & (values < CLIPPED)
         s = np.array([
-            np.sum(pred[f, ok[f]] * values[f, ok[f]]) / max(np.sum(pred[f, ok[f]] ** 2), 1e-300) if ok[f].any() else 1.0
+            np.sum((pred[f] * values[f])[good[f]]) / max(np.sum((pred[f] ** 2)[good[f]]), 1e-300) if good[f].any() else 1.0
             for f in range(u.shape[0])
         ])
     norm = _d65_white(base)[1] / _d65_white(base @ t)[1]

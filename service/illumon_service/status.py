@@ -16,7 +16,9 @@ function of an :class:`AlertContext` (the camera, its recent frames and its late
 * ``low_confidence`` — the latest estimate's confidence is below 0.5;
 * ``no_estimate`` — frames are stored but none is estimated yet (no refit has run);
 * ``refit_warning`` — a warning of the latest refit, e.g. a stored history that still looks non-linear for the
-  camera's declared tone response (:func:`~.estimation.check_response`: every estimate is then off).
+  camera's declared tone response (:func:`~.estimation.check_response`: every estimate is then off);
+* ``uncalibrated`` — a camera registered without sensitivities and no calibration image yet: its estimates rest on
+  the prior from measured cameras (an information, not a fault).
 
 A later diagnosis of the history (patch change, shadow, clipping, … from ``illumon.diagnosis``) is one more rule
 appended to :data:`ALERT_RULES` that turns stored diagnosis results into :class:`Alert` objects; nothing else in the
@@ -36,7 +38,7 @@ from sqlalchemy.orm import Session
 from .api.routes.estimates import estimate_out
 from .deps import Principal
 from .settings import Settings
-from .storage import Camera, Estimate, Frame, as_utc, refit_warnings
+from .storage import Calibration, Camera, Estimate, Frame, as_utc, refit_warnings
 
 __all__ = [
     "Alert",
@@ -88,6 +90,8 @@ class AlertContext:
     frame_count: int
     refit_warnings: list[str] = field(default_factory=list)
     """Warnings of the camera's latest finished refit (:func:`~.storage.refit_warnings`)."""
+    uncalibrated: bool = False
+    """No measured sensitivities and no calibration image."""
 
 
 def _regions_missing(ctx: AlertContext) -> list[Alert]:
@@ -145,8 +149,16 @@ def _refit_warning(ctx: AlertContext) -> list[Alert]:
     return [Alert("refit_warning", "Check set-up", w) for w in ctx.refit_warnings]
 
 
+def _uncalibrated(ctx: AlertContext) -> list[Alert]:
+    if not ctx.uncalibrated:
+        return []
+    return [Alert("uncalibrated", "Uncalibrated", "no sensitivities and no reference seen yet: estimates rest on the "
+                  "measured cameras' prior (wider intervals); POST a grey card or ColorChecker image to "
+                  "/v1/cameras/{id}/calibration".replace("{id}", str(ctx.camera.id)), severity="info")]
+
+
 ALERT_RULES: list[Callable[[AlertContext], list[Alert]]] = [
-    _refit_warning, _regions_missing, _clipping, _non_daylight, _low_confidence, _no_estimate,
+    _refit_warning, _uncalibrated, _regions_missing, _clipping, _non_daylight, _low_confidence, _no_estimate,
 ]
 """Rules producing a camera's alerts, in display order; append a rule to add a kind of alert."""
 
@@ -186,7 +198,9 @@ def camera_status(session: Session, cam: Camera, settings: Settings) -> CameraSt
     ).all())
     count = session.scalar(select(func.count()).select_from(Frame).where(Frame.camera_id == cam.id)) or 0
     latest = _latest_estimate(session, cam.id)
-    ctx = AlertContext(cam, frames, latest, settings, int(count), refit_warnings(session, cam.id))
+    calibrated = bool(cam.sensitivities) or session.scalar(
+        select(func.count()).select_from(Calibration).where(Calibration.camera_id == cam.id)) > 0
+    ctx = AlertContext(cam, frames, latest, settings, int(count), refit_warnings(session, cam.id), not calibrated)
     alerts = [a for rule in ALERT_RULES for a in rule(ctx)]
     out = None
     if latest is not None:

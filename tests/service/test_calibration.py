@@ -194,6 +194,7 @@ def _unmeasured_day(tmp_path, kind: str) -> tuple[np.ndarray, np.ndarray, dict]:
     with TestClient(create_app(make_settings(tmp_path))) as c:
         cid, auth = _register(c, None, regions)
         assert c.get(f"/v1/cameras/{cid}", headers=auth).json()["calibration"] == "none"
+        assert 'data-kind="uncalibrated"' in c.get(f"/cameras/{cid}", headers=auth).text  # the status page says so
         for f in range(len(obs.frames)):
             patches = {p: obs.values[f, j].tolist() for j, p in enumerate(obs.patches) if obs.present[f, j]}
             assert c.post(f"/v1/cameras/{cid}/observations", json={"patches": patches,
@@ -217,6 +218,7 @@ def _unmeasured_day(tmp_path, kind: str) -> tuple[np.ndarray, np.ndarray, dict]:
     with TestClient(create_app(make_settings(tmp_path))) as c:  # stored: survives a restart
         cam = c.get(f"/v1/cameras/{cid}", headers=auth).json()
         assert cam["sensitivities"] == "unmeasured" and [k["kind"] for k in cam["calibrations"]] == [kind]
+        assert 'data-kind="uncalibrated"' not in c.get(f"/cameras/{cid}", headers=auth).text
         err_ref, job = refit(c, cid, auth)
     return err_none, err_ref, job
 

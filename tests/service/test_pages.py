@@ -188,6 +188,10 @@ def test_alert_rules() -> None:
     assert _kinds(_ctx(confidence=0.2)) == ["low_confidence"]
     assert _kinds(_ctx(missing=2)) == []  # a passer-by
     assert _kinds(_ctx(missing=3)) == ["regions_missing"]
+    ctx = _ctx()
+    ctx.camera.id, ctx.uncalibrated = 7, True
+    (alert,) = [a for rule in ALERT_RULES for a in rule(ctx)]
+    assert alert.kind == "uncalibrated" and "/v1/cameras/7/calibration" in alert.message and alert.severity == "info"
 
 
 def test_time_chart() -> None:

@@ -14,7 +14,8 @@ percentile stretch) and LearningBasedWB (``createLearningBasedWB``; the wheel sh
 with its built-in defaults). A peer's camera white is read off its output: the per-channel median ratio of the
 linearised input to the linearised output over unclipped pixels.
 
-illumon reads the static patches' region means from the decoded 8-bit frames and runs
+illumon reads the static patches' region means from the 8-bit frames as the service does (clipped pixels and outliers
+dropped, a mostly clipped region missing for that frame) and runs
 
 * ``joint`` (multi-frame, :func:`illumon.retrieval.retrieve_illuminants`) on the whole history;
 * the learned scene model (:func:`illumon.model.fit_scene_model` on the first half, ``SceneModel.estimate`` per frame)
@@ -40,13 +41,15 @@ import colour  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from illumon import datasets  # noqa: E402
-from illumon.camera import angular_error_deg, render  # noqa: E402
+from illumon.camera import ResponseCurve, angular_error_deg, render  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
 from illumon.retrieval import retrieve_illuminants  # noqa: E402
 from illumon.scenarios import measured_daylight_history  # noqa: E402
+from illumon_service.regions import Region, region_means  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
+SRGB8 = ResponseCurve(encoding="srgb", white_level=255.0)
 HELD_OUT_CAMERAS = ("Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf",
                     "Phase_One")
 H, W, PATCH = 120, 160, 14
@@ -96,10 +99,13 @@ class FrameRenderer:
         rgb = rgb + np.sqrt(2e-4 * np.clip(rgb, 0, None) + 1e-6) * self.rng.standard_normal(rgb.shape)
         return np.clip(rgb, 0.0, 1.0)
 
-    def regions(self, img: np.ndarray) -> np.ndarray:
-        """Static patches' region means (P × 3), inner pixels only."""
-        return np.array([img[y0 + 2 : y0 + PATCH - 2, x0 + 2 : x0 + PATCH - 2].reshape(-1, 3).mean(0)
-                         for y0, x0 in self.rects])
+    def regions(self, img8: np.ndarray) -> np.ndarray:
+        """Static patches' region means (P × 3) of an 8-bit sRGB-encoded frame, as the service measures them
+        (:func:`illumon_service.regions.region_means`: clipped pixels and outliers dropped; NaN where too few
+        survive)."""
+        regions = [Region(str(j), x0 + 1, y0 + 1, PATCH - 2, PATCH - 2) for j, (y0, x0) in enumerate(self.rects)]
+        means = region_means(img8, regions, SRGB8)
+        return np.array([means[r.id] if means[r.id] is not None else [np.nan] * 3 for r in regions])
 
 
 def encode8(lin: np.ndarray) -> np.ndarray:
@@ -156,7 +162,7 @@ def run_history(camera: str, seed: int, frames: int, patches: int, scene: str) -
         lin = fr.frame(f)
         img8 = encode8(lin)
         img16 = np.round(65535 * lin).astype(np.uint16)
-        values[f] = fr.regions(decode8(img8))
+        values[f] = fr.regions(img8)
         if f not in test:
             continue
         for name, (a8, a16) in algos.items():
@@ -169,8 +175,11 @@ def run_history(camera: str, seed: int, frames: int, patches: int, scene: str) -
     res = retrieve_illuminants(obs, h.sensitivities, method="joint")
     secs["illumon joint (multi-frame)"] = [(time.perf_counter() - t) / frames]
     errs["illumon joint (multi-frame)"] = list(angular_error_deg(res.white[test], h.true_white[test]))
-    train = Observations(obs.frames[: frames // 2], obs.patches, values[: frames // 2], obs.times[: frames // 2])
-    held = Observations([obs.frames[i] for i in test], obs.patches, values[test], [obs.times[i] for i in test])
+    # patches clipped in every training frame cannot be learned: the scene model leaves them out
+    seen = np.isfinite(values[: frames // 2]).all(-1).any(0)
+    names = [p for p, k in zip(obs.patches, seen, strict=True) if k]
+    train = Observations(obs.frames[: frames // 2], names, values[: frames // 2][:, seen], obs.times[: frames // 2])
+    held = Observations([obs.frames[i] for i in test], names, values[test][:, seen], [obs.times[i] for i in test])
     variants = {"illumon scene model (measured camera)": h.sensitivities,
                 "illumon scene model (unmeasured camera)": None}
     for name, sens in variants.items():

@@ -37,6 +37,8 @@ __all__ = [
     "detect_colorchecker",
     "patch_regions",
     "measure_patches",
+    "reference_box",
+    "covered_regions",
 ]
 
 CHART_ROWS, CHART_COLS = 4, 6
@@ -126,6 +128,20 @@ def patch_regions(ids: Sequence[str], centres: NDArray[np.float64], pitch: float
             raise CalibrationError(f"patch {pid} ({x:.0f}, {y:.0f}) lies outside the {w}×{h} image")
         out.append(Region(pid, x0, y0, side, side))
     return out
+
+
+def reference_box(regions: Sequence[Region], margin: float = 0.0) -> tuple[float, float, float, float]:
+    """``(x0, y0, x1, y1)``: the bounding box of the reference's sampled regions, grown by ``margin`` pixels on each
+    side (for a chart, about a patch pitch: the patches and the chart's surround around them)."""
+    return (min(r.x for r in regions) - margin, min(r.y for r in regions) - margin,
+            max(r.x + r.width for r in regions) + margin, max(r.y + r.height for r in regions) + margin)
+
+
+def covered_regions(scene: Sequence[Region], box: tuple[float, float, float, float]) -> set[str]:
+    """Ids of the camera's regions that overlap ``box``: the reference hides them in the calibration image, so their
+    means there would be the reference's, not the scene's."""
+    x0, y0, x1, y1 = box
+    return {r.id for r in scene if r.x < x1 and r.x + r.width > x0 and r.y < y1 and r.y + r.height > y0}
 
 
 def measure_patches(

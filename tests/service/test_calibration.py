@@ -20,7 +20,7 @@ from illumon import datasets
 from illumon.camera import ResponseCurve, angular_error_deg, camera_white, colorchecker_references, render
 from illumon.daylight import daylight_locus_xy, daylight_spectrum
 from illumon_service.app import create_app
-from svc_helpers import admin_headers, bearer, camera_body, encode_png, grid_regions, make_settings, need_data
+from svc_helpers import admin_headers, bearer, camera_body, encode_png, make_settings, need_data
 
 W, H = 800, 600
 PATCH, GAP = 60, 14
@@ -85,7 +85,7 @@ def css() -> np.ndarray:
 
 
 def _register(client: TestClient, css: np.ndarray | None = None, regions: list[dict] | None = None) -> tuple[int, dict]:
-    body = camera_body(np.ones((61, 3)) if css is None else css, regions or grid_regions())
+    body = camera_body(np.ones((61, 3)) if css is None else css, regions or SCENE_REGIONS)
     if css is None:
         del body["sensitivities"]
     r = client.post("/v1/cameras", json=body, headers=admin_headers())
@@ -147,6 +147,21 @@ def test_grey_card(client, css):
     (patch,) = r.json()["patches"]
     assert patch["id"] == "grey" and not patch["clipped"]
     np.testing.assert_allclose([patch["r"], patch["g"], patch["b"]], card, rtol=0.01)
+
+
+def test_regions_behind_the_reference_not_used(client, css):
+    """A camera region hidden by the reference in the calibration image is left out of the scene values (its mean
+    there would be the card's or the chart's), and the answer says so."""
+    hidden = {"id": "behind", "x": 330, "y": 120, "width": 40, "height": 40}
+    cid, auth = _register(client, css, SCENE_REGIONS[:3] + [hidden])
+    img = np.full((H, W, 3), 0.3) * np.array([1.0, 0.9, 1.1])
+    img[100:200, 300:420] = [0.21, 0.18, 0.15]
+    r = _post(client, cid, auth, _srgb_png(img), kind="grey", region={"x": 310, "y": 110, "width": 100, "height": 80})
+    assert r.status_code == 201, r.text
+    assert r.json()["scene_regions"] == 3 and "behind" in r.json()["warnings"][0]
+    values, corners = _chart_image(_chart_values(css), seed=3)
+    r = _post(client, cid, auth, _srgb_png(values), kind="colorchecker", corners=corners)
+    assert r.status_code == 201 and r.json()["scene_regions"] == 3, r.text
 
 
 def test_bad_calibrations_answer_422(client, css):

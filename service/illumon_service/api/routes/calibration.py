@@ -11,10 +11,12 @@ from starlette.concurrency import run_in_threadpool
 from ...calibration import (
     CalibrationError,
     chart_patch_ids,
+    covered_regions,
     detect_colorchecker,
     grid_from_corners,
     measure_patches,
     patch_regions,
+    reference_box,
 )
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...regions import ImageError, Region, RegionError, decode_frame, region_means, response_for
@@ -90,11 +92,12 @@ async def post_calibration(camera_id: int, request: Request, session: SessionDep
                 if region.x + region.width > w or region.y + region.height > h:
                     raise CalibrationError(f"region ({region.x},{region.y} {region.width}×{region.height}) lies "
                                            f"outside the {w}×{h} image")
-                regions = [region]
+                regions, box = [region], reference_box([region])
             else:
                 centres, pitch = (grid_from_corners(corners) if corners is not None
                                   else detect_colorchecker(frame.image, frame.full_scale))
                 regions = patch_regions(chart_patch_ids(), centres, pitch, frame.size)
+                box = reference_box(regions, margin=pitch)
             patches, warnings = measure_patches(frame.image, regions, response, clip_fraction=settings.clip_fraction,
                                                 min_fraction=settings.min_region_fraction)
             try:  # the camera's own regions in the same image: the reference's daylight comes from them
@@ -102,6 +105,11 @@ async def post_calibration(camera_id: int, request: Request, session: SessionDep
                                      clip_fraction=settings.clip_fraction, min_fraction=settings.min_region_fraction)
             except RegionError:
                 scene = {}
+            hidden = covered_regions([Region(**r) for r in cam.regions], box) & set(scene)
+            if hidden:  # behind the reference: their values here are the reference's
+                scene.update(dict.fromkeys(hidden, None))
+                warnings.append(f"{len(hidden)} of the camera's regions overlap the reference and are not used from "
+                                f"this image ({', '.join(sorted(hidden)[:4])}{' …' if len(hidden) > 4 else ''})")
             if sum(v is not None for v in scene.values()) < 2:
                 warnings.append("fewer than two of the camera's regions are usable in this image: a calibration "
                                 "counts only in an image from the camera itself, showing its scene around the "

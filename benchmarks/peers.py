@@ -19,7 +19,8 @@ dropped, a mostly clipped region missing for that frame) and runs
 
 * ``joint`` (multi-frame, :func:`illumon.retrieval.retrieve_illuminants`) on the whole history;
 * the learned scene model (:func:`illumon.model.fit_scene_model` on the first half, ``SceneModel.estimate`` per frame)
-  with the camera's measured sensitivities, and for an unmeasured camera (``sensitivities=None``).
+  with the camera's measured sensitivities, and for an unmeasured camera (``sensitivities=None``) with a grey card
+  held up in the first frame (``known_reflectances``) or with no reference at all.
 
 Scores are on the second half of every history (frames the scene model never saw): camera-white angular error
 median / p95 / max (degrees) and time per frame.
@@ -47,12 +48,16 @@ from illumon.observations import Observations  # noqa: E402
 from illumon.retrieval import retrieve_illuminants  # noqa: E402
 from illumon.scenarios import measured_daylight_history  # noqa: E402
 from illumon_service.regions import Region, region_means  # noqa: E402
+from retrieval import _stats  # noqa: E402  (benchmarks/retrieval.py: median, p95, max, n)
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SRGB8 = ResponseCurve(encoding="srgb", white_level=255.0)
 HELD_OUT_CAMERAS = ("Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf",
                     "Phase_One")
 H, W, PATCH = 120, 160, 14
+GREY_CARD = np.full(61, 0.45)
+"""A flat grey card (reflectance 0.45), held up in the first frame of every history for the unmeasured-camera case."""
+GREY_AT = (H - PATCH - 6, W - PATCH - 6)
 CLUTTER = {"natural": ("natural_joensuu_219", "natural_vrhel"), "munsell": ("munsell_matt_1269",)}
 """Reflectance sets the clutter is drawn from: an outdoor scene's leaves, bark, soil and objects, or colourful paint
 chips (the gray-world assumption's best case: random chips average to near grey)."""
@@ -77,8 +82,8 @@ class FrameRenderer:
         yy, xx = np.mgrid[0:H, 0:W]
         self.texture = (1 + 0.08 * rng.uniform(-1, 1, (H, W))) * (0.75 + 0.25 * xx / W + 0.1 * yy / H)
 
-    def reflectance_map(self) -> np.ndarray:
-        """Index map (H × W) into a per-frame reflectance list, and the list."""
+    def reflectance_map(self, grey_card: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Index map (H × W) into a per-frame reflectance list, and the list; optionally a grey card held up."""
         refl = [self.pool[self.rng.integers(len(self.pool))]]
         idx = np.zeros((H, W), dtype=int)
         for _ in range(self.clutter):
@@ -89,21 +94,26 @@ class FrameRenderer:
         for j, (y0, x0) in enumerate(self.rects):
             refl.append(self.h.reflectances[j])
             idx[y0 : y0 + PATCH, x0 : x0 + PATCH] = len(refl) - 1
+        if grey_card:
+            refl.append(GREY_CARD)
+            y0, x0 = GREY_AT
+            idx[y0 : y0 + PATCH, x0 : x0 + PATCH] = len(refl) - 1
         return idx, np.asarray(refl)
 
-    def frame(self, f: int) -> np.ndarray:
+    def frame(self, f: int, grey_card: bool = False) -> np.ndarray:
         """Linear camera image (H × W × 3, 0…1) of frame ``f``."""
-        idx, refl = self.reflectance_map()
+        idx, refl = self.reflectance_map(grey_card)
         rgb = render(self.h.sensitivities, self.h.illuminants[f], refl)[idx] * self.texture[..., None]
         rgb = rgb * 0.9 / np.percentile(rgb, 99)
         rgb = rgb + np.sqrt(2e-4 * np.clip(rgb, 0, None) + 1e-6) * self.rng.standard_normal(rgb.shape)
         return np.clip(rgb, 0.0, 1.0)
 
-    def regions(self, img8: np.ndarray) -> np.ndarray:
+    def regions(self, img8: np.ndarray, grey_card: bool = False) -> np.ndarray:
         """Static patches' region means (P × 3) of an 8-bit sRGB-encoded frame, as the service measures them
         (:func:`illumon_service.regions.region_means`: clipped pixels and outliers dropped; NaN where too few
         survive)."""
-        regions = [Region(str(j), x0 + 1, y0 + 1, PATCH - 2, PATCH - 2) for j, (y0, x0) in enumerate(self.rects)]
+        rects = self.rects + ([GREY_AT] if grey_card else [])
+        regions = [Region(str(j), x0 + 1, y0 + 1, PATCH - 2, PATCH - 2) for j, (y0, x0) in enumerate(rects)]
         means = region_means(img8, regions, SRGB8)
         return np.array([means[r.id] if means[r.id] is not None else [np.nan] * 3 for r in regions])
 
@@ -158,11 +168,15 @@ def run_history(camera: str, seed: int, frames: int, patches: int, scene: str) -
     errs: dict[str, list[float]] = {}
     secs: dict[str, list[float]] = {}
     values = np.empty((frames, patches, 3))
+    grey = np.full((frames, 1, 3), np.nan)
     for f in range(frames):
-        lin = fr.frame(f)
+        lin = fr.frame(f, grey_card=f == 0)
         img8 = encode8(lin)
         img16 = np.round(65535 * lin).astype(np.uint16)
-        values[f] = fr.regions(img8)
+        v = fr.regions(img8, grey_card=f == 0)
+        values[f] = v[:patches]
+        if f == 0:
+            grey[0] = v[patches:]
         if f not in test:
             continue
         for name, (a8, a16) in algos.items():
@@ -180,23 +194,21 @@ def run_history(camera: str, seed: int, frames: int, patches: int, scene: str) -
     names = [p for p, k in zip(obs.patches, seen, strict=True) if k]
     train = Observations(obs.frames[: frames // 2], names, values[: frames // 2][:, seen], obs.times[: frames // 2])
     held = Observations([obs.frames[i] for i in test], names, values[test][:, seen], [obs.times[i] for i in test])
-    variants = {"illumon scene model (measured camera)": h.sensitivities,
-                "illumon scene model (unmeasured camera)": None}
-    for name, sens in variants.items():
+    with_grey = Observations(train.frames, [*names, "grey"],
+                             np.concatenate([train.values, grey[: frames // 2]], axis=1), train.times)
+    variants = {"illumon scene model (measured camera)": (h.sensitivities, train, None),
+                "illumon scene model (measured camera, grey card once)": (h.sensitivities, with_grey, {"grey": GREY_CARD}),
+                "illumon scene model (unmeasured camera, grey card once)": (None, with_grey, {"grey": GREY_CARD}),
+                "illumon scene model (unmeasured camera, no reference)": (None, train, None)}
+    for name, (sens, data, known) in variants.items():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            model = fit_scene_model(train, sens)
+            model = fit_scene_model(data, sens, known_reflectances=known)
             t = time.perf_counter()
             est, _ = model.estimate(held)
         secs[name] = [(time.perf_counter() - t) / len(test)]
         errs[name] = list(angular_error_deg(est.white, h.true_white[test]))
     return {"errors": errs, "seconds": secs}
-
-
-def _stats(v: list[float]) -> dict[str, float]:
-    a = np.asarray(v, dtype=float)
-    return {"median": float(np.median(a)), "p95": float(np.percentile(a, 95)), "max": float(a.max()),
-            "n": int(a.size)}
 
 
 def main() -> int:
@@ -228,9 +240,9 @@ def main() -> int:
         print(f"\n{scene} clutter ({', '.join(CLUTTER[scene])}). Held-out cameras {', '.join(cams)}; {seeds} "
               f"histories per camera, {frames} frames ({frames // 2} scored), {patches} static patches, {H}×{W} "
               "frames; camera-white angular error (degrees)")
-        print(f"{'method':<44} {'median':>7} {'p95':>7} {'max':>7} {'ms/frame':>9} {'best peer/median':>17}")
+        print(f"{'method':<56} {'median':>7} {'p95':>7} {'max':>7} {'ms/frame':>9} {'best peer/median':>17}")
         for k, s in summ.items():
-            print(f"{k:<44} {s['median']:7.2f} {s['p95']:7.2f} {s['max']:7.2f} {s['ms_per_frame']:9.2f} "
+            print(f"{k:<56} {s['median']:7.2f} {s['p95']:7.2f} {s['max']:7.2f} {s['ms_per_frame']:9.2f} "
                   f"{best_peer / s['median']:17.1f}")
         sys.stdout.flush()
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

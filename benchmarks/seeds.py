@@ -46,6 +46,7 @@ from illumon.sensitivity.daylight_recovery import daylight_basis  # noqa: E402
 from illumon.sensitivity.evaluate import camera_model, leave_one_out  # noqa: E402
 from illumon.sensitivity.prior import build_camera_prior  # noqa: E402
 from illumon.spectra import GRID, resample_columns  # noqa: E402
+from retrieval import _stats  # noqa: E402  (benchmarks/retrieval.py: median, p95, max, n)
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -91,11 +92,6 @@ KINOSHITA_PUBLISHED: dict[float, dict[str, dict[str, float | None]]] = {
     },
 }
 """Kinoshita & Kiya Tables 1–2 (Table 1 as extracted from the paper's text, row order illumination, R, G, B)."""
-
-
-def _stats(v: list[float]) -> dict[str, float]:
-    a = np.asarray(v, dtype=float)
-    return {"median": float(np.median(a)), "max": float(a.max()), "n": int(a.size)}
 
 
 # --- Marguier & Süsstrunk ------------------------------------------------------------------------------------------

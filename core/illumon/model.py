@@ -516,9 +516,13 @@ def _assemble(
         method="model", times=list(obs.times),
     )
     me = model.noise.get("model_error", MODEL_ERROR)
+    frame_cov = cov  # the frame's own uncertainty, without what is common to the history
     cov = cov.copy()
     cov[:, 0, 0] += me.get("common_mired", 0.0) ** 2  # shift common to the history (fit's Laplace posterior)
     cov[:, 1, 1] += me.get("common_duv", 0.0) ** 2  # the day's common offset from the locus (see MODEL_ERROR)
+    # A reference of known reflectance (grey card, chart) pins the camera white of its frame: a shift common to every
+    # frame's daylight then moves the camera transform with it, not the whites and gains (the CCT stays uncertain).
+    white_cov = frame_cov if model.camera.get("calibration") in ("grey", "chart") else cov
     sm = np.sqrt(np.clip(cov[:, 0, 0], 0, None) + me["mired"] ** 2)
     cct_lo = 1e6 / np.clip(mired + Z95 * sm, 1e-3, None)
     cct_hi = 1e6 / np.clip(mired - Z95 * sm, 1e-3, None)
@@ -535,10 +539,10 @@ def _assemble(
     jg = np.stack([(gains[1] - gains[0]) / h[0], (gains[2] - gains[0]) / h[1]], axis=-1)  # F × 3 × 2
     # the camera model's own uncertainty (an unmeasured camera's sensitivities; a reference pins most of it)
     log_gain = math.hypot(me["log_gain"], me.get("camera_log_gain", 0.0))
-    sg = np.sqrt(np.clip(np.einsum("fci,fij,fcj->fc", jg, cov[:, :2, :2], jg), 0, None) + (gains[0] * log_gain) ** 2)
+    sg = np.sqrt(np.clip(np.einsum("fci,fij,fcj->fc", jg, white_cov[:, :2, :2], jg), 0, None) + (gains[0] * log_gain) ** 2)
     unit = [w / np.linalg.norm(w, axis=1, keepdims=True) for w in wh]
     ju = np.stack([(unit[1] - unit[0]) / h[0], (unit[2] - unit[0]) / h[1]], axis=-1)
-    tr = np.einsum("fci,fij,fcj->f", ju, cov[:, :2, :2], ju) + 2 * log_gain**2  # angular variance (rad²)
+    tr = np.einsum("fci,fij,fcj->f", ju, white_cov[:, :2, :2], ju) + 2 * log_gain**2  # angular variance (rad²)
     rho = math.radians(1.0)
     confidence = 1.0 - np.exp(-(rho**2) / np.clip(tr, 1e-30, None))  # Rayleigh with σ² = tr/2
     nan = np.full(len(mired), np.nan)

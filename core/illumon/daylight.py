@@ -39,8 +39,6 @@ __all__ = [
     "theta_curve",
     "DaylightModel",
     "CIEDaylight",
-    "DAYLIGHT_MODELS",
-    "daylight_model",
 ]
 
 
@@ -116,7 +114,9 @@ def cie_d_cct(nominal: ArrayLike) -> NDArray[np.float64]:
 
 
 @dataclass(frozen=True)
-class _Planck:
+class PlanckLocus:
+    """The Planckian locus tabulated on reciprocal temperature (CIE 1960 uv, derivative and unit normal)."""
+
     mired: NDArray[np.float64]
     uv: NDArray[np.float64]
     duv_dm: NDArray[np.float64]  # derivative of uv with respect to mired
@@ -124,7 +124,8 @@ class _Planck:
 
 
 @lru_cache(maxsize=1)
-def _planck() -> _Planck:
+def planck_locus() -> PlanckLocus:
+    """The tabulated Planckian locus (5–1000 MK⁻¹ at 0.25 MK⁻¹; CIE 1931 2° observer, c₂ = 1.4388e-2 m K)."""
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     wl = np.asarray(cmfs.wavelengths, dtype=float) * 1e-9
     xyz_bar = np.asarray(cmfs.values, dtype=float)
@@ -140,7 +141,7 @@ def _planck() -> _Planck:
     # Rotate the tangent (direction of increasing mired, i.e. decreasing CCT) so that the normal points to +v.
     normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
     normal *= np.sign(normal[:, 1:2])
-    return _Planck(mired, uv, d, normal)
+    return PlanckLocus(mired, uv, d, normal)
 
 
 def _uv_to_xy(uv: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -161,7 +162,7 @@ def xy_from_cct_duv(cct: ArrayLike, duv: ArrayLike) -> NDArray[np.float64]:
     Vectorised through a dense tabulated locus (0.25 MK⁻¹ steps, linearly interpolated), so it is cheap enough for
     per-frame solves; agrees with :func:`colour.temperature.CCT_to_uv_Ohno2013` to < 1e-5 in uv.
     """
-    p = _planck()
+    p = planck_locus()
     m = 1e6 / np.asarray(cct, dtype=float)
     duv = np.asarray(duv, dtype=float)
     u0 = np.interp(m, p.mired, p.uv[:, 0])
@@ -178,7 +179,7 @@ def cct_duv_from_xy(xy: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.floa
     The nearest table point is refined by projecting onto the local tangent, which makes the result accurate to well
     under 1 K around daylight temperatures.
     """
-    p = _planck()
+    p = planck_locus()
     uv = _xy_to_uv(np.asarray(xy, dtype=float))
     flat = uv.reshape(-1, 2)
     cct = np.empty(flat.shape[0])
@@ -375,22 +376,3 @@ class CIEDaylight(DaylightModel):
         if self.n_params == 1:
             return m
         return np.concatenate([m, np.zeros_like(m)], axis=1)
-
-
-DAYLIGHT_MODELS: dict[str, type[DaylightModel]] = {"cie": CIEDaylight}
-"""Daylight models by name (``--daylight-model``)."""
-
-
-def daylight_model(name: str | DaylightModel = "cie") -> DaylightModel:
-    """A daylight model instance by name: ``"cie"`` or ``"measured"`` (:class:`illumon.daylight_measured.MeasuredDaylight`,
-    registered here on first use); more may be registered in :data:`DAYLIGHT_MODELS`."""
-    if isinstance(name, DaylightModel):
-        return name
-    if "measured" not in DAYLIGHT_MODELS:  # lazy: illumon.daylight_measured imports this module
-        from .daylight_measured import MeasuredDaylight
-
-        DAYLIGHT_MODELS["measured"] = MeasuredDaylight
-    try:
-        return DAYLIGHT_MODELS[name]()
-    except KeyError:
-        raise ValueError(f"unknown daylight model {name!r}; choose from {', '.join(DAYLIGHT_MODELS)}") from None

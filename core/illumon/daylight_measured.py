@@ -39,7 +39,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .daylight import (
-    DAYLIGHT_MODELS,
     MIRED_RANGE,
     DaylightModel,
     cct_duv_from_xy,
@@ -417,6 +416,3 @@ class MeasuredDaylight(DaylightModel):
         m = np.clip(np.asarray(mired, dtype=float).ravel(), *MIRED_RANGE)
         d = np.clip(self.data.delta_mean(m), -DELTA_BOUND, DELTA_BOUND)
         return np.column_stack([m, d, np.zeros((m.size, self.n_extra))])
-
-
-DAYLIGHT_MODELS.setdefault("measured", MeasuredDaylight)

@@ -5,7 +5,7 @@ import argparse
 import numpy as np
 import pytest
 from illumon import datasets
-from illumon.reports.cli import add_report_command, run_daylight_report
+from illumon.cli.report import add_report_command, run_daylight_report
 from illumon.spectra import WAVELENGTHS, SpectralInputError, write_spectral_csv
 
 

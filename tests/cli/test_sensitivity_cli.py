@@ -9,7 +9,7 @@ import pytest
 from illumon import datasets
 from illumon.camera import render
 from illumon.reflectance import colourchecker_reflectances
-from illumon.sensitivity.cli import add_sensitivity_command, run
+from illumon.cli.sensitivity import add_sensitivity_command, run
 from illumon.spectra import SpectralInputError, read_sensitivities, read_spectral_csv
 
 

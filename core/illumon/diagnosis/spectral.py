@@ -27,11 +27,11 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from ..daylight import daylight_model
+from ..daylight_models import daylight_model
 from ..observations import Observations
 from ..reflectance import reflectance_basis
-from ..retrieval.common import imaging_operators
-from ..retrieval.joint import JointProblem, _gray_world_mired
+from ..retrieval.common import gray_world_mired, imaging_operators
+from ..retrieval.joint import JointProblem
 from ..spectra import WAVELENGTHS
 
 __all__ = [
@@ -65,7 +65,7 @@ def fit_spectral_base(obs: Observations, sensitivities: NDArray[np.float64], max
     prob = JointProblem(obs, c, model, rb)
     lo, hi = prob.bounds()
     nfr = prob.F * prob.nf
-    x0 = np.clip(prob.start(_gray_world_mired(obs, c, model)), lo + 1e-9, hi - 1e-9)
+    x0 = np.clip(prob.start(gray_world_mired(obs, c)), lo + 1e-9, hi - 1e-9)
     sol = least_squares(prob.projected_residuals, x0[:nfr], bounds=(lo[:nfr], hi[:nfr]), x_scale=prob.frame_scale(),
                         max_nfev=max_nfev, method="trf")
     fr = sol.x.reshape(prob.F, prob.nf)

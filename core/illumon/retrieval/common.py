@@ -8,11 +8,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..camera import camera_white, gains_from_white
-from ..daylight import cct_duv_from_xy, spectrum_to_xy
+from ..daylight import cct_duv_from_xy, daylight_locus_duv, daylight_spectrum, spectrum_to_xy, xy_from_cct_duv
 from ..observations import Observations
 from ..reflectance import ReflectanceBasis
 
-__all__ = ["RetrievalResult", "imaging_operators", "make_result", "gray_world"]
+__all__ = ["RetrievalResult", "imaging_operators", "make_result", "gray_world", "gray_world_mired"]
 
 
 @dataclass
@@ -112,3 +112,16 @@ def gray_world(obs: Observations) -> NDArray[np.float64]:
     v = np.where(np.isfinite(obs.values), obs.values, np.nan)
     white = np.nanmean(v, axis=1)
     return white / white[:, 1:2]
+
+
+def gray_world_mired(obs: Observations, sensitivities: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per-frame reciprocal temperature whose camera white is closest in chromaticity to the gray-world white."""
+    grid = np.linspace(45.0, 380.0, 200)
+    cct = 1e6 / grid
+    xy = xy_from_cct_duv(cct, daylight_locus_duv(cct))
+    whites = daylight_spectrum(xy) @ sensitivities
+    chrom = np.log(whites[:, [0, 2]] / whites[:, 1:2])
+    gw = gray_world(obs)
+    gchrom = np.log(np.clip(gw[:, [0, 2]], 1e-9, None))
+    d = ((gchrom[:, None, :] - chrom[None, :, :]) ** 2).sum(-1)
+    return grid[np.argmin(d, axis=1)]

@@ -23,10 +23,11 @@ from scipy import sparse
 from scipy.optimize import least_squares
 
 from .._blas import single_blas_thread
-from ..daylight import DaylightModel, daylight_locus_duv, daylight_model, xy_from_cct_duv
+from ..daylight import DaylightModel, xy_from_cct_duv
+from ..daylight_models import daylight_model
 from ..observations import Observations
 from ..reflectance import ReflectanceBasis, reflectance_basis
-from .common import RetrievalResult, gray_world, imaging_operators, make_result
+from .common import RetrievalResult, gray_world_mired, imaging_operators, make_result
 
 __all__ = ["illuminant_retrieval_joint", "JointProblem"]
 
@@ -234,21 +235,6 @@ class JointProblem:
         return np.concatenate([np.concatenate([params, logk[:, None]], axis=1).ravel(), sigma.ravel()])
 
 
-def _gray_world_mired(obs: Observations, sensitivities: NDArray[np.float64], model: DaylightModel) -> NDArray[np.float64]:
-    """Per-frame reciprocal temperature whose camera white is closest in chromaticity to the gray-world white."""
-    grid = np.linspace(45.0, 380.0, 200)
-    cct = 1e6 / grid
-    xy = xy_from_cct_duv(cct, daylight_locus_duv(cct))
-    from ..daylight import daylight_spectrum
-
-    whites = daylight_spectrum(xy) @ sensitivities
-    chrom = np.log(whites[:, [0, 2]] / whites[:, 1:2])
-    gw = gray_world(obs)
-    gchrom = np.log(np.clip(gw[:, [0, 2]], 1e-9, None))
-    d = ((gchrom[:, None, :] - chrom[None, :, :]) ** 2).sum(-1)
-    return grid[np.argmin(d, axis=1)]
-
-
 @single_blas_thread
 def illuminant_retrieval_joint(
     obs: Observations,
@@ -301,7 +287,7 @@ def illuminant_retrieval_joint(
     prob = JointProblem(obs, c, model, rb, relative_error=relative_error, absolute_error=absolute_error)
     lo, hi = prob.bounds()
     nfr = prob.F * prob.nf
-    base = _gray_world_mired(obs, c, model)
+    base = gray_world_mired(obs, c)
     best = None
     runs = []
     for off in start_offsets:

@@ -6,7 +6,7 @@ import argparse
 import json
 from typing import Any
 
-from ..cli import white_level_arg
+from .common import add_white_level
 
 __all__ = ["add_diagnose_command", "run_diagnosis"]
 
@@ -15,7 +15,7 @@ __all__ = ["add_diagnose_command", "run_diagnosis"]
 
 def run_diagnosis(observations_path: str, obs, sensitivities, *, reestimate: bool = True):
     """Diagnose ``obs`` with input checks whose messages name the file (raises ``ValueError``)."""
-    from .fit import RANK, diagnose
+    from ..diagnosis.fit import RANK, diagnose
 
     f, p = len(obs.frames), len(obs.patches)
     if f < RANK + 2:
@@ -52,5 +52,5 @@ def add_diagnose_command(subparsers: Any) -> None:
     p.add_argument("observations", help="OBSERVATIONS.csv with columns frame,time,patch,r,g,b")
     p.add_argument("--sensitivities", required=True, help="camera sensitivities CSV wavelength_nm,r,g,b")
     p.add_argument("--out", required=True, help="REPORT.json to write")
-    p.add_argument("--white-level", type=white_level_arg, default=255.0, help="value of a saturated pixel (255)")
+    add_white_level(p)
     p.set_defaults(func=_cmd_diagnose)

@@ -1,4 +1,4 @@
-"""Command-line registration of ``illumon report …`` (called by :mod:`illumon.cli`, which owns the parser)."""
+"""``illumon report daylight --measured SPECTRA.csv --out DIR/``: what the CIE D-series gets wrong for measured daylight."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ __all__ = ["add_report_command", "run_daylight_report"]
 
 def run_daylight_report(args: argparse.Namespace) -> int:
     """Handler of ``illumon report daylight``; raises ValueError / SpectralInputError with a one-line message."""
-    from .daylight import daylight_report
+    from ..reports.daylight import daylight_report
 
     path = Path(args.measured)
     if not path.is_file():

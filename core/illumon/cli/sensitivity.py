@@ -21,8 +21,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..reflectance import colourchecker_reflectances
+from ..sensitivity import METHODS, estimate_sensitivities
 from ..spectra import WAVELENGTHS, SpectralInputError, write_spectral_csv
-from . import METHODS, estimate_sensitivities
 
 __all__ = ["add_sensitivity_command", "run", "read_chart_csv"]
 

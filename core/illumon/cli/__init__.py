@@ -1,0 +1,74 @@
+"""The ``illumon`` command: one module per subcommand, over the library (nothing in the library imports it).
+
+Subcommands: ``estimate`` (:mod:`.estimate`), ``fit`` (:mod:`.fit`), ``sensitivity`` (:mod:`.sensitivity`), ``report
+daylight`` (:mod:`.report`), ``diagnose`` (:mod:`.diagnose`), and ``serve`` / ``refit`` from the service package where it
+is installed. Errors in the user's input print one line ``illumon: error: …`` naming the file, row and problem, and exit
+with status 2; nothing prints a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+
+from .common import UsageError, white_level_arg, write_estimates
+from .diagnose import add_diagnose_command
+from .estimate import add_estimate_command
+from .fit import add_fit_command
+from .report import add_report_command
+from .sensitivity import add_sensitivity_command
+
+__all__ = ["main", "build_parser", "write_estimates", "white_level_arg", "UsageError"]
+
+
+def _service_missing(args: argparse.Namespace) -> int:
+    raise UsageError(f"`illumon {args.command}` needs the service extra: pip install 'illumon[service]'")
+
+
+def _add_service_commands(sub: argparse._SubParsersAction) -> None:
+    """``serve`` and ``refit`` from the service package, or stand-ins that say which extra to install."""
+    try:
+        from illumon_service.cli import add_serve_command
+    except ImportError:
+        for name in ("serve", "refit"):
+            p = sub.add_parser(name, help=f"{name} (needs the service extra)", add_help=False)
+            p.set_defaults(func=_service_missing)
+        return
+    add_serve_command(sub)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of the ``illumon`` command."""
+    parser = argparse.ArgumentParser(
+        prog="illumon", description="Daylight illuminant and white balance for fixed cameras"
+    )
+    sub = parser.add_subparsers(dest="command", required=True)
+    for add in (add_estimate_command, add_fit_command, add_sensitivity_command, add_report_command, add_diagnose_command):
+        add(sub)
+    _add_service_commands(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``illumon`` console script."""
+    warnings.filterwarnings("ignore")
+    parser = build_parser()
+    args, unknown = parser.parse_known_args(argv)
+    if unknown and getattr(args, "func", None) is not _service_missing:  # the stand-ins take any arguments
+        parser.error(f"unrecognized arguments: {' '.join(unknown)}")
+    try:
+        return int(args.func(args) or 0)
+    except (UsageError, ValueError, KeyError, FileNotFoundError, np.linalg.LinAlgError) as exc:
+        msg = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
+        print(f"illumon: error: {msg}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:  # pragma: no cover
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,90 @@
+"""``illumon estimate OBSERVATIONS.csv [--sensitivities S.csv] [--known-reflectances KNOWN.csv] --out ESTIMATES.csv``
+(multi-frame retrieval; a camera nobody measured or one with references; or per frame with ``--model``)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+import numpy as np
+
+from .common import UsageError, add_white_level, fit_camera_and_scene, read_known, write_estimates, write_reflectances
+
+__all__ = ["add_estimate_command"]
+
+
+def _cmd_estimate(args: argparse.Namespace) -> int:
+    from ..observations import read_observations
+
+    obs = read_observations(args.observations, white_level=args.white_level)
+    known = read_known(args, obs)
+    if args.model and (known or args.sensitivities):
+        raise UsageError("--model already holds the camera; --sensitivities and --known-reflectances go with `illumon fit`")
+    if args.model:
+        from ..model import estimate_with_model
+
+        result, extra = estimate_with_model(obs, args.model)
+    elif known or not args.sensitivities:
+        result, extra = _estimate_calibrated(args, obs, known)
+    else:
+        from ..retrieval import retrieve_illuminants
+        from ..spectra import read_sensitivities
+
+        css = read_sensitivities(args.sensitivities)
+        if len(obs.frames) < 2:
+            raise UsageError(
+                f"{args.observations}: only one frame; multi-frame retrieval needs at least two (or use --model)"
+            )
+        kwargs = {}
+        if args.method == "joint":
+            kwargs["daylight"] = args.daylight_model
+        if args.model_effects == "auto":
+            from ..diagnosis.fit import estimate_with_effect
+            from .diagnose import run_diagnosis
+
+            diag = run_diagnosis(args.observations, obs, css, reestimate=False)
+            result = estimate_with_effect(obs, css, diag, method=args.method, **kwargs)
+            print(f"illumon: model effects: {diag.effect}"
+                  + (f" (patch {diag.patch})" if diag.patch else "") + (f" (frame {diag.frame})" if diag.frame else ""),
+                  file=sys.stderr)
+        else:
+            result = retrieve_illuminants(obs, css, method=args.method, **kwargs)
+        extra = None
+    write_estimates(args.out, result, extra)
+    if args.reflectances:
+        write_reflectances(args.reflectances, result)
+    return 0
+
+
+def _estimate_calibrated(args: argparse.Namespace, obs, known: dict[str, np.ndarray]):
+    """``estimate`` for a camera nobody measured, or one with references: calibrate jointly with the scene
+    (:mod:`illumon.camera.calibration`); ``joint`` gives the fit's own estimates with intervals, other methods run
+    on the calibrated sensitivities."""
+    model = fit_camera_and_scene(args, obs, known)
+    scene = obs.select_patches(model.patches)
+    if args.method == "joint":
+        from ..model import interval_columns
+
+        result, extra = model.history_estimate
+        return result, interval_columns(result, extra)
+    from ..retrieval import retrieve_illuminants
+
+    return retrieve_illuminants(scene, model.sensitivities, method=args.method), None
+
+
+def add_estimate_command(sub: Any) -> None:
+    """Register ``illumon estimate``."""
+    est = sub.add_parser("estimate", help="estimate every frame's illuminant and white-balance gains")
+    est.add_argument("observations", help="OBSERVATIONS.csv with columns frame,time,patch,r,g,b")
+    est.add_argument("--sensitivities", help="camera sensitivities CSV wavelength_nm,r,g,b (none: a camera nobody measured)")
+    est.add_argument("--known-reflectances", help="KNOWN.csv wavelength_nm,<patch id>,…: references of known reflectance")
+    est.add_argument("--model", help="scene model JSON from `illumon fit` (per-frame estimates with intervals)")
+    est.add_argument("--out", required=True, help="ESTIMATES.csv to write")
+    est.add_argument("--method", default="joint", choices=["joint", "marguier2007", "gray_world"])
+    est.add_argument("--daylight-model", default="cie", choices=["cie", "measured"])
+    add_white_level(est)
+    est.add_argument("--reflectances", help="also write the recovered patch reflectances to this CSV")
+    est.add_argument("--model-effects", default="none", choices=["none", "auto"],
+                     help="auto: diagnose the history (`illumon diagnose`) and estimate with the effect modelled")
+    est.set_defaults(func=_cmd_estimate)

@@ -1,0 +1,298 @@
+"""Fitting a scene model to a history: block coordinate descent on the joint posterior.
+
+Fitting alternates two exact sub-problems of the joint model of :mod:`illumon.retrieval.joint` (Marguier & Süsstrunk's
+model with an 8-component reflectance basis): the reflectances given all illuminants and exposures (linear Gaussian
+posterior, Kinoshita & Kiya eqs. 13–14 in basis coefficients), then every frame's daylight and exposure given the
+reflectances (:class:`~.solver.FrameSolver`), with over-relaxation and common-shift candidates along the directions
+in which the alternation crawls. Long histories are fitted on a subsample of frames spread over the illuminant range.
+A camera nobody measured, or one with references of known reflectance, is fitted jointly with its transform
+(:mod:`illumon.camera.calibration`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Mapping
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._blas import single_blas_thread
+from ..camera.calibration import calibrate_scene_model
+from ..camera.references import check_known_reflectances
+from ..daylight import CIEDaylight
+from ..observations import Observations
+from ..reflectance import ReflectanceBasis, reflectance_basis
+from ..retrieval.common import RetrievalResult, gray_world_mired, imaging_operators
+from ..spectra import GRID
+from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
+from .intervals import MODEL_ERROR
+from .scene import SceneModel
+from .solver import CENSORED, FrameSolver
+
+__all__ = ["fit_scene_model"]
+
+
+def _reflectance_posterior(
+    a: NDArray[np.float64], y: NDArray[np.float64], w2: NDArray[np.float64], lam: NDArray[np.float64],
+    mu: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Kinoshita & Kiya eqs. 13–14 in basis coefficients, for every patch at once.
+
+    ``a`` (F × 3 × K) maps coefficients to each frame's responses, ``w2`` (F × P × 3) are noise precisions (0 where
+    missing), ``lam``/``mu`` the prior precision and mean. Returns means (P × K) and precisions (P × K × K).
+    """
+    prec = np.einsum("fpc,fci,fcj->pij", w2, a, a) + lam
+    rhs = np.einsum("fpc,fpc,fci->pi", w2, y, a) + lam @ mu
+    return np.linalg.solve(prec, rhs[..., None])[..., 0], prec
+
+
+def fit_scene_model(
+    obs: Observations,
+    sensitivities: NDArray[np.float64] | None,
+    *,
+    known_reflectances: Mapping[str, NDArray[np.float64]] | None = None,
+    camera_prior_mean: NDArray[np.float64] | None = None,
+    daylight: CIEDaylight | None = None,
+    relative_error: float = 0.02,
+    absolute_error: float = 0.002,
+    max_fit_frames: int = 300,
+    iterations: int = 40,
+    tol: float = 0.01,
+) -> SceneModel:
+    """Learn a :class:`SceneModel` from a history (see module docstring for the method).
+
+    Parameters
+    ----------
+    obs
+        Observations of static patches (at least two frames, each patch seen in at least one frame), linear, in the
+        camera's output space.
+    sensitivities
+        Measured camera sensitivities on the grid (61 × 3), or ``None`` for a camera nobody measured: then the prior
+        from the measured cameras is used and refined from the data (:mod:`illumon.camera.calibration`).
+    known_reflectances
+        References of known reflectance (patch id → spectrum on the grid, 0…1) that appear in some frames of ``obs``,
+        typically one: a grey card pins each channel's scale, a chart also a 3 × 3 colour matrix. Their patches are
+        not part of the learned scene.
+    camera_prior_mean
+        With ``sensitivities=None``: the unmeasured camera's prior sensitivities (default: the mean of the measured
+        cameras shipped with illumon).
+    daylight
+        CIE daylight model with its prior; the default :class:`~illumon.daylight.CIEDaylight`.
+    relative_error, absolute_error
+        Noise model before the residual-based scale factor.
+    max_fit_frames
+        Histories longer than this fit reflectances on that many frames spread over the gray-world illuminant range.
+    iterations, tol
+        Alternation cap and convergence tolerance (MK⁻¹, largest change of any frame's reciprocal temperature).
+
+    Returns
+    -------
+    SceneModel
+        Its ``camera`` says how the camera was calibrated; estimates and gains are in the observations' RGB space.
+    """
+    kwargs = dict(daylight=daylight, relative_error=relative_error, absolute_error=absolute_error,
+                  max_fit_frames=max_fit_frames, iterations=iterations, tol=tol)
+    known = check_known_reflectances(known_reflectances, "known reflectances") if known_reflectances else {}
+    missing = [p for p in known if p not in obs.patches]
+    if missing:
+        raise ValueError(f"known patch(es) never observed: {', '.join(missing)}")
+    if sensitivities is None or known:
+        return calibrate_scene_model(obs, sensitivities, known, lambda o, c: _fit_fixed_camera(o, c, **kwargs),
+                                     prior_mean=camera_prior_mean)
+    model, _ = _fit_fixed_camera(obs, np.asarray(sensitivities, dtype=float), **kwargs)
+    model.camera = {"calibration": "measured"}
+    return model
+
+
+class _JointObjective:
+    """−2 log posterior of the joint model over a history's frames, with the reflectances eliminated (their exact
+    conditional mean), as a function of every frame's ``θ = (mired, δ, log k)``."""
+
+    def __init__(self, y: NDArray[np.float64], present: NDArray[np.bool_], css: NDArray[np.float64], dm: CIEDaylight,
+                 rb: ReflectanceBasis, relative_error: float, absolute_error: float) -> None:
+        self.dm = dm
+        self.yz = np.where(present[..., None], y, 0.0)
+        w2 = np.where(present[..., None], 1.0 / ((relative_error * self.yz) ** 2 + absolute_error**2), 0.0)
+        w2[self.yz < CENSORED * absolute_error] = 0.0  # censored at 0 (dark channels after the black level)
+        self.w2 = w2
+        self.k_ops, self.w_ops = imaging_operators(css, dm.basis, rb)
+        self.lam = np.linalg.inv(rb.prior_covariance)
+        self.mu = rb.prior_mean
+        self.daylight_prec = np.array([1.0 / dm.mired_sigma**2, 1.0 / dm.duv_sigma**2])
+
+    def operators(self, th: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Per-frame maps (F × 3 × K) from reflectance coefficients to camera values."""
+        a = np.asarray(self.dm.weights(th[:, :2]))
+        m = np.einsum("fk,kcj->fcj", a, self.k_ops) / (a @ self.w_ops)[:, 1, None, None]
+        return np.exp(th[:, 2])[:, None, None] * m
+
+    def reflectances(self, th: NDArray[np.float64], noise: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Reflectance posterior means (P × K) and precisions (P × K × K) given ``θ``."""
+        return _reflectance_posterior(self.operators(th), self.yz, self.w2 / noise**2, self.lam, self.mu)
+
+    def __call__(self, th: NDArray[np.float64], noise: float = 1.0) -> tuple[float, NDArray[np.float64]]:
+        am = self.operators(th)
+        w2 = self.w2 / noise**2
+        s, _ = _reflectance_posterior(am, self.yz, w2, self.lam, self.mu)
+        r = self.yz - np.einsum("fcj,pj->fpc", am, s)
+        d = s - self.mu
+        c = (w2 * r**2).sum() + np.einsum("pi,ij,pj->", d, self.lam, d)
+        p = self.daylight_prec
+        c += (p[0] * (th[:, 0] - self.dm.mired_mean) ** 2 + p[1] * th[:, 1] ** 2).sum()
+        return float(c), s
+
+    def start(self, mired0: NDArray[np.float64], y: NDArray[np.float64], present: NDArray[np.bool_]) -> NDArray[np.float64]:
+        """Gray-world temperatures on the locus, exposures from the frames' levels."""
+        zero = np.zeros_like(mired0)
+        typical = np.einsum("fcj,j->fc", self.operators(np.stack([mired0, zero, zero], 1)), self.mu)
+        level = np.array([np.mean(y[f, present[f], 1]) if present[f].any() else 1.0 for f in range(len(mired0))])
+        return np.stack([mired0, zero, np.log(np.maximum(level, 1e-6) / np.maximum(typical[:, 1], 1e-9))], 1)
+
+    def common_shift_sd(self, theta: NDArray[np.float64], noise: float) -> NDArray[np.float64]:
+        """Laplace standard deviations of a shift common to every frame (reciprocal temperature, Duv offset): the
+        direction static patches determine worst (profile curvature, reflectances re-solved; −2 log p → 2 H⁻¹)."""
+        steps = np.array([1.0, 3e-4])
+        c0 = self(theta, noise)[0]
+
+        def shifted(i: int, si: float, j: int, sj: float) -> float:
+            d = np.zeros(3)
+            d[i] += si * steps[i]
+            d[j] += sj * steps[j]
+            return self(theta + d, noise)[0]
+
+        hc = np.empty((2, 2))
+        hc[0, 0] = (shifted(0, 1, 1, 0) - 2 * c0 + shifted(0, -1, 1, 0)) / steps[0] ** 2
+        hc[1, 1] = (shifted(1, 1, 0, 0) - 2 * c0 + shifted(1, -1, 0, 0)) / steps[1] ** 2
+        hc[0, 1] = hc[1, 0] = (shifted(0, 1, 1, 1) - shifted(0, 1, 1, -1) - shifted(0, -1, 1, 1)
+                               + shifted(0, -1, 1, -1)) / (4 * steps[0] * steps[1])
+        try:
+            return np.sqrt(np.clip(np.diag(2 * np.linalg.inv(hc)), 0, None))
+        except np.linalg.LinAlgError:
+            return np.array([self.dm.mired_sigma, self.dm.duv_sigma])
+
+
+def _alternate(
+    objective: _JointObjective, theta: NDArray[np.float64], solver_args: tuple, y: NDArray[np.float64],
+    present: NDArray[np.bool_], iterations: int, tol: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
+    """Block coordinate descent: reflectances given θ, then every frame's θ given the reflectances, with candidates
+    along the over-relaxed step and common shifts of every frame's reciprocal temperature (the directions in which the
+    alternation crawls; the common shift is only weakly determined). Returns θ, the coefficients and the iterations."""
+    css, dm, rb, rel, absolute = solver_args
+    best, coef = objective(theta)
+    lo_b, hi_b = dm.bounds()
+    n_iter = 0
+    for n_iter in range(1, iterations + 1):  # noqa: B007
+        new, _, _ = FrameSolver(css, coef, None, dm, rb, relative_error=rel, absolute_error=absolute).solve(y, present)
+        c_new, s_new = objective(new)
+        cands = [theta + alpha * (new - theta) for alpha in (2.0, 4.0, 8.0)]
+        cands += [new + np.array([shift, 0.0, 0.0]) for shift in (-16.0, -4.0, -1.0, 1.0, 4.0, 16.0)]
+        prev = theta
+        theta, best_new, coef = new, c_new, s_new
+        for cand in cands:
+            cand[:, 0] = np.clip(cand[:, 0], lo_b[0], hi_b[0])
+            cand[:, 1] = np.clip(cand[:, 1], lo_b[1], hi_b[1])
+            c_c, s_c = objective(cand)
+            if c_c < best_new:
+                theta, best_new, coef = cand, c_c, s_c
+        change = float(np.max(np.abs(theta[:, 0] - prev[:, 0])))
+        improvement = best - best_new
+        best = best_new
+        if change < tol or improvement < 1e-6 * abs(best):
+            break
+    return theta, coef, n_iter
+
+
+def _training_summary(obs: Observations, present_all: NDArray[np.bool_], n_sub: int, res: RetrievalResult,
+                      n_iter: int, seconds: float) -> dict:
+    mired_all = 1e6 / res.cct
+    ok = np.isfinite(mired_all)
+    times = [t for t in obs.times if t]
+    return {
+        "frames": len(obs.frames),
+        "frames_used_for_reflectances": int(n_sub),
+        "patches": len(obs.patches),
+        "observed_fraction": float(present_all.mean()),
+        "time_first": min(times) if times else "",
+        "time_last": max(times) if times else "",
+        "mired_min": float(np.min(mired_all[ok])),
+        "mired_max": float(np.max(mired_all[ok])),
+        "mired_std": float(np.std(mired_all[ok])),
+        "cct_p05": float(np.percentile(res.cct[ok], 5)),
+        "cct_p95": float(np.percentile(res.cct[ok], 95)),
+        "iterations": n_iter,
+        "fit_seconds": round(seconds, 3),
+    }
+
+
+@single_blas_thread
+def _fit_fixed_camera(
+    obs: Observations,
+    sensitivities: NDArray[np.float64],
+    *,
+    daylight: CIEDaylight | None = None,
+    relative_error: float = 0.02,
+    absolute_error: float = 0.002,
+    max_fit_frames: int = 300,
+    iterations: int = 40,
+    tol: float = 0.01,
+) -> tuple[SceneModel, NDArray[np.float64]]:
+    """:func:`fit_scene_model` for given (effective) sensitivities. Returns the model and every frame's
+    ``(mired, δ, log k)`` (F × 3) from the learned reflectances."""
+    t0 = time.perf_counter()
+    dm = daylight or CIEDaylight()
+    rb = reflectance_basis()
+    css = np.asarray(sensitivities, dtype=float)
+    y_all = np.asarray(obs.values, dtype=float)
+    if y_all.shape[0] < 2:
+        raise ValueError("fitting a scene model needs at least two frames")
+    present_all = np.all(np.isfinite(y_all), axis=-1)
+    if present_all.any(axis=0).sum() < 2:
+        raise ValueError("fitting a scene model needs at least two patches")
+    unseen = [p for p, s in zip(obs.patches, present_all.any(axis=0), strict=True) if not s]
+    if unseen:
+        raise ValueError(f"patch(es) never observed: {', '.join(unseen)}")
+    green = y_all[..., 1][present_all]
+    scale = float(np.median(green)) if green.size else 1.0
+    if not scale > 0:
+        raise ValueError("observations are all black (median green is 0)")
+    gw_mired = gray_world_mired(obs, css)
+    sub = spread_subsample(gw_mired, max_fit_frames)
+    y = y_all[sub] / scale
+    present = present_all[sub]
+    objective = _JointObjective(y, present, css, dm, rb, relative_error, absolute_error)
+    theta = objective.start(gw_mired[sub], y, present)
+    theta, coef, n_iter = _alternate(objective, theta, (css, dm, rb, relative_error, absolute_error), y, present,
+                                     iterations, tol)
+    am = objective.operators(theta)
+    resid2 = objective.w2 * (objective.yz - np.einsum("fcj,pj->fpc", am, coef)) ** 2
+    dof = max(int(present.sum()) * 3 - 3 * len(sub) - rb.size * len(obs.patches), 1)
+    noise_scale = float(max(math.sqrt(resid2.sum() / dof), 0.5))
+    # Posterior with the measured noise level (β scaled by 1/noise_scale²).
+    coef, prec = objective.reflectances(theta, noise_scale)
+    cov = np.linalg.inv(prec)
+    cov = 0.5 * (cov + cov.transpose(0, 2, 1))
+    common = objective.common_shift_sd(theta, noise_scale)
+    model = SceneModel(
+        patches=list(obs.patches), coefficients=coef, covariance=cov, sensitivities=css,
+        grid=(float(GRID.start), float(GRID.end), float(GRID.interval)), basis=rb.functions,
+        daylight={"name": "cie", "duv_sigma": dm.duv_sigma, "mired_mean": dm.mired_mean, "mired_sigma": dm.mired_sigma},
+        noise={"relative_error": relative_error, "absolute_error": absolute_error, "noise_scale": noise_scale,
+               "scale": scale,
+               "model_error": dict(MODEL_ERROR, common_mired=float(math.hypot(common[0], MODEL_ERROR["common_mired"])),
+                                   common_duv=float(max(common[1], MODEL_ERROR["common_duv"])))},
+    )
+    # Illuminants of every frame with the learned reflectances (the fast solver), for the training summary.
+    res, extra = model.estimate(obs)
+    model.history_estimate = (res, extra)
+    model.training = _training_summary(obs, present_all, len(sub), res, n_iter, time.perf_counter() - t0)
+    mired_all = 1e6 / res.cct
+    model.identifiability = identifiability(
+        y, present, css, dm, rb, theta, coef, objective.w2 / noise_scale**2, mired_all[np.isfinite(mired_all)]
+    )
+    for msg in model.identifiability["warnings"]:
+        warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
+    return model, res.info["theta"]

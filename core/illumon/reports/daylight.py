@@ -22,7 +22,6 @@ import inspect
 import json
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -46,6 +45,7 @@ from ..daylight_measured import (
     unit_mean,
 )
 from ..spectra import GRID, WAVELENGTHS, SpectralInputError, read_spectral_csv, resample_columns
+from . import render
 from .detect import detect_band, detect_tint
 
 __all__ = ["daylight_report", "load_measured_spectra", "fit_daylight_models", "gfc", "rel_rmse", "sky_class"]
@@ -221,6 +221,173 @@ def _q(a: NDArray[np.float64] | list, p: float = 50) -> float:
     return float(np.percentile(a, p)) if a.size else float("nan")
 
 
+def _model_errors(e: NDArray[np.float64], cct: NDArray[np.float64], delta: NDArray[np.float64],
+                  sky: NDArray[np.str_]) -> tuple[dict, dict, dict, dict, list, list, list]:
+    """Step 1: every spectrum fitted with the product's models; errors overall, by CCT, band and sky class."""
+    fits = fit_daylight_models(e)
+    err = {k: {"rmse": rel_rmse(v, e), "gfc": gfc(v, e)} for k, v in fits.items()}
+    resid = {k: (v - e) / e for k, v in fits.items()}
+    models_summary = {
+        k: {
+            "median_rmse": _q(v["rmse"]),
+            "p95_rmse": _q(v["rmse"], 95),
+            "median_gfc": _q(v["gfc"]),
+            "frac_gfc_999": float(np.mean(v["gfc"] >= 0.999)),
+            "frac_gfc_9999": float(np.mean(v["gfc"] >= 0.9999)),
+        }
+        for k, v in err.items()
+    }
+    by_cct = []
+    for lo, hi in zip(CCT_BINS[:-1], CCT_BINS[1:], strict=True):
+        s = (cct >= lo) & (cct < hi)
+        if s.any():
+            by_cct.append({
+                "cct_from": lo, "cct_to": hi if hi < 1e8 else None, "n": int(s.sum()),
+                "median_delta_duv": _q(delta[s]),
+                **{f"median_rmse_{k}": _q(err[k]["rmse"][s]) for k in err},
+                **{f"frac_gfc_999_{k}": float(np.mean(err[k]["gfc"][s] >= 0.999)) for k in err},
+            })
+    by_band = []
+    for lo, hi in BANDS:
+        s = (WAVELENGTHS >= lo) & (WAVELENGTHS < hi + (hi == 700))
+        by_band.append({"band": f"{lo}-{hi}", **{k: float(np.sqrt(np.mean(resid[k][:, s] ** 2))) for k in resid}})
+    by_sky = []
+    for c in sorted(set(sky)):
+        s = sky == c
+        by_sky.append({
+            "sky": c, "n": int(s.sum()), "median_cct": _q(cct[s]), "median_delta_duv": _q(delta[s]),
+            **{f"median_rmse_{k}": _q(err[k]["rmse"][s]) for k in err},
+            **{f"frac_gfc_999_{k}": float(np.mean(err[k]["gfc"][s] >= 0.999)) for k in err},
+        })
+
+    return fits, err, resid, models_summary, by_cct, by_band, by_sky
+
+
+def _cause(err: dict, resid: dict, cct: NDArray[np.float64], delta: NDArray[np.float64], by_band: list,
+           models_summary: dict) -> tuple[dict, NDArray[np.float64]]:
+    """Step 2: which spectra fail under CIE D at their own chromaticity, where in the spectrum, and why."""
+    fail = err["cie_xy"]["gfc"] < 0.999
+    rms_wl = np.sqrt(np.mean(resid["cie_xy"] ** 2, axis=0))
+    rms_fail = np.sqrt(np.mean(resid["cie_xy"][fail] ** 2, axis=0)) if fail.any() else rms_wl
+    peak_nm = float(WAVELENGTHS[int(np.argmax(rms_fail))])
+    band_rows = sorted(by_band, key=lambda r: -r["cie_xy"])
+    corr = {
+        "rmse_vs_abs_delta": float(np.corrcoef(np.log(err["cie_xy"]["rmse"]), np.abs(delta))[0, 1]),
+        "rmse_vs_mired": float(np.corrcoef(np.log(err["cie_xy"]["rmse"]), 1e6 / cct)[0, 1]),
+    }
+    cause = {
+        "n_fail_cie_xy": int(fail.sum()),
+        "frac_fail_cie_xy": float(fail.mean()),
+        "median_cct_fail": _q(cct[fail]) if fail.any() else None,
+        "median_cct_pass": _q(cct[~fail]) if (~fail).any() else None,
+        "frac_fail_above_8000K": float(np.mean(fail[cct >= 8000])) if np.any(cct >= 8000) else None,
+        "frac_fail_below_6200K": float(np.mean(fail[cct < 6200])) if np.any(cct < 6200) else None,
+        "frac_off_locus_003": float(np.mean(np.abs(delta) > 0.003)),
+        "median_abs_delta_fail": _q(np.abs(delta[fail])) if fail.any() else None,
+        "median_abs_delta_pass": _q(np.abs(delta[~fail])) if (~fail).any() else None,
+        "worst_band": band_rows[0]["band"],
+        "peak_residual_nm_fail": peak_nm,
+        "peak_feature": _nearest_feature(peak_nm),
+        "correlations": corr,
+        "cie_cct_vs_cie_xy_median_rmse": [models_summary["cie_cct"]["median_rmse"],
+                                          models_summary["cie_xy"]["median_rmse"]],
+    }
+
+    return cause, rms_fail
+
+
+def _extension(e: NDArray[np.float64], train: NDArray[np.int64], test: NDArray[np.int64], source: str, split: str,
+               seed: int) -> tuple[MeasuredDaylightData, dict, dict, list]:
+    """Step 3: the measured basis on the training split (k by cross-validation inside it), held-out errors."""
+    data = fit_measured_daylight(e[train], provenance={"source": source, "split": split, "seed": seed})
+    e_test = e[test]
+    fits_test = fit_daylight_models(e_test, data)
+    held = {k: {"median_rmse": _q(rel_rmse(v, e_test)), "median_gfc": _q(gfc(v, e_test)),
+                "frac_gfc_999": float(np.mean(gfc(v, e_test) >= 0.999)),
+                "frac_gfc_9999": float(np.mean(gfc(v, e_test) >= 0.9999))}
+            for k, v in fits_test.items()}
+    mu_t = e[train].mean(0)
+    vt = np.linalg.svd(e[train] - mu_t, full_matrices=False)[2]
+    k_curve = [_q(rel_rmse(free_fit(np.column_stack([mu_t, vt[:k].T]), e_test), e_test)) for k in range(1, 11)]
+    extension = {
+        "n_components": data.k, "cv_errors": data.cv_errors.tolist(), "held_out_median_rmse_by_k": k_curve,
+        "delta_prior": {"coef": data.delta_coef.tolist(), "sd": data.delta_sd},
+        "n_train": int(train.size), "n_held_out": int(test.size),
+    }
+
+    return data, held, extension, k_curve
+
+
+def _gain(e_test: NDArray[np.float64], data: MeasuredDaylightData, split: str, seed: int, *, simulate: bool,
+          n_histories: int, n_frames: int, n_patches: int, time_budget_s: float, solver_kwargs: dict | None) -> dict:
+    """Step 4: the gain where it matters: camera whites of the measured cameras, and simulated retrievals."""
+    gain: dict = {"split": split, "seed": seed}
+    try:
+        from .. import datasets
+
+        have_data = datasets.shared_data_dir() is not None
+    except Exception:  # pragma: no cover - import problems mean no data
+        have_data = False
+    if have_data:
+        cams = [datasets.load_camera(c) for c in datasets.camera_names()]
+        cw = _camera_white_gain(e_test, data, cams)
+        gain["camera_white_at_true_chromaticity"] = {
+            k: {"median_deg": _q(v), "p95_deg": _q(v, 95)} for k, v in cw.items()
+        }
+        gain["camera_white_n"] = int(cw["cie"].size)
+        if simulate and n_histories > 0:
+            sim = _simulate_gain(e_test, data, n_histories=n_histories, n_frames=n_frames, n_patches=n_patches,
+                                 seed=seed, time_budget_s=time_budget_s, solver_kwargs=solver_kwargs)
+            pm = sim["per_model"]
+            gain["retrieval"] = {
+                "n_histories": len(sim["histories"]), "n_frames": n_frames, "n_patches": n_patches,
+                "seconds": sim["seconds"],
+                **{k: {"median_angular_deg": _q(v["angular"]), "mean_angular_deg": float(np.mean(v["angular"]))
+                       if v["angular"] else float("nan"),
+                       "median_spectral_rmse": _q(v["rmse"]), "median_gfc": _q(v["gfc"])} for k, v in pm.items()},
+                "histories": sim["histories"],
+            }
+    else:
+        gain["skipped"] = "measured cameras and reflectances not found (illumon.datasets.shared_data_dir() is None)"
+
+    return gain
+
+
+def _detection(e: NDArray[np.float64], ids: list[str]) -> tuple[dict, dict]:
+    """Hidden-distortion search (physics-based residual analysis against the shipped measured model)."""
+    band = detect_band(e)
+    tint = detect_tint(e)
+    detection = {
+        "band": {k: band[k] for k in ("found", "centre_nm", "fwhm_nm", "depth_median")}
+        | {"n_affected": len(band["affected"]), "affected_ids": [ids[i] for i in band["affected"]],
+           "feature": _nearest_feature(band["centre_nm"]) if band["found"] else None},
+        "tint": {k: tint[k] for k in ("found", "shift_duv", "separation")}
+        | {"n_affected": len(tint["affected"]), "affected_ids": [ids[i] for i in tint["affected"]]},
+    }
+
+    return detection, band
+
+
+def _figures(cct: NDArray[np.float64], delta: NDArray[np.float64], sky: NDArray[np.str_], err: dict, resid: dict,
+             rms_fail: NDArray[np.float64], data: MeasuredDaylightData, k_curve: list, band: dict, gain: dict) -> dict:
+    """The numbers behind every plot (``figures.json``)."""
+    return {
+        "error_vs_cct": {"cct": cct.tolist(), **{f"gfc_{k}": err[k]["gfc"].tolist() for k in err},
+                         **{f"rmse_{k}": err[k]["rmse"].tolist() for k in err}},
+        "delta_vs_cct": {"cct": cct.tolist(), "delta_duv": delta.tolist(), "sky": sky.tolist(),
+                         "prior_mired": np.linspace(*data.mired_range, 20).tolist(),
+                         "prior_delta": data.delta_mean(np.linspace(*data.mired_range, 20)).tolist()},
+        "residual_by_wavelength": {"wavelength_nm": WAVELENGTHS.tolist(),
+                                   **{k: np.sqrt(np.mean(v**2, 0)).tolist() for k, v in resid.items()},
+                                   "cie_xy_failing": rms_fail.tolist()},
+        "held_out_error_by_k": {"k": list(range(1, 11)), "median_rmse": k_curve,
+                                "cv_error": data.cv_errors[:10].tolist()},
+        "band_scan": {"centre_nm": band["centres"], "evidence": band["profile"]},
+        "gain": {k: v for k, v in gain.items() if k != "retrieval"}
+        | ({"retrieval_per_history": gain["retrieval"]["histories"]} if "retrieval" in gain else {}),
+    }
+
+
 @single_blas_thread
 def daylight_report(
     spectra_csv_path: str | Path,
@@ -279,367 +446,23 @@ def daylight_report(
     delta = duv - daylight_locus_duv(cct)
     sky = sky_class(cct, delta)
 
-    # 1. Fit every spectrum with the product's models.
-    fits = fit_daylight_models(e)
-    err = {k: {"rmse": rel_rmse(v, e), "gfc": gfc(v, e)} for k, v in fits.items()}
-    resid = {k: (v - e) / e for k, v in fits.items()}
-    models_summary = {
-        k: {
-            "median_rmse": _q(v["rmse"]),
-            "p95_rmse": _q(v["rmse"], 95),
-            "median_gfc": _q(v["gfc"]),
-            "frac_gfc_999": float(np.mean(v["gfc"] >= 0.999)),
-            "frac_gfc_9999": float(np.mean(v["gfc"] >= 0.9999)),
-        }
-        for k, v in err.items()
-    }
-    by_cct = []
-    for lo, hi in zip(CCT_BINS[:-1], CCT_BINS[1:], strict=True):
-        s = (cct >= lo) & (cct < hi)
-        if s.any():
-            by_cct.append({
-                "cct_from": lo, "cct_to": hi if hi < 1e8 else None, "n": int(s.sum()),
-                "median_delta_duv": _q(delta[s]),
-                **{f"median_rmse_{k}": _q(err[k]["rmse"][s]) for k in err},
-                **{f"frac_gfc_999_{k}": float(np.mean(err[k]["gfc"][s] >= 0.999)) for k in err},
-            })
-    by_band = []
-    for lo, hi in BANDS:
-        s = (WAVELENGTHS >= lo) & (WAVELENGTHS < hi + (hi == 700))
-        by_band.append({"band": f"{lo}-{hi}", **{k: float(np.sqrt(np.mean(resid[k][:, s] ** 2))) for k in resid}})
-    by_sky = []
-    for c in sorted(set(sky)):
-        s = sky == c
-        by_sky.append({
-            "sky": c, "n": int(s.sum()), "median_cct": _q(cct[s]), "median_delta_duv": _q(delta[s]),
-            **{f"median_rmse_{k}": _q(err[k]["rmse"][s]) for k in err},
-            **{f"frac_gfc_999_{k}": float(np.mean(err[k]["gfc"][s] >= 0.999)) for k in err},
-        })
-
-    # 2. Cause: which spectra fail under CIE D at their own chromaticity, where, and why.
-    fail = err["cie_xy"]["gfc"] < 0.999
-    rms_wl = np.sqrt(np.mean(resid["cie_xy"] ** 2, axis=0))
-    rms_fail = np.sqrt(np.mean(resid["cie_xy"][fail] ** 2, axis=0)) if fail.any() else rms_wl
-    peak_nm = float(WAVELENGTHS[int(np.argmax(rms_fail))])
-    band_rows = sorted(by_band, key=lambda r: -r["cie_xy"])
-    corr = {
-        "rmse_vs_abs_delta": float(np.corrcoef(np.log(err["cie_xy"]["rmse"]), np.abs(delta))[0, 1]),
-        "rmse_vs_mired": float(np.corrcoef(np.log(err["cie_xy"]["rmse"]), 1e6 / cct)[0, 1]),
-    }
-    cause = {
-        "n_fail_cie_xy": int(fail.sum()),
-        "frac_fail_cie_xy": float(fail.mean()),
-        "median_cct_fail": _q(cct[fail]) if fail.any() else None,
-        "median_cct_pass": _q(cct[~fail]) if (~fail).any() else None,
-        "frac_fail_above_8000K": float(np.mean(fail[cct >= 8000])) if np.any(cct >= 8000) else None,
-        "frac_fail_below_6200K": float(np.mean(fail[cct < 6200])) if np.any(cct < 6200) else None,
-        "frac_off_locus_003": float(np.mean(np.abs(delta) > 0.003)),
-        "median_abs_delta_fail": _q(np.abs(delta[fail])) if fail.any() else None,
-        "median_abs_delta_pass": _q(np.abs(delta[~fail])) if (~fail).any() else None,
-        "worst_band": band_rows[0]["band"],
-        "peak_residual_nm_fail": peak_nm,
-        "peak_feature": _nearest_feature(peak_nm),
-        "correlations": corr,
-        "cie_cct_vs_cie_xy_median_rmse": [models_summary["cie_cct"]["median_rmse"],
-                                          models_summary["cie_xy"]["median_rmse"]],
-    }
-
-    # 3. Extend: measured basis on the training split, k by cross-validation inside it; held-out errors.
-    data = fit_measured_daylight(e[train], provenance={"source": str(spectra_csv_path), "split": split, "seed": seed})
-    e_test = e[test]
-    fits_test = fit_daylight_models(e_test, data)
-    held = {k: {"median_rmse": _q(rel_rmse(v, e_test)), "median_gfc": _q(gfc(v, e_test)),
-                "frac_gfc_999": float(np.mean(gfc(v, e_test) >= 0.999)),
-                "frac_gfc_9999": float(np.mean(gfc(v, e_test) >= 0.9999))}
-            for k, v in fits_test.items()}
-    mu_t = e[train].mean(0)
-    vt = np.linalg.svd(e[train] - mu_t, full_matrices=False)[2]
-    k_curve = [_q(rel_rmse(free_fit(np.column_stack([mu_t, vt[:k].T]), e_test), e_test)) for k in range(1, 11)]
-    extension = {
-        "n_components": data.k, "cv_errors": data.cv_errors.tolist(), "held_out_median_rmse_by_k": k_curve,
-        "delta_prior": {"coef": data.delta_coef.tolist(), "sd": data.delta_sd},
-        "n_train": int(train.size), "n_held_out": int(test.size),
-    }
-
-    # 4. Gain where it matters.
-    gain: dict = {"split": split, "seed": seed}
-    try:
-        from .. import datasets
-
-        have_data = datasets.shared_data_dir() is not None
-    except Exception:  # pragma: no cover - import problems mean no data
-        have_data = False
-    if have_data:
-        cams = [datasets.load_camera(c) for c in datasets.camera_names()]
-        cw = _camera_white_gain(e_test, data, cams)
-        gain["camera_white_at_true_chromaticity"] = {
-            k: {"median_deg": _q(v), "p95_deg": _q(v, 95)} for k, v in cw.items()
-        }
-        gain["camera_white_n"] = int(cw["cie"].size)
-        if simulate and n_histories > 0:
-            sim = _simulate_gain(e_test, data, n_histories=n_histories, n_frames=n_frames, n_patches=n_patches,
-                                 seed=seed, time_budget_s=time_budget_s, solver_kwargs=solver_kwargs)
-            pm = sim["per_model"]
-            gain["retrieval"] = {
-                "n_histories": len(sim["histories"]), "n_frames": n_frames, "n_patches": n_patches,
-                "seconds": sim["seconds"],
-                **{k: {"median_angular_deg": _q(v["angular"]), "mean_angular_deg": float(np.mean(v["angular"]))
-                       if v["angular"] else float("nan"),
-                       "median_spectral_rmse": _q(v["rmse"]), "median_gfc": _q(v["gfc"])} for k, v in pm.items()},
-                "histories": sim["histories"],
-            }
-    else:
-        gain["skipped"] = "measured cameras and reflectances not found (illumon.datasets.shared_data_dir() is None)"
-
-    # Hidden-distortion search (physics-based residual analysis against the shipped measured model).
-    band = detect_band(e)
-    tint = detect_tint(e)
-    detection = {
-        "band": {k: band[k] for k in ("found", "centre_nm", "fwhm_nm", "depth_median")}
-        | {"n_affected": len(band["affected"]), "affected_ids": [ids[i] for i in band["affected"]],
-           "feature": _nearest_feature(band["centre_nm"]) if band["found"] else None},
-        "tint": {k: tint[k] for k in ("found", "shift_duv", "separation")}
-        | {"n_affected": len(tint["affected"]), "affected_ids": [ids[i] for i in tint["affected"]]},
-    }
-
+    fits, err, resid, models_summary, by_cct, by_band, by_sky = _model_errors(e, cct, delta, sky)
+    cause, rms_fail = _cause(err, resid, cct, delta, by_band, models_summary)
+    data, held, extension, k_curve = _extension(e, train, test, str(spectra_csv_path), split, seed)
+    gain = _gain(e[test], data, split, seed, simulate=simulate, n_histories=n_histories, n_frames=n_frames,
+                 n_patches=n_patches, time_budget_s=time_budget_s, solver_kwargs=solver_kwargs)
+    detection, band = _detection(e, ids)
     summary = {
         "input": {"path": str(spectra_csv_path), "n_spectra": n, **load_info,
                   "cct_percentiles_5_50_95": [_q(cct, 5), _q(cct), _q(cct, 95)]},
         "models": models_summary, "by_cct": by_cct, "by_band": by_band, "by_sky": by_sky, "cause": cause,
         "held_out": held, "extension": extension, "gain": gain, "detection": detection,
     }
-    figures = {
-        "error_vs_cct": {"cct": cct.tolist(), **{f"gfc_{k}": err[k]["gfc"].tolist() for k in err},
-                         **{f"rmse_{k}": err[k]["rmse"].tolist() for k in err}},
-        "delta_vs_cct": {"cct": cct.tolist(), "delta_duv": delta.tolist(), "sky": sky.tolist(),
-                         "prior_mired": np.linspace(*data.mired_range, 20).tolist(),
-                         "prior_delta": data.delta_mean(np.linspace(*data.mired_range, 20)).tolist()},
-        "residual_by_wavelength": {"wavelength_nm": WAVELENGTHS.tolist(),
-                                   **{k: np.sqrt(np.mean(v**2, 0)).tolist() for k, v in resid.items()},
-                                   "cie_xy_failing": rms_fail.tolist()},
-        "held_out_error_by_k": {"k": list(range(1, 11)), "median_rmse": k_curve,
-                                "cv_error": data.cv_errors[:10].tolist()},
-        "band_scan": {"centre_nm": band["centres"], "evidence": band["profile"]},
-        "gain": {k: v for k, v in gain.items() if k != "retrieval"}
-        | ({"retrieval_per_history": gain["retrieval"]["histories"]} if "retrieval" in gain else {}),
-    }
+    figures = _figures(cct, delta, sky, err, resid, rms_fail, data, k_curve, band, gain)
     (out / "figures.json").write_text(json.dumps(figures))
     summary["seconds"] = time.perf_counter() - t_start
     if plots:
-        summary["plots"] = _plots(out, figures, fits, e, err)
+        summary["plots"] = render.plots(out, figures, fits, e, err)
     (out / "summary.json").write_text(json.dumps(summary, indent=1, default=float))
-    (out / "report.md").write_text(_markdown(summary))
+    (out / "report.md").write_text(render.markdown(summary))
     return summary
-
-
-def _plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) -> list[str]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    names: list[str] = []
-
-    def save(figure: Any, name: str) -> None:
-        figure.tight_layout()
-        figure.savefig(out / name, dpi=110)
-        plt.close(figure)
-        names.append(name)
-
-    f, ax = plt.subplots(1, 2, figsize=(11, 4))
-    cct = np.asarray(fig["error_vs_cct"]["cct"])
-    for k in ("cie_cct", "cie_xy", "cie_free", "theta"):
-        ax[0].scatter(cct, 1 - np.asarray(fig["error_vs_cct"][f"gfc_{k}"]), s=3, label=k, alpha=0.5)
-        ax[1].scatter(cct, fig["error_vs_cct"][f"rmse_{k}"], s=3, label=k, alpha=0.5)
-    for a, lab in zip(ax, ("1 − GFC", "relative RMSE"), strict=True):
-        a.set_xscale("log")
-        a.set_yscale("log")
-        a.set_xlabel("CCT (K)")
-        a.set_ylabel(lab)
-        a.legend(markerscale=4, fontsize=8)
-    ax[0].axhline(1e-3, color="k", lw=0.8, ls="--")
-    save(f, "error_vs_cct.png")
-
-    d = fig["delta_vs_cct"]
-    f, ax = plt.subplots(figsize=(6, 4))
-    sky = np.asarray(d["sky"])
-    for c in sorted(set(sky)):
-        s = sky == c
-        ax.scatter(np.asarray(d["cct"])[s], np.asarray(d["delta_duv"])[s], s=3, label=c)
-    ax.plot(1e6 / np.asarray(d["prior_mired"]), d["prior_delta"], "k-", label="measured prior δ̄")
-    ax.axhline(0, color="grey", lw=0.8)
-    ax.set_xscale("log")
-    ax.set_xlabel("CCT (K)")
-    ax.set_ylabel("δ = Duv − Duv(CIE daylight locus)")
-    ax.legend(markerscale=4, fontsize=8)
-    save(f, "delta_vs_cct.png")
-
-    r = fig["residual_by_wavelength"]
-    f, ax = plt.subplots(figsize=(7, 4))
-    for k in ("cie_cct", "cie_xy", "cie_free", "theta", "cie_xy_failing"):
-        ax.plot(r["wavelength_nm"], r[k], label=k)
-    ax.set_xlabel("wavelength (nm)")
-    ax.set_ylabel("RMS relative residual")
-    ax.legend(fontsize=8)
-    save(f, "residual_by_wavelength.png")
-
-    h = fig["held_out_error_by_k"]
-    f, ax = plt.subplots(figsize=(6, 4))
-    ax.semilogy(h["k"], h["median_rmse"], "o-", label="held-out median")
-    ax.semilogy(h["k"][: len(h["cv_error"])], h["cv_error"], "s--", label="training CV mean")
-    ax.set_xlabel("principal components k")
-    ax.set_ylabel("relative RMSE")
-    ax.legend()
-    save(f, "held_out_error_by_k.png")
-
-    worst = np.argsort(err["cie_xy"]["gfc"])[:4]
-    f, axs = plt.subplots(1, 4, figsize=(14, 3.5))
-    for a, i in zip(axs, worst, strict=False):
-        a.plot(WAVELENGTHS, e[i], "k", label="measured")
-        a.plot(WAVELENGTHS, fits["cie_xy"][i], label="CIE D (own xy)")
-        a.plot(WAVELENGTHS, fits["cie_free"][i], label="S0/S1/S2 free")
-        a.set_title(f"#{i}: GFC {err['cie_xy']['gfc'][i]:.4f}", fontsize=9)
-        a.set_xlabel("nm")
-    axs[0].legend(fontsize=7)
-    save(f, "worst_fits.png")
-
-    b = fig["band_scan"]
-    f, ax = plt.subplots(figsize=(7, 3.5))
-    ax.plot(b["centre_nm"], b["evidence"])
-    ax.set_xlabel("band centre (nm)")
-    ax.set_ylabel("summed matched-filter evidence")
-    save(f, "band_scan.png")
-
-    g = fig["gain"].get("retrieval_per_history")
-    if g:
-        f, ax = plt.subplots(figsize=(5, 4))
-        ax.boxplot([[x["median_angular_cie"] for x in g], [x["median_angular_measured"] for x in g]])
-        ax.set_xticks([1, 2], ["CIE D", "measured"])
-        ax.set_ylabel("median angular error per history (°)")
-        save(f, "gain_retrieval.png")
-    return names
-
-
-def _fmt(x: float | None, p: int = 4) -> str:
-    return "—" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.{p}g}"
-
-
-def _markdown(s: dict) -> str:
-    m, c, ho, ex, g, det = s["models"], s["cause"], s["held_out"], s["extension"], s["gain"], s["detection"]
-    lines = [
-        "# Daylight report",
-        "",
-        f"Input: `{s['input']['path']}` — {s['input']['n_spectra']} spectra used "
-        f"({s['input']['n_dropped_nonpositive']} dropped as non-positive); CCT 5/50/95 %: "
-        + ", ".join(f"{x:.0f} K" for x in s["input"]["cct_percentiles_5_50_95"]) + ".",
-        "",
-        "## 1. How well the product's daylight models fit",
-        "",
-        "| model | median rel. RMSE | 95 % rel. RMSE | median GFC | GFC ≥ 0.999 | GFC ≥ 0.9999 |",
-        "|---|---|---|---|---|---|",
-    ]
-    for k, v in m.items():
-        lines.append(f"| {k} | {v['median_rmse']:.4f} | {v['p95_rmse']:.4f} | {v['median_gfc']:.5f} | "
-                     f"{v['frac_gfc_999']:.1%} | {v['frac_gfc_9999']:.1%} |")
-    lines += ["", "By CCT (CIE D at own xy):", "", "| CCT (K) | n | median δ | median RMSE cie_xy | GFC ≥ 0.999 cie_xy |",
-              "|---|---|---|---|---|"]
-    for r in s["by_cct"]:
-        hi = f"{r['cct_to']:.0f}" if r["cct_to"] else "∞"
-        lines.append(f"| {r['cct_from']:.0f}–{hi} | {r['n']} | {r['median_delta_duv']:+.4f} | "
-                     f"{r['median_rmse_cie_xy']:.4f} | {r['frac_gfc_999_cie_xy']:.1%} |")
-    lines += ["", "RMS relative residual by wavelength band:", "",
-              "| band (nm) | " + " | ".join(k for k in m) + " |", "|---" * (len(m) + 1) + "|"]
-    for r in s["by_band"]:
-        lines.append(f"| {r['band']} | " + " | ".join(f"{r[k]:.4f}" for k in m) + " |")
-    lines += ["", "By sky state (classified from CCT and δ, see `sky_class`):", "",
-              "| sky | n | median CCT | median δ | median RMSE cie_xy | GFC ≥ 0.999 cie_xy |", "|---|---|---|---|---|---|"]
-    for r in s["by_sky"]:
-        lines.append(f"| {r['sky']} | {r['n']} | {r['median_cct']:.0f} | {r['median_delta_duv']:+.4f} | "
-                     f"{r['median_rmse_cie_xy']:.4f} | {r['frac_gfc_999_cie_xy']:.1%} |")
-    lines += [
-        "",
-        "![error vs CCT](error_vs_cct.png) ![delta vs CCT](delta_vs_cct.png)",
-        "![residual by wavelength](residual_by_wavelength.png) ![worst fits](worst_fits.png)",
-        "",
-        "## 2. The cause",
-        "",
-        f"- {c['frac_fail_cie_xy']:.1%} of spectra ({c['n_fail_cie_xy']}) have GFC < 0.999 even with CIE D at their "
-        f"own chromaticity. Failing spectra have median CCT {_fmt(c['median_cct_fail'], 5)} K vs "
-        f"{_fmt(c['median_cct_pass'], 5)} K for the rest; the failure rate is {_fmt(c['frac_fail_above_8000K'], 3)} "
-        f"above 8000 K and {_fmt(c['frac_fail_below_6200K'], 3)} below 6200 K.",
-        f"- Off the locus: {c['frac_off_locus_003']:.1%} of spectra lie more than 0.003 Duv from the CIE daylight "
-        f"locus; median |δ| is {_fmt(c['median_abs_delta_fail'], 3)} for failing vs "
-        f"{_fmt(c['median_abs_delta_pass'], 3)} for passing spectra (correlation of log RMSE with |δ|: "
-        f"{c['correlations']['rmse_vs_abs_delta']:+.2f}, with mired: {c['correlations']['rmse_vs_mired']:+.2f}). "
-        "Putting the spectrum on the locus at its CCT (cie_cct) raises the median RMSE from "
-        f"{c['cie_cct_vs_cie_xy_median_rmse'][1]:.4f} to {c['cie_cct_vs_cie_xy_median_rmse'][0]:.4f}.",
-        f"- Where: the residual concentrates in {c['worst_band']} nm; for failing spectra it peaks at "
-        f"{c['peak_residual_nm_fail']:.0f} nm, next to the {c['peak_feature']}.",
-        "- Why, physically: the CIE D basis (Judd et al. 1964) averages skies into one spectrum per chromaticity. "
-        "Light from blue sky without direct sun is Rayleigh-scattered: high CCT and above the locus, with a "
-        "short-wave shape that S1/S2 cannot follow; direct-sun and low-sun spectra pass through long air paths whose "
-        "absorption (ozone Chappuis band around 600 nm, O2 and H2O bands towards 700 nm) and aerosol extinction vary "
-        "with the day, not with chromaticity; the 5-nm smoothed Fraunhofer lines differ with instrument resolution.",
-        "",
-        "## 3. Extended model: measured-daylight basis with an off-locus parameter",
-        "",
-        f"PCA on the training half ({ex['n_train']} spectra; split: **{g['split']}**"
-        + (", file order, first half trains" if g["split"] == "time" else f", random halves, seed {g['seed']}")
-        + f"); k = **{ex['n_components']}** components chosen by 5-fold cross-validation within the training half. "
-        f"Off-locus prior δ̄(mired) = {ex['delta_prior']['coef'][0]:+.5f} {ex['delta_prior']['coef'][1]:+.2e}·mired, "
-        f"σ_δ = {ex['delta_prior']['sd']:.5f}. Solver: `--daylight-model measured`.",
-        "",
-        f"Held-out spectra ({ex['n_held_out']}, never used to build the basis):",
-        "",
-        "| model | median rel. RMSE | median GFC | GFC ≥ 0.999 | GFC ≥ 0.9999 |",
-        "|---|---|---|---|---|",
-    ]
-    for k, v in ho.items():
-        lines.append(f"| {k} | {v['median_rmse']:.4f} | {v['median_gfc']:.5f} | {v['frac_gfc_999']:.1%} | "
-                     f"{v['frac_gfc_9999']:.1%} |")
-    lines += ["", "Held-out median RMSE by k: " + ", ".join(f"{i + 1}: {x:.4f}"
-                                                         for i, x in enumerate(ex["held_out_median_rmse_by_k"])),
-              "", "![held-out error by k](held_out_error_by_k.png)", "", "## 4. Gain where it matters", ""]
-    if "skipped" in g:
-        lines.append(g["skipped"])
-    else:
-        cw = g["camera_white_at_true_chromaticity"]
-        lines.append(
-            f"Camera white predicted at the true chromaticity ({g['camera_white_n']} held-out spectrum × camera pairs): "
-            f"median angular error CIE D {cw['cie']['median_deg']:.3f}° → measured {cw['measured']['median_deg']:.3f}° "
-            f"(95 %: {cw['cie']['p95_deg']:.3f}° → {cw['measured']['p95_deg']:.3f}°)."
-        )
-        rt = g.get("retrieval")
-        if rt:
-            a, b = rt["cie"], rt["measured"]
-            lines += [
-                "",
-                f"Joint retrieval on {rt['n_histories']} simulated histories ({rt['n_frames']} frames of held-out "
-                f"daylight, {rt['n_patches']} random measured reflectances, random measured camera, "
-                f"{rt['seconds']:.0f} s):",
-                "",
-                "| daylight model | median angular error (°) | mean angular error (°) | median spectral RMSE | median GFC |",
-                "|---|---|---|---|---|",
-                f"| cie | {a['median_angular_deg']:.3f} | {a['mean_angular_deg']:.3f} | {a['median_spectral_rmse']:.4f} | "
-                f"{a['median_gfc']:.5f} |",
-                f"| measured | {b['median_angular_deg']:.3f} | {b['mean_angular_deg']:.3f} | "
-                f"{b['median_spectral_rmse']:.4f} | {b['median_gfc']:.5f} |",
-                "",
-                f"Change of the median angular error: {b['median_angular_deg'] - a['median_angular_deg']:+.3f}°.",
-                "",
-                "![gain](gain_retrieval.png)",
-            ]
-    bd, td = det["band"], det["tint"]
-    lines += ["", "## Hidden distortions (residual analysis against the measured model)", ""]
-    lines.append(
-        f"- Absorption band: **found** at {bd['centre_nm']:.0f} nm (FWHM ≈ {bd['fwhm_nm']:.0f} nm, median depth "
-        f"{bd['depth_median']:.3f}) in {bd['n_affected']} spectra; nearest known feature: {bd['feature']}."
-        if bd["found"] else "- Absorption band: none beyond the measured model's natural residual."
-    )
-    lines.append(
-        f"- Off-locus tint: **found**, shift {td['shift_duv']:+.4f} Duv in {td['n_affected']} spectra "
-        f"(cluster separation {td['separation']:.1f} σ)."
-        if td["found"] else f"- Off-locus tint: none (best two-cluster separation {td['separation']:.1f} σ)."
-    )
-    lines += ["", "![band scan](band_scan.png)", "", f"Report written in {s['seconds']:.1f} s.", ""]
-    return "\n".join(lines)

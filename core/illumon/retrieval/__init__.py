@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._blas import single_blas_thread
+from ..camera.formation import gains_from_white
 from ..observations import Observations
 from .common import RetrievalResult, gray_world, make_result
 from .joint import illuminant_retrieval_joint
@@ -54,7 +55,7 @@ def illuminant_retrieval_gray_world(obs: Observations, sensitivities: NDArray[np
     k = np.argmin(d, axis=1)
     res = make_result(obs, sensitivities, spectra[k], "gray_world", xy=xy[k])
     res.white = gw
-    res.gains = gw[:, 1:2] / gw
+    res.gains = gains_from_white(gw)
     return res
 
 

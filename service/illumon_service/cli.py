@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 __all__ = ["add_serve_command"]
@@ -98,9 +97,3 @@ def add_serve_command(subparsers: argparse._SubParsersAction) -> None:
     refit.add_argument("--dask-scheduler", help="address of a Dask scheduler (a LocalCluster by default)")
     refit.add_argument("--workers", type=int, help="LocalCluster worker processes (usable CPUs); 1 refits serially")
     refit.set_defaults(func=_cmd_refit)
-
-
-if __name__ == "__main__":  # pragma: no cover
-    from illumon.cli import main
-
-    sys.exit(main())

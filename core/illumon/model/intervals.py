@@ -12,7 +12,6 @@ the true one, from that covariance approximated as an isotropic Gaussian on the 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,9 +21,6 @@ from ..daylight import xy_from_cct_duv
 from ..observations import Observations
 from ..retrieval.common import RetrievalResult
 from .solver import FrameSolver
-
-if TYPE_CHECKING:
-    from .scene import SceneModel
 
 __all__ = ["MODEL_ERROR", "Z95", "assemble_estimates", "interval_columns"]
 
@@ -49,13 +45,14 @@ Laplace ≈ 1.9) and 8.8 MK⁻¹ (40-frame fits, Laplace ≈ 2.7), mean −1.6 a
 
 
 def assemble_estimates(
-    obs: Observations, model: SceneModel, theta: NDArray[np.float64], cov: NDArray[np.float64],
+    obs: Observations, noise: dict, camera: dict, theta: NDArray[np.float64], cov: NDArray[np.float64],
     few: NDArray[np.bool_], solver: FrameSolver, cost: NDArray[np.float64], n_shared: int,
     reflectances: NDArray[np.float64],
 ) -> tuple[RetrievalResult, dict]:
-    """The per-frame result of :meth:`SceneModel.estimate`: illuminant, white and gains from ``θ``, and their 95 %
-    intervals and ``confidence`` from the Laplace covariance plus the model errors (:data:`MODEL_ERROR`, the
-    history's common shift, the camera's own uncertainty); frames with fewer than two patches (``few``) are NaN."""
+    """The per-frame result of :meth:`.SceneModel.estimate` (given its ``noise`` and ``camera``): illuminant, white
+    and gains from ``θ``, and their 95 % intervals and ``confidence`` from the Laplace covariance plus the model
+    errors (:data:`MODEL_ERROR`, the history's common shift, the camera's own uncertainty); frames with fewer than two
+    patches (``few``) are NaN."""
     dm = solver.daylight
     mired, delta = theta[:, 0], theta[:, 1]
     cct = 1e6 / mired
@@ -67,18 +64,18 @@ def assemble_estimates(
     white = white / white[:, 1:2]
     res = RetrievalResult(
         frames=list(obs.frames), patches=list(obs.patches), spectra=dm.spectra(theta[:, :2]), xy=xy, cct=cct,
-        duv=duv, white=white, gains=gains_from_white(white), exposures=np.exp(theta[:, 2]) / model.noise["scale"],
+        duv=duv, white=white, gains=gains_from_white(white), exposures=np.exp(theta[:, 2]) / noise["scale"],
         reflectances=reflectances,
         method="model", times=list(obs.times),
     )
-    me = model.noise.get("model_error", MODEL_ERROR)
+    me = noise.get("model_error", MODEL_ERROR)
     frame_cov = cov  # the frame's own uncertainty, without what is common to the history
     cov = cov.copy()
     cov[:, 0, 0] += me.get("common_mired", 0.0) ** 2  # shift common to the history (fit's Laplace posterior)
     cov[:, 1, 1] += me.get("common_duv", 0.0) ** 2  # the day's common offset from the locus (see MODEL_ERROR)
     # A reference of known reflectance (grey card, chart) pins the camera white of its frame: a shift common to every
     # frame's daylight then moves the camera transform with it, not the whites and gains (the CCT stays uncertain).
-    white_cov = frame_cov if model.camera.get("calibration") in ("grey", "chart") else cov
+    white_cov = frame_cov if camera.get("calibration") in ("grey", "chart") else cov
     sm = np.sqrt(np.clip(cov[:, 0, 0], 0, None) + me["mired"] ** 2)
     cct_lo = 1e6 / np.clip(mired + Z95 * sm, 1e-3, None)
     cct_hi = 1e6 / np.clip(mired - Z95 * sm, 1e-3, None)

@@ -197,7 +197,7 @@ class SceneModel:
         if few.all():
             raise ValueError("no frame has two or more of the model's patches")
         theta, cov, cost = solver.solve(y, present)
-        return assemble_estimates(obs, self, theta, cov, few, solver, cost, len(shared),
+        return assemble_estimates(obs, self.noise, self.camera, theta, cov, few, solver, cost, len(shared),
                                   _patch_reflectances(self, obs.patches))
 
 

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from illumon import datasets
 from illumon.camera import angular_error_deg
-from illumon.daylight import daylight_model
+from illumon.daylight_models import daylight_model
 from illumon.reflectance import ReflectanceBasis, colourchecker_reflectances, reflectance_basis
 from illumon.retrieval import retrieve_illuminants
 from illumon.retrieval.joint import JointProblem

@@ -15,7 +15,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from .api.routes import calibration, cameras, estimates, frames, gains, health, jobs, pages
+from .api.routes import calibration, cameras, estimates, frames, gains, health, jobs, pages, proposals
 from .jobs import JobRunner
 from .metrics import Metrics
 from .settings import Settings
@@ -121,7 +121,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.exception("unhandled error on %s %s", request.method, request.url.path)
         return JSONResponse({"detail": "internal server error"}, status_code=500)
 
-    for module in (cameras, calibration, frames, estimates, gains, jobs, health):
+    for module in (cameras, calibration, frames, estimates, gains, jobs, health, proposals):
         app.include_router(module.router)
     pages.install(app)  # status page: /, /cameras/{id}, /login, /static
     return app

@@ -50,14 +50,15 @@ class RefitInputError(ValueError):
     condition, reported in the job's summary and logged in one line, never with a traceback."""
 
 
-def model_path(data_dir: Path | str, camera_id: int) -> Path:
-    """Where the fitted scene model of a camera is stored."""
-    return Path(data_dir) / "models" / f"camera-{camera_id}.json"
+def model_path(data_dir: Path | str, camera_id: int, view: str | None = None) -> Path:
+    """Where the fitted scene model of a camera (of one of its views, a PTZ preset) is stored."""
+    suffix = "" if view is None else f"-view-{view}"
+    return Path(data_dir) / "models" / f"camera-{camera_id}{suffix}.json"
 
 
-def model_available(data_dir: Path | str, camera_id: int) -> bool:
+def model_available(data_dir: Path | str, camera_id: int, view: str | None = None) -> bool:
     """Whether per-frame estimation is possible for the camera (a scene model has been fitted)."""
-    return model_path(data_dir, camera_id).is_file()
+    return model_path(data_dir, camera_id, view).is_file()
 
 
 def sensitivities_array(stored: Sequence[Sequence[float]]) -> NDArray[np.float64] | None:
@@ -172,10 +173,11 @@ def _intervals(result: Any, extra: dict, i: int) -> dict | None:
 
 
 def estimate_frame(
-    data_dir: Path | str, camera_id: int, frame_id: str, taken_at: str, patches: dict, region_ids: Sequence[str]
+    data_dir: Path | str, camera_id: int, frame_id: str, taken_at: str, patches: dict, region_ids: Sequence[str],
+    view: str | None = None,
 ) -> dict | None:
-    """Per-frame estimate from the camera's fitted scene model, or ``None`` when there is none (yet)."""
-    path = model_path(data_dir, camera_id)
+    """Per-frame estimate from the camera's (view's) fitted scene model, or ``None`` when there is none (yet)."""
+    path = model_path(data_dir, camera_id, view)
     if not path.is_file():
         return None
     obs = build_observations([(frame_id, taken_at, patches)], region_ids)

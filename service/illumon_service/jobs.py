@@ -31,6 +31,7 @@ from .estimation import (
     undo_camera_gains,
 )
 from .metrics import Metrics
+from .registration import view_regions
 from .settings import Settings
 from .storage import Calibration, Camera, Estimate, Frame, Job, as_utc, make_engine, make_session_factory, utcnow
 
@@ -105,10 +106,16 @@ def refit_camera(
         if cam is None:
             raise ValueError(f"unknown camera {camera_id}")
         rows = s.execute(
-            select(Frame.id, Frame.taken_at, Frame.patches, Frame.applied_gains, Frame.exposure)
+            select(Frame.id, Frame.taken_at, Frame.patches, Frame.applied_gains, Frame.exposure, Frame.view,
+                   Frame.registration)
             .where(Frame.camera_id == camera_id)
             .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(max_frames)
         ).all()
+        # Frames of an unknown view (a view change) or measured before any region existed carry no region values.
+        rows = [r for r in rows if r.patches and (r.registration or {}).get("state") != "view_change"]
+        views = sorted({r.view for r in rows if r.view is not None})
+        view_ids = {v: [r["id"] for r in view_regions(s, cam, v)] for v in views}
+        rows = [r for r in rows if r.view is None or view_ids.get(r.view)]
         region_ids = [r["id"] for r in cam.regions]
         css = sensitivities_array(cam.sensitivities)
         encoding = (cam.response or {}).get("encoding", "linear")
@@ -116,18 +123,35 @@ def refit_camera(
         cals = s.scalars(select(Calibration).where(Calibration.camera_id == camera_id).order_by(Calibration.id)).all()
         calibrations, known, cal_warnings = calibration_frames(cals, matrix)
     rows.reverse()
-    frames = [(str(fid), as_utc(t).isoformat(), undo_camera_gains(patches, gains, exposure, matrix))
-              for fid, t, patches, gains, exposure in rows]
-    times = {str(fid): t for fid, t, *_ in rows}
+    frames = [(str(r.id), as_utc(r.taken_at).isoformat(), undo_camera_gains(r.patches, r.applied_gains, r.exposure,
+                                                                            matrix))
+              for r in rows if r.view is None]
+    times = {str(r.id): r.taken_at for r in rows}
     t_read = time.perf_counter()
     report(0.1)
-    estimates, summary = refit_estimates(
-        frames, region_ids, css, method=method, model_file=model_path(data_dir, camera_id),
-        max_fit_frames=max_fit_frames, calibrations=calibrations, known_reflectances=known,
-    )
-    check = check_response(frames, region_ids, css, encoding)
+    view_warnings = []
+    estimates: dict = {}
+    for v in views:  # each PTZ preset: its own regions and scene model (calibration images are of the default view)
+        vf = [(str(r.id), as_utc(r.taken_at).isoformat(), undo_camera_gains(r.patches, r.applied_gains, r.exposure,
+                                                                            matrix)) for r in rows if r.view == v]
+        try:
+            est_v, _ = refit_estimates(vf, view_ids[v], css, method=method, model_file=model_path(data_dir, camera_id, v),
+                                       max_fit_frames=max_fit_frames)
+            estimates.update(est_v)
+        except RefitInputError as exc:
+            view_warnings.append(f"view {v!r} not refitted: {exc}")
+    if not frames and estimates:
+        summary = {"frames": 0, "method": method, "views": len(views)}
+    else:
+        est_d, summary = refit_estimates(
+            frames, region_ids, css, method=method, model_file=model_path(data_dir, camera_id),
+            max_fit_frames=max_fit_frames, calibrations=calibrations, known_reflectances=known,
+        )
+        estimates.update(est_d)
+    check = check_response(frames, region_ids, css, encoding) if frames else {"warnings": []}
     summary["response_check"] = {k: v for k, v in check.items() if k != "warnings"}
-    summary["warnings"] = cal_warnings + check["warnings"]
+    summary["warnings"] = cal_warnings + check["warnings"] + view_warnings
+    summary["views"] = len(views) + bool(frames)
     t_fit = time.perf_counter()
     report(0.8)
     items = list(estimates.items())

@@ -18,7 +18,11 @@ function of an :class:`AlertContext` (the camera, its recent frames and its late
 * ``refit_warning`` — a warning of the latest refit, e.g. a stored history that still looks non-linear for the
   camera's declared tone response (:func:`~.estimation.check_response`: every estimate is then off);
 * ``uncalibrated`` — a camera registered without sensitivities and no calibration image yet: its estimates rest on
-  the prior from measured cameras (an information, not a fault).
+  the prior from measured cameras (an information, not a fault);
+* ``no_regions`` — a camera registered without regions: frames are stored, and the page says how to confirm
+  proposed regions (an information);
+* ``view_change`` — the latest frame does not register to its view's reference frame (:mod:`.registration`: a
+  PTZ preset, a knocked camera): it is stored but not estimated.
 
 A later diagnosis of the history (patch change, shadow, clipping, … from ``illumon.diagnosis``) is one more rule
 appended to :data:`ALERT_RULES` that turns stored diagnosis results into :class:`Alert` objects; nothing else in the
@@ -157,8 +161,37 @@ def _uncalibrated(ctx: AlertContext) -> list[Alert]:
                   "/v1/cameras/{id}/calibration".replace("{id}", str(ctx.camera.id)), severity="info")]
 
 
+def _no_regions(ctx: AlertContext) -> list[Alert]:
+    if ctx.camera.regions:
+        return []
+    from .proposals import MIN_FRAMES
+
+    cid = ctx.camera.id
+    todo = (f"confirm proposed regions at /cameras/{cid}/regions" if ctx.frame_count >= MIN_FRAMES else
+            f"post at least {MIN_FRAMES} frames spread over the day ({ctx.frame_count} so far), then confirm proposed "
+            f"regions at /cameras/{cid}/regions")
+    return [Alert("no_regions", "No regions", f"no reference regions yet: frames are stored but not estimated; {todo}",
+                  severity="info")]
+
+
+def _view_change(ctx: AlertContext) -> list[Alert]:
+    if not ctx.frames:
+        return []
+    latest = ctx.frames[0]
+    reg = getattr(latest, "registration", None) or {}
+    if reg.get("state") != "view_change":
+        return []
+    dx, dy = reg.get("shift") or (0.0, 0.0)
+    view = "" if getattr(latest, "view", None) is None else f" (view {latest.view})"
+    return [Alert("view_change", "View changed",
+                  f"latest frame{view} does not match its reference frame (shift {dx:+.0f}, {dy:+.0f} px, peak "
+                  f"{reg.get('response') or 0:.2f}): stored, not estimated. Camera moved? If for good, confirm its "
+                  f"regions again at /cameras/{ctx.camera.id}/regions")]
+
+
 ALERT_RULES: list[Callable[[AlertContext], list[Alert]]] = [
-    _refit_warning, _uncalibrated, _regions_missing, _clipping, _non_daylight, _low_confidence, _no_estimate,
+    _view_change, _no_regions, _refit_warning, _uncalibrated, _regions_missing, _clipping, _non_daylight, _low_confidence,
+    _no_estimate,
 ]
 """Rules producing a camera's alerts, in display order; append a rule to add a kind of alert."""
 

@@ -25,6 +25,7 @@ __all__ = [
     "Estimate",
     "Job",
     "Calibration",
+    "CameraView",
     "make_engine",
     "make_session_factory",
     "hash_token",
@@ -95,6 +96,24 @@ class Frame(Base):
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
     applied_gains: Mapped[list | None] = mapped_column(JSON, nullable=True)
     exposure: Mapped[float | None] = mapped_column(Float, nullable=True)
+    view: Mapped[str | None] = mapped_column(String(64), nullable=True, index=True)
+    """The camera view (PTZ preset id) the frame was taken from; ``None`` for a fixed camera's one view."""
+    registration: Mapped[dict | None] = mapped_column(JSON, nullable=True)
+    """Where the frame lies relative to its view's reference frame (:mod:`.registration`): ``state``
+    (``reference`` | ``ok`` | ``view_change``), ``shift`` [dx, dy] in pixels, ``response``."""
+    thumb_path: Mapped[str | None] = mapped_column(String(500), nullable=True)
+    """The frame's linear thumbnail (:mod:`.proposals`), while kept."""
+
+
+class CameraView(Base):
+    """The regions of one view (PTZ preset) of a camera other than its default view (whose regions are the camera's)."""
+
+    __tablename__ = "camera_views"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"), index=True)
+    view: Mapped[str] = mapped_column(String(64))
+    regions: Mapped[list] = mapped_column(JSON)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
 
 
 class Calibration(Base):

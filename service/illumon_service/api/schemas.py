@@ -127,7 +127,8 @@ class CameraIn(_Strict):
 
     name: str = Field(min_length=1, max_length=200)
     sensitivities: SensitivitiesIn | None = None
-    regions: list[RegionIn] = Field(min_length=1, max_length=500)
+    regions: list[RegionIn] = Field(default_factory=list, max_length=500)
+    """Without regions, frames are stored (with thumbnails) until regions are confirmed (region proposals)."""
     response: ResponseIn = ResponseIn()
 
     _check_regions = field_validator("regions")(_unique)

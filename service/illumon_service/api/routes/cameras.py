@@ -2,24 +2,29 @@
 
 from __future__ import annotations
 
+from typing import Literal
+
 import numpy as np
-from fastapi import APIRouter, HTTPException, status
+from fastapi import APIRouter, HTTPException, Query, Request, status
 from illumon.spectra import SpectralInputError, sensitivities_from_arrays
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from ...deps import AdminDep, PrincipalDep, SessionDep, camera_for
-from ...status import visible_cameras
-from ...storage import Calibration, Camera, as_utc, hash_token, new_token, refit_warnings
-from ..schemas import ERROR_RESPONSES, CameraIn, RegionsIn
+from ...registration import parse_view, set_reference, set_view_regions
+from ...settings import Settings
+from ...status import camera_status, visible_cameras
+from ...storage import Calibration, Camera, CameraView, Frame, as_utc, hash_token, new_token, refit_warnings
+from ..schemas import ERROR_RESPONSES, CameraIn, ErrorOut, RegionsIn
 
 router = APIRouter(prefix="/v1/cameras", tags=["cameras"], responses=ERROR_RESPONSES)
 
 
-def camera_out(cam: Camera, session: Session) -> dict:
+def camera_out(cam: Camera, session: Session, settings: Settings | None = None) -> dict:
     """Public view of a camera (never its token): its pipeline, whether its sensitivities were measured, its stored
-    calibrations, what calibrates it (``calibration``: ``chart`` | ``grey`` | ``measured`` | ``none``) and the
-    warnings of its latest refit."""
+    calibrations, what calibrates it (``calibration``: ``chart`` | ``grey`` | ``measured`` | ``none``), the
+    warnings of its latest refit, the regions of its other views (PTZ presets) and, with ``settings``, its alerts (those
+    of the status page)."""
     cals = session.scalars(select(Calibration).where(Calibration.camera_id == cam.id).order_by(Calibration.id)).all()
     kinds = {c.kind for c in cals}
     measured = bool(cam.sensitivities)
@@ -35,13 +40,18 @@ def camera_out(cam: Camera, session: Session) -> dict:
                          for c in cals],
         "created_at": as_utc(cam.created_at).isoformat(),
         "warnings": refit_warnings(session, cam.id),
+        "views": {v.view: v.regions for v in session.scalars(
+            select(CameraView).where(CameraView.camera_id == cam.id).order_by(CameraView.view)).all()},
+        **({} if settings is None else {"alerts": [
+            {"kind": a.kind, "label": a.label, "message": a.message, "severity": a.severity}
+            for a in camera_status(session, cam, settings).alerts]}),
     }
 
 
 @router.get("")
-def list_cameras(session: SessionDep, principal: PrincipalDep) -> list[dict]:
+def list_cameras(request: Request, session: SessionDep, principal: PrincipalDep) -> list[dict]:
     """The cameras the caller may see (every camera for the admin, its own for a camera token), by id."""
-    return [camera_out(cam, session) for cam in visible_cameras(session, principal)]
+    return [camera_out(cam, session, request.app.state.settings) for cam in visible_cameras(session, principal)]
 
 
 @router.post("", status_code=status.HTTP_201_CREATED)
@@ -71,15 +81,41 @@ def register_camera(body: CameraIn, session: SessionDep, _admin: AdminDep) -> di
 
 
 @router.get("/{camera_id}")
-def get_camera(camera_id: int, session: SessionDep, principal: PrincipalDep) -> dict:
-    """A camera's configuration."""
-    return camera_out(camera_for(session, principal, camera_id), session)
+def get_camera(camera_id: int, request: Request, session: SessionDep, principal: PrincipalDep) -> dict:
+    """A camera's configuration and alerts."""
+    return camera_out(camera_for(session, principal, camera_id), session, request.app.state.settings)
 
 
-@router.put("/{camera_id}/regions")
-def put_regions(camera_id: int, body: RegionsIn, session: SessionDep, principal: PrincipalDep) -> dict:
-    """Replace a camera's regions (stored frames keep their old region values)."""
-    cam = camera_for(session, principal, camera_id)
-    cam.regions = [r.model_dump() for r in body.regions]
+def save_regions(session: Session, cam: Camera, body: RegionsIn, view: str | None, data_dir, reference_latest: bool
+                 ) -> None:  # noqa: ANN001 - data_dir: Path | str
+    """Replace a view's regions and commit (the one path of ``PUT …/regions`` and the regions page). With
+    ``reference_latest`` the view's latest frame becomes its reference frame (the camera was moved for good: the
+    regions were drawn on that frame); 409 when the view has no stored frame thumbnail."""
+    if reference_latest:
+        latest = session.scalars(
+            select(Frame).where(Frame.camera_id == cam.id, Frame.thumb_path.is_not(None),
+                                Frame.view.is_(None) if view is None else Frame.view == view)
+            .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(1)).first()
+        if latest is None or not set_reference(data_dir, cam.id, view, latest.thumb_path):
+            raise HTTPException(409, "no stored frame of this view to take as the reference frame")
+        latest.registration = {"state": "reference", "shift": [0.0, 0.0], "response": None}
+    set_view_regions(session, cam, view, [r.model_dump() for r in body.regions])
     session.commit()
-    return camera_out(cam, session)
+
+
+@router.put("/{camera_id}/regions", responses={409: {"model": ErrorOut, "description": "reference=latest without a "
+                                                                                     "stored frame of the view"}})
+def put_regions(camera_id: int, body: RegionsIn, request: Request, session: SessionDep, principal: PrincipalDep,
+                view: str | None = Query(None, description="view (PTZ preset id); the default view if absent"),
+                reference: Literal["keep", "latest"] = Query(
+                    "keep", description="'latest': the view's latest frame becomes its reference frame (after the "
+                                        "camera moved for good)")) -> dict:
+    """Replace the regions of a camera's view, in its reference frame's pixels (stored frames keep their old region
+    values)."""
+    cam = camera_for(session, principal, camera_id)
+    try:
+        v = parse_view(view)
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from None
+    save_regions(session, cam, body, v, request.app.state.settings.data_dir, reference == "latest")
+    return camera_out(cam, session, request.app.state.settings)

@@ -14,12 +14,25 @@ from starlette.concurrency import run_in_threadpool
 
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import estimate_frame, undo_camera_gains
+from ...proposals import MIN_FRAMES, Thumbnail, make_thumbnail, save_thumbnail
 from ...regions import ImageError, Region, RegionError, decode_frame, region_means, response_for, sniff_format
+from ...registration import (
+    Registration,
+    parse_view,
+    prune_thumbnails,
+    register_frame,
+    shift_regions,
+    thumbs_dir,
+    view_regions,
+)
 from ...storage import Camera, Estimate, Frame, as_utc
 from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, IsoDateTime, ObservationIn
 from .estimates import estimate_out
 
 router = APIRouter(prefix="/v1/cameras", tags=["frames"], responses=ERROR_RESPONSES)
+
+MIN_REGISTER_SIDE = 32
+"""Frames smaller than this (pixels, either side) keep no thumbnail and are not registered."""
 
 IMAGE_TYPES = {"image/png", "image/jpeg", "image/jpg", "image/tiff", "application/octet-stream", ""}
 
@@ -134,7 +147,8 @@ def parse_positive(text: str | None, field: str = "exposure") -> float | None:
 def _store(
     request: Request, session: Session, cam: Camera, taken_at: datetime, patches: dict, size: tuple[int, int] | None,
     image: bytes | bytearray | None = None, fmt: str | None = None, applied_gains: list[float] | None = None,
-    exposure: float | None = None,
+    exposure: float | None = None, region_ids: list[str] | None = None, view: str | None = None,
+    registration: Registration | None = None, thumb: Thumbnail | None = None,
 ) -> dict:
     """Estimate a frame if a model exists (the camera's applied gains and exposure divided out first), store it
     durably with them, and build the 201 answer.
@@ -146,16 +160,25 @@ def _store(
     settings = request.app.state.settings
     metrics = request.app.state.metrics
     usable = sum(v is not None for v in patches.values())
+    region_ids = [r["id"] for r in cam.regions] if region_ids is None else region_ids
     warnings = []
-    if usable == 0:
+    if registration is not None and registration.state == "view_change":
+        warnings.append(f"view change: the frame does not register to its view's reference frame (shift "
+                        f"{registration.shift[0]:+.0f}, {registration.shift[1]:+.0f} px, peak {registration.response:.2f}): "
+                        "stored but not estimated; if the camera moved for good, confirm its regions again "
+                        f"(/cameras/{cam.id}/regions)")
+    elif not region_ids:
+        warnings.append(f"the camera has no regions yet: the frame is stored; once {MIN_FRAMES} frames are stored, "
+                        f"confirm proposed regions at /cameras/{cam.id}/regions (or GET /v1/cameras/{cam.id}/region-proposals)")
+    elif usable == 0:
         warnings.append("no region was usable in this frame (each mostly clipped, occluded or dark): it is stored but "
                         "adds nothing to the estimates")
     elif usable < 2:
         warnings.append("only one region was usable: a frame needs two to be estimated")
     t0 = time.perf_counter()
-    est = estimate_frame(settings.data_dir, cam.id, "new", taken_at.isoformat(),
-                         undo_camera_gains(patches, applied_gains, exposure, (cam.response or {}).get("matrix")),
-                         [r["id"] for r in cam.regions])
+    est = None if usable < 2 else estimate_frame(
+        settings.data_dir, cam.id, "new", taken_at.isoformat(),
+        undo_camera_gains(patches, applied_gains, exposure, (cam.response or {}).get("matrix")), region_ids, view)
     t1 = time.perf_counter()
     metrics.observe("illumon_estimate_seconds", t1 - t0)
     metrics.observe("illumon_ingest_stage_seconds", t1 - t0, labels='stage="estimate"')
@@ -166,9 +189,15 @@ def _store(
     def write(session: Session) -> dict:
         frame = Frame(camera_id=cam.id, taken_at=taken_at, patches=patches,
                       width=size[0] if size else None, height=size[1] if size else None,
-                      applied_gains=applied_gains, exposure=exposure)
+                      applied_gains=applied_gains, exposure=exposure, view=view,
+                      registration=None if registration is None else registration.as_dict())
         session.add(frame)
         session.flush()
+        if thumb is not None:
+            path = thumbs_dir(settings.data_dir, cam.id) / f"{frame.id}.png"
+            save_thumbnail(path, thumb)
+            frame.thumb_path = str(path)
+            prune_thumbnails(session, cam.id, view)
         if image is not None and settings.keep_images:
             folder = Path(settings.data_dir) / "images" / f"camera-{cam.id}"
             folder.mkdir(parents=True, exist_ok=True)
@@ -187,6 +216,8 @@ def _store(
             "applied_gains": applied_gains,
             "exposure": exposure,
             "usable_regions": usable,
+            "view": view,
+            "registration": None if registration is None else registration.as_dict(),
             "estimate": estimate_out(row) if row is not None else None,
             "warnings": warnings,
         }
@@ -222,29 +253,54 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
     taken_at = parse_time(fields.get("taken_at"))
     applied_gains = parse_gains(fields.get("applied_gains"))
     exposure = parse_positive(fields.get("exposure"))
+    try:
+        view = parse_view(fields.get("view"))
+    except ValueError as exc:
+        raise HTTPException(422, str(exc)) from None
+    configured = await run_in_threadpool(view_regions, session, cam, view)
     metrics = request.app.state.metrics
     metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t_start, labels='stage="receive"')
 
     def work() -> dict:
         try:
             t0 = time.perf_counter()
-            regions = [Region(**r) for r in cam.regions]
+            regions = [Region(**r) for r in configured]
             frame = decode_frame(data, regions, max_pixels=settings.max_image_pixels,
                                  max_reduction=settings.jpeg_max_reduction)
             t1 = time.perf_counter()
             metrics.observe("illumon_ingest_stage_seconds", t1 - t0, labels='stage="decode"')
             metrics.inc("illumon_ingest_decodes_total", labels=f'scale="1/{frame.scale}"')
-            patches = region_means(
-                frame.image, regions, response_for(cam.response, frame.full_scale), scale=frame.scale,
-                size=frame.size, clip_fraction=settings.clip_fraction, min_fraction=settings.min_region_fraction,
-            )
+            w, h = frame.size
+            for r in configured:  # in the reference frame's pixels, every region lies inside the image
+                if r["x"] + r["width"] > w or r["y"] + r["height"] > h:
+                    raise RegionError(f"region {r['id']!r} ({r['x']},{r['y']} {r['width']}×{r['height']}) lies "
+                                      f"outside the {w}×{h} image")
+            response = response_for(cam.response, frame.full_scale)
+            thumb: Thumbnail | None = None
+            reg = Registration("ok", (0.0, 0.0), None)
+            if min(w, h) >= MIN_REGISTER_SIDE:  # a tiny image has nothing to register or propose from
+                thumb = make_thumbnail(frame.image, response, settings.clip_fraction, frame.size)
+                reg = register_frame(settings.data_dir, cam.id, view, thumb, configured, frame.size)
+            t2 = time.perf_counter()
+            metrics.observe("illumon_ingest_stage_seconds", t2 - t1, labels='stage="register"')
+            if reg.state == "view_change":  # stored, not measured: the regions are not where they were drawn
+                patches: dict = {}
+            else:
+                moved, outside = shift_regions(configured, reg, frame.size)
+                patches = region_means(
+                    frame.image, moved, response, scale=frame.scale,
+                    size=frame.size, clip_fraction=settings.clip_fraction, min_fraction=settings.min_region_fraction,
+                )
+                patches.update({rid: None for rid in outside})
+                patches = {r["id"]: patches[r["id"]] for r in configured}
+            t1 = t2
             metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t1, labels='stage="regions"')
         except ImageError as exc:
             raise HTTPException(exc.status, str(exc)) from None
         except RegionError as exc:
             raise HTTPException(422, str(exc)) from None
         return _store(request, session, cam, taken_at, patches, frame.size, data, sniff_format(data), applied_gains,
-                      exposure)
+                      exposure, [r["id"] for r in configured], view, reg, thumb)
 
     out = await run_in_threadpool(work)
     request.app.state.metrics.observe("illumon_ingest_seconds", time.perf_counter() - t_start)
@@ -283,5 +339,6 @@ def list_frames(camera_id: int, session: SessionDep, principal: PrincipalDep, si
         q = q.where(Frame.taken_at <= parse_time(until.isoformat()))
     rows = session.scalars(q.order_by(Frame.taken_at, Frame.id).limit(limit)).all()
     return [{"frame_id": f.id, "taken_at": as_utc(f.taken_at).isoformat(), "regions": f.patches,
-             "width": f.width, "height": f.height, "applied_gains": f.applied_gains, "exposure": f.exposure}
+             "width": f.width, "height": f.height, "applied_gains": f.applied_gains, "exposure": f.exposure,
+             "view": f.view, "registration": f.registration}
             for f in rows]

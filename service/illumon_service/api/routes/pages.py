@@ -19,17 +19,24 @@ from datetime import datetime
 from pathlib import Path
 from urllib.parse import quote, urlsplit
 
-from fastapi import APIRouter, FastAPI, Form, Query, Request
+from fastapi import APIRouter, FastAPI, Form, HTTPException, Query, Request
 from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from markupsafe import Markup
+from sqlalchemy import select
 from sqlalchemy.orm import Session
+from starlette.concurrency import run_in_threadpool
 
 from ...charts import Series, time_chart
 from ...deps import Principal, SessionDep
+from ...proposals import MAX_FRAMES, preview_jpeg
+from ...registration import parse_view, view_regions, view_thumbnails
 from ...status import NON_DAYLIGHT_DUV, camera_history, camera_status, fleet_status
-from ...storage import Camera, camera_by_token, hash_token
+from ...storage import Camera, Frame, as_utc, camera_by_token, hash_token
+from ..schemas import RegionsIn
+from .cameras import save_regions
+from .proposals import proposals_for
 
 __all__ = ["router", "install", "COOKIE", "principal_from_token"]
 
@@ -205,6 +212,119 @@ def camera_page(camera_id: int, request: Request, session: SessionDep, limit: in
     recent = list(reversed(history[-24:]))
     return _render(request, "camera.html", {"row": status, "charts": _charts(history), "recent": recent,
                                             "count": len(history), "principal": principal})
+
+
+def _view_arg(view: str | None) -> str | None:
+    try:
+        return parse_view(view)
+    except ValueError:
+        return None
+
+
+def _regions_context(session: Session, cam: Camera, view: str | None) -> dict:
+    """What the regions page shows: the view's regions, the latest frame's size and time, and proposals."""
+    thumbs, frames = view_thumbnails(session, cam, view, MAX_FRAMES)
+    ctx: dict = {"cam": cam, "view": view, "regions": view_regions(session, cam, view), "proposals": [],
+                 "frames_used": 0, "proposal_error": None, "size": None, "latest_at": None, "view_changed": False,
+                 "error": None, "saved": False}
+    if frames:
+        ctx["size"] = (frames[0].width, frames[0].height)
+        ctx["latest_at"] = as_utc(frames[0].taken_at)
+    latest = session.scalars(select(Frame).where(Frame.camera_id == cam.id, Frame.view.is_(None) if view is None
+                                                 else Frame.view == view)
+                             .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(1)).first()
+    ctx["view_changed"] = bool(latest is not None and (latest.registration or {}).get("state") == "view_change")
+    try:
+        out = proposals_for(session, cam, view, 12)
+        ctx["proposals"], ctx["frames_used"] = out["proposals"], out["frames_used"]
+    except HTTPException as exc:
+        ctx["proposal_error"] = f"No proposals yet: {exc.detail}."
+    return ctx
+
+
+def _page_camera(request: Request, session: Session, camera_id: int) -> tuple[Principal | None, Camera | None]:
+    principal = _principal(request, session)
+    if principal is None:
+        return None, None
+    cam = session.get(Camera, camera_id) if (principal.admin or principal.camera_id == camera_id) else None
+    return principal, cam
+
+
+@router.get("/cameras/{camera_id}/regions", response_class=HTMLResponse)
+def regions_page(camera_id: int, request: Request, session: SessionDep, view: str | None = None,
+                 saved: int = 0) -> Response:
+    """The latest frame with the view's regions and the proposals drawn on it, and a form to keep, drop, rename
+    or add regions (saved like ``PUT /v1/cameras/{id}/regions``)."""
+    principal, cam = _page_camera(request, session, camera_id)
+    if principal is None:
+        return _to_login(request)
+    if cam is None:
+        return _render(request, "not_found.html", {"camera_id": camera_id, "principal": principal}, status_code=404)
+    ctx = _regions_context(session, cam, _view_arg(view))
+    ctx.update({"principal": principal, "saved": bool(saved)})
+    return _render(request, "regions.html", ctx)
+
+
+@router.get("/cameras/{camera_id}/latest.jpg")
+def latest_frame_jpeg(camera_id: int, request: Request, session: SessionDep, view: str | None = None) -> Response:
+    """The view's latest stored frame, downscaled and moved into its reference frame, as a JPEG."""
+    principal, cam = _page_camera(request, session, camera_id)
+    if cam is None:
+        return Response(status_code=401 if principal is None else 404, headers=HEADERS)
+    thumbs, _ = view_thumbnails(session, cam, _view_arg(view), 1)
+    if not thumbs:
+        return Response(status_code=404, headers=HEADERS)
+    return Response(preview_jpeg(thumbs[0]), media_type="image/jpeg", headers=HEADERS)
+
+
+def _form_regions(form: dict) -> list[dict]:
+    """Regions kept, renamed or added in the regions form (``ValueError`` for a malformed number)."""
+    out = []
+    for prefix, count in (("r", form.get("n_regions")), ("p", form.get("n_proposals"))):
+        for i in range(min(int(count or 0), 500)):
+            if form.get(f"{prefix}{i}_keep") != "1":
+                continue
+            out.append({"id": str(form.get(f"{prefix}{i}_id", "")).strip(),
+                        **{k: int(form.get(f"{prefix}{i}_{f}", "")) for k, f in
+                           (("x", "x"), ("y", "y"), ("width", "w"), ("height", "h"))}})
+    if any(str(form.get(f"new_{f}", "")).strip() for f in ("id", "x", "y", "w", "h")):
+        out.append({"id": str(form.get("new_id", "")).strip(),
+                    **{k: int(str(form.get(f"new_{f}", "")).strip() or "-1") for k, f in
+                       (("x", "x"), ("y", "y"), ("width", "w"), ("height", "h"))}})
+    return out
+
+
+@router.post("/cameras/{camera_id}/regions", response_class=HTMLResponse)
+async def save_regions_form(camera_id: int, request: Request, session: SessionDep, view: str | None = None) -> Response:
+    """Save the regions form through the code of ``PUT /v1/cameras/{id}/regions``; forms from other sites: 403."""
+    if not _same_origin(request):
+        return Response("cross-site form refused", status_code=403, headers=HEADERS)
+    form = {k: v for k, v in (await request.form()).items() if isinstance(v, str)}
+
+    def work() -> Response:
+        principal, cam = _page_camera(request, session, camera_id)
+        if principal is None:
+            return _to_login(request)
+        if cam is None:
+            return _render(request, "not_found.html", {"camera_id": camera_id, "principal": principal}, status_code=404)
+        v = _view_arg(view)
+        error = None
+        try:
+            body = RegionsIn(regions=_form_regions(form))
+            save_regions(session, cam, body, v, request.app.state.settings.data_dir, form.get("reference_latest") == "1")
+        except ValueError as exc:  # a malformed number, or pydantic's ValidationError
+            errs = getattr(exc, "errors", None)
+            error = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in errs()) if errs else str(exc)
+        except HTTPException as exc:
+            error = str(exc.detail)
+        if error is not None:
+            ctx = _regions_context(session, cam, v)
+            ctx.update({"principal": principal, "error": f"Not saved: {error}"})
+            return _render(request, "regions.html", ctx, status_code=422)
+        q = f"?view={quote(v)}&saved=1" if v else "?saved=1"
+        return RedirectResponse(f"/cameras/{camera_id}/regions{q}", status_code=303)
+
+    return await run_in_threadpool(work)
 
 
 def install(app: FastAPI) -> None:

@@ -1,0 +1,228 @@
+"""Keeping regions on their surfaces when the view moves (issue 17): registration of each frame to its view's
+reference frame, per-view regions, and frame thumbnails on disk.
+
+Each camera view (``view`` form field of an upload, a PTZ preset id; ``None`` for a fixed camera) has a *reference
+frame*: the thumbnail (:mod:`.proposals`) of the first frame stored for that view, kept as
+``<data dir>/thumbs/camera-<id>/reference-<view>.png``. Regions and proposals are in the reference frame's pixels.
+Every new frame's thumbnail is registered to it by phase correlation (``cv2.phaseCorrelate``; Kuglin & Hines, "The
+phase correlation image alignment method", IEEE Cybernetics and Society 1975) of log-grey images under a Hanning
+window, the reference weighted towards its static areas (the view's regions and their surroundings, when it has
+regions). The shift (full-resolution pixels, content moved right/down positive) moves the regions with the frame when
+it is within :data:`MAX_SHIFT_FRACTION` of the image side and the correlation peak is clear
+(:data:`MIN_RESPONSE`); otherwise the frame is a *view change*: it is stored (with its thumbnail) but not measured nor
+estimated, and the status page and the camera's JSON raise the ``view_change`` alert. ``PUT …/regions?reference=latest``
+re-anchors a view on its latest frame after the camera was moved for good.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+
+import cv2
+import numpy as np
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from .proposals import KEEP_RECENT, Thumbnail, load_thumbnail, save_thumbnail, thumbnail_grey
+from .regions import Region
+from .storage import Camera, CameraView, Frame, as_utc
+
+__all__ = [
+    "MAX_SHIFT_FRACTION", "MIN_RESPONSE", "MIN_STRUCTURE", "Registration", "thumbs_dir", "reference_path", "view_key",
+    "parse_view", "view_regions", "set_view_regions", "register_frame", "shift_regions", "prune_thumbnails", "set_reference",
+    "view_thumbnails", "phase_shift",
+]
+
+MAX_SHIFT_FRACTION = 0.05
+"""Largest shift (of the image width in x, of its height in y) regions follow; beyond it the view changed."""
+MIN_RESPONSE = 0.08
+"""Smallest phase-correlation peak (``cv2.phaseCorrelate``'s response, 0…1) accepted as a registration (chosen on
+the development scenes of ``benchmarks/regions_setup.py``: a shifted frame of the same view scores ≳ 0.3, another
+view ≲ 0.05)."""
+
+MIN_STRUCTURE = 0.02
+"""Standard deviation of a thumbnail's log grey below which it is featureless and is not registered."""
+
+_VIEW = re.compile(r"^[A-Za-z0-9_.:-]{1,64}$")
+
+
+@dataclass(frozen=True)
+class Registration:
+    """Where a frame lies relative to its view's reference frame."""
+
+    state: str
+    """``reference`` (this frame became the reference), ``ok`` (registered), ``featureless`` (nothing to register
+    on: regions left in place) or ``view_change``."""
+    shift: tuple[float, float]
+    """(dx, dy) in full-resolution pixels: the scene moved by this much in the image."""
+    response: float | None
+    """Phase-correlation peak (``None`` for the reference itself)."""
+
+    def as_dict(self) -> dict:
+        """JSON form (stored with the frame)."""
+        return {"state": self.state, "shift": [round(self.shift[0], 2), round(self.shift[1], 2)],
+                "response": None if self.response is None else round(self.response, 4)}
+
+
+def parse_view(text: str | None) -> str | None:
+    """A ``view`` form field (preset id: 1…64 letters, digits, ``_ . : -``) or ``None``; ``ValueError`` otherwise."""
+    if text is None or not text.strip():
+        return None
+    text = text.strip()
+    if not _VIEW.match(text):
+        raise ValueError(f"view {text!r}: expected a preset id of 1…64 letters, digits, '_', '.', ':' or '-'")
+    return text
+
+
+def view_key(view: str | None) -> str:
+    """File-name key of a view."""
+    return "default" if view is None else f"v-{view}"
+
+
+def thumbs_dir(data_dir: Path | str, camera_id: int) -> Path:
+    """Folder of a camera's thumbnails and reference frames."""
+    return Path(data_dir) / "thumbs" / f"camera-{camera_id}"
+
+
+def reference_path(data_dir: Path | str, camera_id: int, view: str | None) -> Path:
+    """The view's reference-frame thumbnail."""
+    return thumbs_dir(data_dir, camera_id) / f"reference-{view_key(view)}.png"
+
+
+def view_regions(session: Session, cam: Camera, view: str | None) -> list[dict]:
+    """The regions of a view (the camera's own for ``None``)."""
+    if view is None:
+        return list(cam.regions)
+    row = session.scalars(select(CameraView).where(CameraView.camera_id == cam.id, CameraView.view == view)).first()
+    return list(row.regions) if row is not None else []
+
+
+def set_view_regions(session: Session, cam: Camera, view: str | None, regions: list[dict]) -> None:
+    """Replace a view's regions (not committed)."""
+    if view is None:
+        cam.regions = regions
+        return
+    row = session.scalars(select(CameraView).where(CameraView.camera_id == cam.id, CameraView.view == view)).first()
+    if row is None:
+        session.add(CameraView(camera_id=cam.id, view=view, regions=regions))
+    else:
+        row.regions = regions
+
+
+def _weights(ref: Thumbnail, regions: list[dict]) -> np.ndarray:
+    """Weights of the reference's pixels: a Hanning window, times 1 on and around the regions (static surfaces and
+    their neighbours), 0.2 elsewhere (sky, foliage and passers-by lie off the regions)."""
+    h, w = ref.unclipped.shape
+    win = cv2.createHanningWindow((w, h), cv2.CV_32F)
+    if not regions:
+        return win
+    static = np.full((h, w), 0.2, np.float32)
+    f = ref.factor
+    for r in regions:
+        mx, my = r["width"] / 2, r["height"] / 2
+        x0, y0 = int(max(0, (r["x"] - mx) / f)), int(max(0, (r["y"] - my) / f))
+        x1, y1 = int(min(w, (r["x"] + r["width"] + mx) / f + 1)), int(min(h, (r["y"] + r["height"] + my) / f + 1))
+        static[y0:y1, x0:x1] = 1.0
+    return win * static
+
+
+def phase_shift(ref: Thumbnail, thumb: Thumbnail, regions: list[dict]) -> tuple[float, float, float]:
+    """(dx, dy, response): the shift of ``thumb``'s content relative to ``ref`` in full-resolution pixels, by phase
+    correlation of the mean-removed log-grey images (``ref`` weighted by :func:`_weights`)."""
+    a, b = thumbnail_grey(ref), thumbnail_grey(thumb)
+    if a.shape != b.shape:
+        return 0.0, 0.0, 0.0
+    wts = _weights(ref, regions)
+    a = (a - float((a * wts).sum() / wts.sum())) * wts
+    win = cv2.createHanningWindow((b.shape[1], b.shape[0]), cv2.CV_32F)
+    b = (b - float(b.mean())) * win
+    (dx, dy), response = cv2.phaseCorrelate(a.astype(np.float64), b.astype(np.float64))
+    return float(dx) * ref.factor, float(dy) * ref.factor, float(response)
+
+
+def register_frame(data_dir: Path | str, camera_id: int, view: str | None, thumb: Thumbnail,
+                   regions: list[dict], size: tuple[int, int]) -> Registration:
+    """Register ``thumb`` to its view's reference frame (the frame becomes the reference when there is none)."""
+    path = reference_path(data_dir, camera_id, view)
+    ref = load_thumbnail(path, size[0]) if path.is_file() else None
+    if ref is None or ref.unclipped.shape != thumb.unclipped.shape:
+        save_thumbnail(path, thumb)
+        return Registration("reference", (0.0, 0.0), None)
+    if float(thumbnail_grey(thumb).std()) < MIN_STRUCTURE or float(thumbnail_grey(ref).std()) < MIN_STRUCTURE:
+        # nothing to register on (fog, a flat image): no evidence that the view moved; regions stay where they are
+        return Registration("featureless", (0.0, 0.0), None)
+    dx, dy, response = phase_shift(ref, thumb, regions)
+    ok = response >= MIN_RESPONSE and abs(dx) <= MAX_SHIFT_FRACTION * size[0] and abs(dy) <= MAX_SHIFT_FRACTION * size[1]
+    return Registration("ok" if ok else "view_change", (dx, dy), response)
+
+
+def set_reference(data_dir: Path | str, camera_id: int, view: str | None, thumb_file: str | None) -> bool:
+    """Make a stored frame's thumbnail the view's reference frame (after the camera was moved for good)."""
+    if not thumb_file or not Path(thumb_file).is_file():
+        return False
+    path = reference_path(data_dir, camera_id, view)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".tmp.png")
+    tmp.write_bytes(Path(thumb_file).read_bytes())
+    tmp.replace(path)
+    return True
+
+
+def shift_regions(regions: list[dict], reg: Registration, size: tuple[int, int]) -> tuple[list[Region], list[str]]:
+    """The regions moved with the frame (whole pixels), and the ids of those the shift takes out of the image."""
+    dx, dy = round(reg.shift[0]), round(reg.shift[1])
+    inside, outside = [], []
+    for r in regions:
+        moved = Region(r["id"], r["x"] + dx, r["y"] + dy, r["width"], r["height"])
+        if moved.x < 0 or moved.y < 0 or moved.x + moved.width > size[0] or moved.y + moved.height > size[1]:
+            outside.append(r["id"])
+        else:
+            inside.append(moved)
+    return inside, outside
+
+
+def prune_thumbnails(session: Session, camera_id: int, view: str | None) -> None:
+    """Keep a view's :data:`~.proposals.KEEP_RECENT` most recent thumbnails and the latest one of every hour of the
+    day (UTC); delete the others' files and forget their paths (not committed)."""
+    rows = session.scalars(
+        select(Frame).where(Frame.camera_id == camera_id, Frame.thumb_path.is_not(None),
+                            Frame.view.is_(None) if view is None else Frame.view == view)
+        .order_by(Frame.taken_at.desc(), Frame.id.desc())
+    ).all()
+    hours: set[int] = set()
+    for i, f in enumerate(rows):
+        hour = (as_utc(f.taken_at) or datetime.min).hour
+        if i < KEEP_RECENT or hour not in hours:
+            hours.add(hour)
+            continue
+        Path(f.thumb_path).unlink(missing_ok=True)
+        f.thumb_path = None
+
+
+def view_thumbnails(session: Session, cam: Camera, view: str | None, limit: int = 32) -> tuple[list[Thumbnail], list[Frame]]:
+    """The kept thumbnails of a view's registered frames (newest first, at most ``limit``), each moved back by its
+    stored shift into the reference frame's pixels, and their frames."""
+    from .proposals import shifted
+
+    rows = session.scalars(
+        select(Frame).where(Frame.camera_id == cam.id, Frame.thumb_path.is_not(None),
+                            Frame.view.is_(None) if view is None else Frame.view == view)
+        .order_by(Frame.taken_at.desc(), Frame.id.desc())
+    ).all()
+    thumbs, frames = [], []
+    for f in rows:
+        reg = f.registration or {}
+        if reg.get("state") == "view_change" or not f.width:
+            continue
+        t = load_thumbnail(f.thumb_path, f.width)
+        if t is None or (thumbs and t.unclipped.shape != thumbs[0].unclipped.shape):
+            continue
+        dx, dy = reg.get("shift") or (0.0, 0.0)
+        thumbs.append(shifted(t, -dx, -dy))
+        frames.append(f)
+        if len(thumbs) >= limit:
+            break
+    return thumbs, frames

@@ -33,12 +33,12 @@ import numpy as np
 from illumon import datasets
 from illumon.observations import Observations
 from illumon.reflectance import unseen_reflectances
+from illumon.sensitivity.evaluate import camera_manufacturer
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "DEV_CAMERAS",
     "SCORE_CAMERAS",
-    "MANUFACTURERS",
     "DEV_REFLECTANCE_SETS",
     "SCORE_REFLECTANCE_SETS",
     "DEV_DAYLIGHT",
@@ -89,15 +89,8 @@ SCORE_DAYLIGHT = slice(1300, 2600)
 """Score daylight: Granada spectra 1300…2599, held out of the shipped measured-daylight model and mixture (the
 sensitivity estimator's daylight prior used all 2600; its benchmark says so)."""
 
-MANUFACTURERS: dict[str, str] = {"Point_Grey": "Point Grey", "Phase_One": "Phase One"}
-
-
-def manufacturer(camera: str) -> str:
-    """Manufacturer of a measured camera from its file stem (``Canon_50D`` → ``Canon``)."""
-    for prefix, name in MANUFACTURERS.items():
-        if camera.startswith(prefix):
-            return name
-    return camera.split("_")[0]
+manufacturer = camera_manufacturer
+"""Manufacturer of a measured camera from its file stem (:func:`illumon.sensitivity.evaluate.camera_manufacturer`)."""
 
 
 def reflectance_pool(split: str) -> list[NDArray[np.float64]]:
@@ -492,3 +485,21 @@ def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score"
         black_level=prof["black_level"], full_well_e=prof["full_well_e"], adc_bits=prof["adc_bits"],
         pixels=int(rng.integers(100, 901)), texture=float(rng.uniform(0.0, 0.05)), radiance=rad, **kw)
     return RawHiddenEffect(effect, patch, frame, params, h, css)
+
+
+def render_chart(css: ArrayLike, illuminant: ArrayLike, reflectances: ArrayLike, noise: float | None = None,
+                 rng: np.random.Generator | int | None = None) -> NDArray[np.float64]:
+    """A chart photographed through the raw pipeline, as a user would feed it to ``illumon sensitivity``: one frame,
+    the brightest green region metered to 70 % of white (third-stop steps, metering error), a body of the camera
+    with an ISO of 100…1600 (:func:`camera_profile`, keyed by the curves), output 8/10/12 bits, 400 pixels per
+    region, 2 % texture; linear region means scaled so the brightest is 1 (P × 3). ``noise`` is ignored: the noise
+    is the pipeline's (the signature of :func:`illumon.sensitivity.evaluate.simulate_chart`)."""
+    rng = np.random.default_rng(rng)
+    c = np.asarray(css, dtype=float)
+    prof = camera_profile(f"css-{zlib.crc32(np.ascontiguousarray(c).tobytes())}", rng=rng)
+    h = simulate_raw_history(c, np.atleast_2d(illuminant), reflectances, rng=rng, bits=int(rng.choice([8, 10, 12])),
+                             conversion_gain=prof["conversion_gain"], read_noise_e=prof["read_noise_e"],
+                             black_level=prof["black_level"], full_well_e=prof["full_well_e"],
+                             adc_bits=prof["adc_bits"], ae_target=0.7, ae_percentile=100.0, texture=0.02)
+    x = h.linear_output[0]
+    return x / x.max()

@@ -29,11 +29,20 @@ from scipy.optimize import lsq_linear, minimize
 from .common import SensitivityResult, chart_operator, check_chart, finish, smooth_kernel
 from .prior import CameraPrior, DaylightPrior, default_camera_prior, default_daylight_prior
 
-__all__ = ["sensitivities_illumon", "camera_prior_covariance"]
+__all__ = ["sensitivities_illumon", "camera_prior_covariance", "SMOOTH_FLOOR"]
+
+
+SMOOTH_FLOOR = 1.6e-3
+"""Variance of the smooth prior floor outside the PCA span of the training cameras. Chosen leave-one-manufacturer-out
+on the development cameras (``benchmarks/rawsim.py``: Nikon and Point Grey, each manufacturer held out in turn, charts
+of the linear model and of the raw pipeline under development daylight): mean RMSE 0.046 at 1e-4 (the value before
+issue 16, chosen leave-one-camera-out), 0.042 at 4e-4, 0.038 at 1.6e-3, 0.039 at 6.4e-3, 0.047 at 2.5e-2 (length
+30 nm; 60 nm and 20 nm were worse). A prior that has not seen the manufacturer must let curves leave the span of the
+others' more freely."""
 
 
 def camera_prior_covariance(
-    prior: CameraPrior, floor: float = 1e-4, length_nm: float = 30.0
+    prior: CameraPrior, floor: float = SMOOTH_FLOOR, length_nm: float = 30.0
 ) -> NDArray[np.float64]:
     """Prior covariance (183 × 183) of stacked sensitivities: PCA part plus a smooth per-channel floor."""
     pca = (prior.components * prior.variances) @ prior.components.T
@@ -47,7 +56,7 @@ def sensitivities_illumon(
     camera_prior: CameraPrior | None = None,
     daylight_prior: DaylightPrior | None = None,
     noise: float = 0.003,
-    floor: float = 1e-4,
+    floor: float = SMOOTH_FLOOR,
     length_nm: float = 30.0,
     n_daylight: int = 3,
 ) -> SensitivityResult:
@@ -68,7 +77,7 @@ def sensitivities_illumon(
     noise
         Standard deviation of the chart values relative to the brightest value (noise plus model error).
     floor, length_nm
-        Variance and length scale (nm) of the smooth prior floor outside the PCA span.
+        Variance and length scale (nm) of the smooth prior floor outside the PCA span (:data:`SMOOTH_FLOOR`).
     n_daylight
         Daylight components used (≤ those in the prior).
 

@@ -21,7 +21,7 @@ from ..camera import render
 from .common import SensitivityResult, rmse_per_channel
 from .prior import CameraPrior, build_camera_prior
 
-__all__ = ["simulate_chart", "camera_model", "leave_one_out", "LooResult"]
+__all__ = ["simulate_chart", "camera_model", "camera_manufacturer", "leave_one_out", "LooResult"]
 
 
 def simulate_chart(
@@ -42,6 +42,16 @@ def simulate_chart(
 def camera_model(name: str) -> str:
     """Camera model of a measurement file stem (``Nikon_D50_ssf`` and ``Nikon_D50`` are one model)."""
     return name.removesuffix("_ssf")
+
+
+def camera_manufacturer(name: str) -> str:
+    """Manufacturer of a measurement file stem (``Canon_50D`` → ``Canon``, ``Point_Grey_…`` → ``Point Grey``): the
+    group held out together by the leave-one-manufacturer-out protocol (a prior that has seen a Canon 60D should not
+    score a Canon 50D)."""
+    for prefix in ("Point_Grey", "Phase_One"):
+        if name.startswith(prefix):
+            return prefix.replace("_", " ")
+    return name.split("_")[0]
 
 
 @dataclass
@@ -83,9 +93,12 @@ def leave_one_out(
     name: str = "",
     prior_builder: Callable[[list[NDArray[np.float64]]], CameraPrior] = build_camera_prior,
     chart_maker: Callable[..., dict] | None = None,
+    group: Callable[[str], str] = camera_model,
+    chart_renderer: Callable[..., NDArray[np.float64]] = simulate_chart,
     **kwargs: object,
 ) -> LooResult:
-    """Leave-one-camera-out RMSE of ``method`` over ``test_cameras`` × ``illuminants``.
+    """Leave-one-group-out RMSE of ``method`` over ``test_cameras`` × ``illuminants`` (by default one camera model
+    at a time; ``group=camera_manufacturer`` holds out every camera of the manufacturer).
 
     Parameters
     ----------
@@ -105,6 +118,11 @@ def leave_one_out(
         Optional ``chart_maker(camera, illuminant, rng) -> dict`` of extra keyword arguments per chart (Han
         et al.'s
         fluorescent chart values).
+    group
+        Name → group; the prior is rebuilt without every camera of the test camera's group.
+    chart_renderer
+        ``chart_renderer(camera, illuminant, reflectances, noise, rng) -> (P × 3)`` chart values
+        (default :func:`simulate_chart`; the benchmark also renders through an independent raw pipeline).
     """
     import time
 
@@ -116,10 +134,10 @@ def leave_one_out(
     rng = np.random.default_rng(seed)
     out = np.empty((len(names), 3))
     for i, cam in enumerate(names):
-        prior = prior_builder([c for n, c in cameras.items() if camera_model(n) != camera_model(cam)])
+        prior = prior_builder([c for n, c in cameras.items() if group(n) != group(cam)])
         errs = []
         for f, spd in enumerate(e):
-            x = simulate_chart(cameras[cam], spd, r, float(levels[f % levels.size]), rng)
+            x = chart_renderer(cameras[cam], spd, r, float(levels[f % levels.size]), rng)
             extra = chart_maker(cameras[cam], spd, rng) if chart_maker is not None else {}
             res = method(x, r, camera_prior=prior, **extra, **kwargs)
             errs.append(rmse_per_channel(res.sensitivities, cameras[cam]))

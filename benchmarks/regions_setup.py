@@ -23,7 +23,8 @@ Each case runs the service in process (FastAPI TestClient) as an installer would
 3. ``PUT …/regions`` with the 12 proposals; post 40 frames of another stretch of daylight, every one shifted by a
    random −20…20 px in x and y (the reference is the first frame after the regions were set), then a refit: the
    camera-white angular error of every frame's estimate against the truth (``camera_white(css, daylight)``), and the
-   number of frames without an estimate;
+   number of frames without an estimate; as a control, a second camera with the same regions gets the same frames
+   unshifted (``unshifted °``: what the scene model achieves when nothing moves);
 4. post a frame jumped by 100 px: it must raise the ``view_change`` alert and stay unestimated.
 """
 
@@ -66,7 +67,8 @@ class TexturedScene:
         rng = self.rng
         self.css = datasets.load_camera(camera)
         self.daylight = rawsim.daylight_run(split, frames, rng)
-        self.surfaces_refl = rawsim.draw_reflectances(split, 10 + 60, rng)
+        self.split = split
+        self.surfaces_refl = rawsim.draw_reflectances(split, 10 + 60, rng)  # the score split holds 38 in all
         cw, ch = W + 2 * MARGIN, H + 2 * MARGIN
         # neighbours: a mosaic of small tiles of the other surfaces
         idx = np.full((ch, cw), 10, dtype=int)
@@ -76,7 +78,7 @@ class TexturedScene:
             x = 0
             while x < cw:
                 tw = int(rng.integers(6, 17))
-                idx[y : y + th, x : x + tw] = 10 + int(rng.integers(60))
+                idx[y : y + th, x : x + tw] = 10 + int(rng.integers(len(self.surfaces_refl) - 10))
                 x += tw
             y += th
         # ten static surfaces, non-overlapping, between the sky and the pavement, off the foliage and glossy panel
@@ -137,7 +139,7 @@ class TexturedScene:
             pw, ph = int(rng.integers(16, 30)), int(rng.integers(50, 78))
             px = int(rng.integers(0, cw - pw))
             py = PAVEMENT[1] + MARGIN - ph - int(rng.integers(0, 4))
-            refl = rawsim.draw_reflectances("dev" if rng.random() < 0.5 else "score", 1, rng)[0]
+            refl = rawsim.draw_reflectances(self.split, 1, rng)[0]
             img[py : py + ph, px : px + pw] = render(self.css, e, refl[None])[0]
         crop = img[MARGIN - dy : MARGIN - dy + H, MARGIN - dx : MARGIN - dx + W]
         ground = crop[SKY[1] :]
@@ -206,7 +208,11 @@ def run_case(camera: str, split: str, seed: int, history: int = 40) -> dict:
         regions = [{"id": f"p{i + 1}", **{k: p[k] for k in ("x", "y", "width", "height")}} for i, p in enumerate(props)]
         r = c.put(f"/v1/cameras/{cam}/regions", json={"regions": regions}, headers=admin)
         r.raise_for_status()
-        truth = {}
+        # control: the same regions on a second camera whose frames are never shifted
+        r = c.post("/v1/cameras", json={**body, "regions": regions}, headers=admin)
+        r.raise_for_status()
+        still = r.json()["id"]
+        truth, truth_still = {}, {}
         shifts = []
         t1 = t0 + timedelta(days=1)
         for k in range(history):
@@ -221,15 +227,28 @@ def run_case(camera: str, split: str, seed: int, history: int = 40) -> dict:
             got = (j.get("registration") or {}).get("shift")
             if got is not None:
                 shifts.append(float(np.hypot(got[0] - dx, got[1] - dy)))
-        r = c.post(f"/v1/cameras/{cam}/refit", headers=admin)
-        r.raise_for_status()
-        est = c.get(f"/v1/cameras/{cam}/estimates?limit=1000", headers=admin).json()
-        by_frame = {e["frame_id"]: e for e in est}
-        errs = [float(angular_error_deg(by_frame[fid]["white_rgb"], w)) for fid, w in truth.items() if fid in by_frame]
+            img, white = scene.frame(f)
+            r = c.post(f"/v1/cameras/{still}/frames", files={"image": ("f.png", png(img), "image/png")},
+                       data={"taken_at": (t1 + timedelta(minutes=15 * k)).isoformat()}, headers=admin)
+            r.raise_for_status()
+            truth_still[r.json()["frame_id"]] = white
+
+        def errors(camera_id: int, truths: dict) -> list[float]:
+            r = c.post(f"/v1/cameras/{camera_id}/refit", headers=admin)
+            r.raise_for_status()
+            est = c.get(f"/v1/cameras/{camera_id}/estimates?limit=1000", headers=admin).json()
+            by_frame = {e["frame_id"]: e for e in est}
+            return [float(angular_error_deg(by_frame[fid]["white_rgb"], w)) for fid, w in truths.items()
+                    if fid in by_frame]
+
+        errs = errors(cam, truth)
+        control = errors(still, truth_still)
         out["estimated"] = len(errs)
         out["frames"] = len(truth)
         out["white_median_deg"] = float(np.median(errs)) if errs else None
         out["white_max_deg"] = float(np.max(errs)) if errs else None
+        out["unshifted_median_deg"] = float(np.median(control)) if control else None
+        out["errors_deg"] = [round(e, 4) for e in errs]
         out["shift_error_px_max"] = float(np.max(shifts)) if shifts else None
         img, _ = scene.frame(24 + history, 100, 0)
         r = c.post(f"/v1/cameras/{cam}/frames", files={"image": ("f.png", png(img), "image/png")},
@@ -257,15 +276,17 @@ def main() -> int:
     n = 1 if args.quick else min(args.cameras, len(pool))
     cams = [pool[i] for i in np.random.default_rng(17).choice(len(pool), n, replace=False)]
     rows = []
-    print(f"{'camera':<18} {'covered/10':>10} {'on moving':>9} {'white med °':>11} {'max °':>6} {'estimated':>9} "
-          f"{'shift err px':>12} {'jump alert':>10} {'proposals s':>11}")
+    print(f"{'camera':<18} {'covered/10':>10} {'on moving':>9} {'white med °':>11} {'max °':>6} {'unshifted °':>11} "
+          f"{'estimated':>9} {'shift err px':>12} {'jump alert':>10} {'proposals s':>11}")
     for i, cam in enumerate(cams):
         row = run_case(cam, args.split, 1000 * (args.split == "score") + i)
         rows.append(row)
-        med = row["white_median_deg"]
-        print(f"{cam:<18} {row['covered']:>10} {row['on_moving']:>9} {med if med is None else round(med, 3):>11} "
-              f"{row['white_max_deg'] if row['white_max_deg'] is None else round(row['white_max_deg'], 2):>6} "
-              f"{row['estimated']:>4}/{row['frames']:<4} {row['shift_error_px_max'] or 0:>12.2f} "
+        def fmt(v: float | None, nd: int) -> str:
+            return "—" if v is None else f"{v:.{nd}f}"
+
+        print(f"{cam:<18} {row['covered']:>10} {row['on_moving']:>9} {fmt(row['white_median_deg'], 3):>11} "
+              f"{fmt(row['white_max_deg'], 2):>6} {fmt(row['unshifted_median_deg'], 3):>11} "
+              f"{row['estimated']:>4}/{row['frames']:<4} {fmt(row['shift_error_px_max'], 2):>12} "
               f"{str(row['jump_alert'] and not row['jump_estimated']):>10} {row['proposal_s']:>11}", flush=True)
     meds = [r["white_median_deg"] for r in rows if r["white_median_deg"] is not None]
     summary = {
@@ -274,6 +295,8 @@ def main() -> int:
         "covered_min": min(r["covered"] for r in rows),
         "on_moving_total": sum(r["on_moving"] for r in rows),
         "white_median_deg_worst": max(meds) if meds else None,
+        "white_median_deg_pooled": float(np.median([e for r in rows for e in r["errors_deg"]])),
+        "unshifted_median_deg_worst": max(r["unshifted_median_deg"] for r in rows if r["unshifted_median_deg"] is not None),
         "all_estimated": all(r["estimated"] == r["frames"] for r in rows),
         "jump_alerts": sum(bool(r["jump_alert"] and not r["jump_estimated"]) for r in rows),
     }

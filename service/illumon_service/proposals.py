@@ -231,17 +231,17 @@ def propose_regions(thumbs: Sequence[Thumbnail], count: int = 12, full_size: tup
                                    + (tex / TEXTURE_SCALE) ** 2))
             score *= dark**2 / (dark**2 + DARK_LEVEL**2)
             score[clip > 0] = 0.0
-            score *= (n / (s * s)) ** 0.05  # among equals, the larger window (more pixels, less noise)
+            rank = score * (n / (s * s)) ** 0.05  # among equals, the larger window (more pixels, less noise)
             chroma = np.column_stack([m1[:, 0] - m1[:, 1], m1[:, 2] - m1[:, 1]])
             for j in np.flatnonzero(score > 0.02):
                 cands.append((int(xs[j]), int(ys[j]), sw, sh, float(score[j]), float(change[j]), float(drift[j]),
-                              float(tex[j]), float(clip[j]), float(dark[j]), chroma[j]))
+                              float(tex[j]), float(clip[j]), float(dark[j]), chroma[j], float(rank[j])))
     if not cands:
         return []
-    cands.sort(key=lambda c: -c[4])
+    cands.sort(key=lambda c: -c[11])
     cands = cands[:5000]
     box = np.array([c[:4] for c in cands])
-    base = np.array([c[4] for c in cands])
+    base = np.array([c[11] for c in cands])
     chroma = np.array([c[10] for c in cands])
     alive = np.ones(len(cands), dtype=bool)
     div = np.ones(len(cands))

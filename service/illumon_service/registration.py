@@ -38,10 +38,11 @@ __all__ = [
 
 MAX_SHIFT_FRACTION = 0.05
 """Largest shift (of the image width in x, of its height in y) regions follow; beyond it the view changed."""
-MIN_RESPONSE = 0.08
+MIN_RESPONSE = 0.15
 """Smallest phase-correlation peak (``cv2.phaseCorrelate``'s response, 0…1) accepted as a registration (chosen on
-the development scenes of ``benchmarks/regions_setup.py``: a shifted frame of the same view scores ≳ 0.3, another
-view ≲ 0.05)."""
+the development scenes of ``benchmarks/regions_setup.py``: frames of the same view shifted by up to ±20 px and
+under other daylight peak at 0.72 or more and register within 0.21 px; another scene of the same layout peaks at
+0.012…0.052)."""
 
 MIN_STRUCTURE = 0.02
 """Standard deviation of a thumbnail's log grey below which it is featureless and is not registered."""

@@ -214,6 +214,10 @@ def camera_page(camera_id: int, request: Request, session: SessionDep, limit: in
                                             "count": len(history), "principal": principal})
 
 
+KEEP_SCORE = 0.5
+"""Proposals at or above this score are ticked on the regions page of a camera without regions."""
+
+
 def _view_arg(view: str | None) -> str | None:
     try:
         return parse_view(view)
@@ -226,7 +230,7 @@ def _regions_context(session: Session, cam: Camera, view: str | None) -> dict:
     thumbs, frames = view_thumbnails(session, cam, view, MAX_FRAMES)
     ctx: dict = {"cam": cam, "view": view, "regions": view_regions(session, cam, view), "proposals": [],
                  "frames_used": 0, "proposal_error": None, "size": None, "latest_at": None, "view_changed": False,
-                 "error": None, "saved": False}
+                 "error": None, "saved": False, "keep_score": KEEP_SCORE}
     if frames:
         ctx["size"] = (frames[0].width, frames[0].height)
         ctx["latest_at"] = as_utc(frames[0].taken_at)

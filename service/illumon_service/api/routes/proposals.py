@@ -11,6 +11,9 @@ from ..schemas import ERROR_RESPONSES, ErrorOut
 
 router = APIRouter(prefix="/v1/cameras", tags=["regions"], responses=ERROR_RESPONSES)
 
+MIN_HOURS = 3
+"""Proposals from frames covering fewer hours of the day (UTC) than this carry a warning."""
+
 
 def proposals_for(session, cam, view: str | None, count: int) -> dict:  # noqa: ANN001 - Session, Camera
     """``{"frames_used", "view", "proposals"}`` of a camera's view; ``HTTPException`` 409 with too few frames."""
@@ -19,9 +22,12 @@ def proposals_for(session, cam, view: str | None, count: int) -> dict:  # noqa: 
         raise HTTPException(409, f"{len(thumbs)} frame(s) of this view stored; region proposals need at least "
                                  f"{MIN_FRAMES}, spread over the day (post frames to /v1/cameras/{cam.id}/frames)")
     props = propose_regions(thumbs, count, (frames[0].width, frames[0].height))
-    hours = sorted({f.taken_at.hour for f in frames})
-    return {"frames_used": len(thumbs), "view": view, "hours_covered": len(hours),
-            "proposals": [p.as_dict() for p in props]}
+    hours = len({f.taken_at.hour for f in frames})
+    warnings = [] if hours >= MIN_HOURS else [
+        f"the frames used cover {hours} hour(s) of the day: a surface that changes with the sun (a highlight, a "
+        "moving shadow) may look static; propose again once frames from other hours are stored"]
+    return {"frames_used": len(thumbs), "view": view, "hours_covered": hours,
+            "proposals": [p.as_dict() for p in props], "warnings": warnings}
 
 
 @router.get("/{camera_id}/region-proposals",

@@ -20,7 +20,8 @@ Each case runs the service in process (FastAPI TestClient) as an installer would
 2. ``GET /v1/cameras/{id}/region-proposals?count=12``: a true surface is *covered* when a proposal lies inside it
    (≥ 90 % of the proposal's area); a proposal *lies on a moving object* when ≥ 5 % of it is sky, foliage, the
    glossy panel's highlight path or the passers-by's band;
-3. ``PUT …/regions`` with the 12 proposals; post 40 frames of another stretch of daylight, every one shifted by a
+3. ``PUT …/regions`` with the proposals the regions page ticks for a camera without regions (score ≥ 0.5;
+   ``--keep all``: all 12); post 40 frames of another stretch of daylight, every one shifted by a
    random −20…20 px in x and y (the reference is the first frame after the regions were set), then a refit: the
    camera-white angular error of every frame's estimate against the truth (``camera_white(css, daylight)``), and the
    number of frames without an estimate; as a control, a second camera with the same regions gets the same frames
@@ -45,6 +46,7 @@ import numpy as np  # noqa: E402
 import rawsim  # noqa: E402
 from illumon.camera import ResponseCurve, angular_error_deg, camera_white, render  # noqa: E402
 from illumon.spectra import WAVELENGTHS  # noqa: E402
+from illumon_service.api.routes.pages import KEEP_SCORE  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 W, H = 640, 480
@@ -172,7 +174,8 @@ def coverage(proposals: list[dict], surfaces: list[tuple[int, int, int, int]], m
     return {"covered": len(covered), "on_moving": on_moving}
 
 
-def run_case(camera: str, split: str, seed: int, history: int = 40) -> dict:
+def run_case(camera: str, split: str, seed: int, history: int = 40, true_regions: bool = False,
+             keep: str = "ticked") -> dict:
     """One camera through proposals, confirmation, shifted frames and a jump (module docstring)."""
     import tempfile
 
@@ -205,7 +208,12 @@ def run_case(camera: str, split: str, seed: int, history: int = 40) -> dict:
         props = r.json()["proposals"]
         out.update(coverage(props, scene.surfaces, scene.moving_mask()))
         out["proposals"] = len(props)
-        regions = [{"id": f"p{i + 1}", **{k: p[k] for k in ("x", "y", "width", "height")}} for i, p in enumerate(props)]
+        regions = [{"id": f"p{i + 1}", **{k: p[k] for k in ("x", "y", "width", "height")}} for i, p in enumerate(props)
+                   if keep == "all" or p["score"] >= KEEP_SCORE]
+        out["regions"] = len(regions)
+        if true_regions:  # a control: the true surfaces (4 px inside their edges) instead of the proposals
+            regions = [{"id": f"s{i}", "x": x + 4, "y": y + 4, "width": w - 8, "height": h - 8}
+                       for i, (x, y, w, h) in enumerate(scene.surfaces)]
         r = c.put(f"/v1/cameras/{cam}/regions", json={"regions": regions}, headers=admin)
         r.raise_for_status()
         # control: the same regions on a second camera whose frames are never shifted
@@ -266,6 +274,9 @@ def main() -> int:
     ap.add_argument("--split", choices=("score", "dev"), default="score")
     ap.add_argument("--cameras", type=int, default=4, help="cameras of the split (seeded, distinct)")
     ap.add_argument("--quick", action="store_true", help="one camera")
+    ap.add_argument("--true-regions", action="store_true", help="control: confirm the true surfaces, not the proposals")
+    ap.add_argument("--keep", choices=("ticked", "all"), default="ticked",
+                    help="confirm the proposals the regions page ticks (score ≥ 0.5, default) or all 12")
     args = ap.parse_args()
     from illumon import datasets
 
@@ -279,7 +290,8 @@ def main() -> int:
     print(f"{'camera':<18} {'covered/10':>10} {'on moving':>9} {'white med °':>11} {'max °':>6} {'unshifted °':>11} "
           f"{'estimated':>9} {'shift err px':>12} {'jump alert':>10} {'proposals s':>11}")
     for i, cam in enumerate(cams):
-        row = run_case(cam, args.split, 1000 * (args.split == "score") + i)
+        row = run_case(cam, args.split, 1000 * (args.split == "score") + i, true_regions=args.true_regions,
+                       keep=args.keep)
         rows.append(row)
         def fmt(v: float | None, nd: int) -> str:
             return "—" if v is None else f"{v:.{nd}f}"
@@ -302,7 +314,8 @@ def main() -> int:
     }
     print(json.dumps(summary))
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "regions_setup.json").write_text(json.dumps({"summary": summary, "rows": rows}, indent=1))
+    name = "regions_setup_true.json" if args.true_regions else "regions_setup.json"
+    (RESULTS / name).write_text(json.dumps({"summary": summary, "rows": rows}, indent=1))
     return 0
 
 

@@ -7,13 +7,11 @@ measured data.
 from __future__ import annotations
 
 import os
-import subprocess
 from collections.abc import Iterator
 from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import cv2
-import httpx
 import numpy as np
 import pytest
 
@@ -24,8 +22,7 @@ if not CHROMIUM.exists():
     pytest.skip(f"Chromium not found at {CHROMIUM}: `make browser` installs Debian's chromium (needs root and apt-get)",
                 allow_module_level=True)
 
-from illumon_service.process import free_port, stop_process, wait_healthy  # noqa: E402
-from test_status_page import ARGS, DESKTOP, ILLUMON, PHONE, _keep  # noqa: E402
+from test_status_page import DESKTOP, PHONE, _keep, browser, illumon_server  # noqa: E402, F401 - browser: fixture
 
 W, H = 480, 360
 PATCHES = [(40, 80, 60, 50, (0.55, 0.25, 0.15)), (150, 80, 70, 50, (0.2, 0.45, 0.2)), (260, 90, 60, 60, (0.15, 0.2, 0.5)),
@@ -54,17 +51,7 @@ def synthetic_frames(n: int, seed: int = 3) -> list[bytes]:
 @pytest.fixture(scope="module")
 def served(tmp_path_factory) -> Iterator[dict]:
     """``illumon serve`` with one camera registered without regions and 8 frames posted."""
-    data = tmp_path_factory.mktemp("regions-serve")
-    port = free_port()
-    env = {k: v for k, v in os.environ.items() if not k.startswith("ILLUMON_")}
-    cmd = [str(ILLUMON), "serve", "--host", "127.0.0.1", "--port", str(port), "--data-dir", str(data), "--log-level", "warning"]
-    log = (data / "serve.log").open("w")
-    proc = subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)
-    base = f"http://127.0.0.1:{port}"
-    http = httpx.Client(trust_env=False, timeout=60)
-    try:
-        wait_healthy(proc, base, timeout=60, describe=lambda: (data / "serve.log").read_text())
-        admin = (data / "admin_token").read_text().strip()
+    with illumon_server(tmp_path_factory.mktemp("regions-serve")) as (base, admin, http):
         auth = {"Authorization": f"Bearer {admin}"}
         r = http.post(base + "/v1/cameras", json={"name": "gate", "regions": [], "response": {"encoding": "gamma",
                                                                                               "gamma": 2.2}}, headers=auth)
@@ -76,24 +63,9 @@ def served(tmp_path_factory) -> Iterator[dict]:
                           data={"taken_at": (t0 + timedelta(hours=k)).isoformat()}, headers=auth)
             r.raise_for_status()
         yield {"base": base, "admin": admin, "camera": cam, "http": http, "auth": auth}
-    finally:
-        stop_process(proc)
-        log.close()
-        http.close()
 
 
-@pytest.fixture(scope="module")
-def browser() -> Iterator[object]:
-    """Headless Debian Chromium through Playwright."""
-    with sync_api.sync_playwright() as p:
-        b = p.chromium.launch(executable_path=str(CHROMIUM), headless=True, args=ARGS)
-        try:
-            yield b
-        finally:
-            b.close()
-
-
-def test_confirm_proposals_in_the_browser(browser, served, tmp_path: Path) -> None:
+def test_confirm_proposals_in_the_browser(browser, served, tmp_path: Path) -> None:  # noqa: F811 - the fixture
     base, cam = served["base"], served["camera"]
     ctx = browser.new_context(viewport=DESKTOP)
     page = ctx.new_page()

@@ -14,6 +14,7 @@ import shutil
 import subprocess
 import sys
 from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -54,10 +55,9 @@ class Fleet:
         return r.json()
 
 
-@pytest.fixture(scope="module")
-def fleet(tmp_path_factory) -> Iterator[Fleet]:
-    """``illumon serve`` on a free loopback port, two cameras registered, a day posted and refitted."""
-    data = tmp_path_factory.mktemp("serve")
+@contextmanager
+def illumon_server(data: Path) -> Iterator[tuple[str, str, httpx.Client]]:
+    """``illumon serve`` on a free loopback port with ``data`` as its data dir: (base URL, admin token, HTTP client)."""
     port = free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("ILLUMON_")}
     cmd = [str(ILLUMON), "serve", "--host", "127.0.0.1", "--port", str(port), "--data-dir", str(data), "--log-level", "warning"]
@@ -67,13 +67,19 @@ def fleet(tmp_path_factory) -> Iterator[Fleet]:
     http = httpx.Client(trust_env=False, timeout=60)
     try:
         wait_healthy(proc, base, timeout=60, describe=lambda: (data / "serve.log").read_text())
-        admin = (data / "admin_token").read_text().strip()
-        cams = post_day(base, admin, demo_cameras())
-        yield Fleet(base, admin, {c["name"]: c for c in cams}, http)
+        yield base, (data / "admin_token").read_text().strip(), http
     finally:
         stop_process(proc)
         log.close()
         http.close()
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory) -> Iterator[Fleet]:
+    """``illumon serve`` on a free loopback port, two cameras registered, a day posted and refitted."""
+    with illumon_server(tmp_path_factory.mktemp("serve")) as (base, admin, http):
+        cams = post_day(base, admin, demo_cameras())
+        yield Fleet(base, admin, {c["name"]: c for c in cams}, http)
 
 
 @pytest.fixture(scope="module")

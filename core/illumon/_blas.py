@@ -15,7 +15,7 @@ from typing import Any, TypeVar
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-__all__ = ["single_blas_thread"]
+__all__ = ["single_blas_thread", "limit_blas_threads"]
 
 _controller: Any = None
 
@@ -46,3 +46,15 @@ def single_blas_thread(func: F) -> F:
             return func(*args, **kwargs)
 
     return wrapper  # type: ignore[return-value]
+
+
+def limit_blas_threads() -> None:
+    """One BLAS/OpenMP thread for the rest of this process (service workers and refit processes; threadpoolctl, a
+    no-op if it is not installed): from request threads and the refit thread side by side, BLAS threading gains
+    nothing and on a busy machine costs orders of magnitude (an SVD of the identifiability check: 0.02 s with one
+    thread, 4 s with two threads competing with other work on two cores)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover - threadpoolctl is a dependency
+        return
+    threadpool_limits(limits=1)

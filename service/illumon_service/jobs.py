@@ -35,23 +35,11 @@ from .registration import view_regions
 from .settings import Settings
 from .storage import Calibration, Camera, Estimate, Frame, Job, as_utc, make_engine, make_session_factory, utcnow
 
-__all__ = ["refit_camera", "JobRunner", "run_batch", "limit_blas_threads", "usable_cpus"]
+__all__ = ["refit_camera", "JobRunner", "run_batch", "usable_cpus"]
+
+from illumon._blas import limit_blas_threads
 
 log = logging.getLogger("illumon_service.jobs")
-
-
-def limit_blas_threads() -> None:
-    """One BLAS/OpenMP thread per process (via threadpoolctl when installed; a no-op otherwise).
-
-    The service's numerics are many small matrices, run from request threads and the refit thread side by side: BLAS
-    threading gains nothing there and, on a busy machine, costs orders of magnitude (an SVD of the identifiability
-    check: 0.02 s with one thread, 4 s with two threads competing with other work on two cores).
-    """
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover - optional
-        return
-    threadpool_limits(limits=1)
 
 
 WRITE_CHUNK = 2000

@@ -56,10 +56,11 @@ def new_token() -> str:
 
 
 def as_utc(value: datetime | None) -> datetime | None:
-    """Attach UTC to naive datetimes read back from SQLite."""
+    """The one UTC normaliser: naive datetimes (SQLite reads them back so; naive input means UTC) get UTC attached,
+    aware ones are converted to UTC."""
     if value is None:
         return None
-    return value if value.tzinfo else value.replace(tzinfo=timezone.utc)
+    return value.replace(tzinfo=timezone.utc) if value.tzinfo is None else value.astimezone(timezone.utc)
 
 
 class Base(DeclarativeBase):

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from datetime import datetime, timezone
+from datetime import datetime
 
 from fastapi import APIRouter, HTTPException, Query
 from sqlalchemy import select
@@ -31,19 +31,13 @@ def estimate_out(e: Estimate) -> dict:
     }
 
 
-def _utc(t: datetime | None) -> datetime | None:
-    if t is None:
-        return None
-    return t.replace(tzinfo=timezone.utc) if t.tzinfo is None else t.astimezone(timezone.utc)
-
-
 def nearest_estimate(session: Session, camera_id: int, at: datetime | None) -> Estimate:
     """The estimate nearest ``at`` (latest without it); 404 when the camera has none yet."""
     q = select(Estimate).where(Estimate.camera_id == camera_id)
     if at is None:
         e = session.scalars(q.order_by(Estimate.taken_at.desc(), Estimate.frame_id.desc()).limit(1)).first()
     else:
-        at = _utc(at)
+        at = as_utc(at)
         before = session.scalars(q.where(Estimate.taken_at <= at).order_by(Estimate.taken_at.desc()).limit(1)).first()
         after = session.scalars(q.where(Estimate.taken_at > at).order_by(Estimate.taken_at.asc()).limit(1)).first()
         cands = [c for c in (before, after) if c is not None]
@@ -61,9 +55,9 @@ def list_estimates(camera_id: int, session: SessionDep, principal: PrincipalDep,
     camera_for(session, principal, camera_id)
     q = select(Estimate).where(Estimate.camera_id == camera_id)
     if since is not None:
-        q = q.where(Estimate.taken_at >= _utc(since))
+        q = q.where(Estimate.taken_at >= as_utc(since))
     if until is not None:
-        q = q.where(Estimate.taken_at <= _utc(until))
+        q = q.where(Estimate.taken_at <= as_utc(until))
     rows = session.scalars(q.order_by(Estimate.taken_at, Estimate.frame_id).limit(limit)).all()
     return [estimate_out(e) for e in rows]
 

@@ -45,7 +45,7 @@ def parse_time(text: str | None) -> datetime:
         t = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
     except ValueError:
         raise HTTPException(422, f"taken_at {text!r} is not ISO 8601") from None
-    return t.replace(tzinfo=timezone.utc) if t.tzinfo is None else t.astimezone(timezone.utc)
+    return as_utc(t)
 
 
 MAX_PARTS = 10

@@ -1,7 +1,7 @@
 """What the status page shows: each camera's latest estimate, last frame and alerts, and one camera's history.
 
 Reads the same tables as the JSON API (:mod:`.storage`) and formats estimates with the API's own
-:func:`~.api.routes.estimates.estimate_out`, so the page and ``GET /v1/cameras/{id}/estimates`` cannot disagree.
+:func:`~.crud.estimate_out`, so the page and ``GET /v1/cameras/{id}/estimates`` cannot disagree.
 
 Alerts
 ------
@@ -39,7 +39,7 @@ from datetime import datetime
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from .api.routes.estimates import estimate_out
+from .crud import estimate_out
 from .deps import Principal
 from .settings import Settings
 from .storage import Calibration, Camera, Estimate, Frame, as_utc, refit_warnings

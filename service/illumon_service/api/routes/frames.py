@@ -12,6 +12,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
+from ...crud import estimate_out
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import estimate_frame, undo_camera_gains
 from ...proposals import MIN_FRAMES, Thumbnail, make_thumbnail, save_thumbnail
@@ -22,12 +23,12 @@ from ...registration import (
     prune_thumbnails,
     register_frame,
     shift_regions,
+    thumbnail_due,
     thumbs_dir,
     view_regions,
 )
 from ...storage import Camera, Estimate, Frame, as_utc
 from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, IsoDateTime, ObservationIn
-from .estimates import estimate_out
 
 router = APIRouter(prefix="/v1/cameras", tags=["frames"], responses=ERROR_RESPONSES)
 
@@ -193,7 +194,7 @@ def _store(
                       registration=None if registration is None else registration.as_dict())
         session.add(frame)
         session.flush()
-        if thumb is not None:
+        if thumb is not None and thumbnail_due(session, cam.id, view, taken_at, registration):
             path = thumbs_dir(settings.data_dir, cam.id) / f"{frame.id}.png"
             save_thumbnail(path, thumb)
             frame.thumb_path = str(path)

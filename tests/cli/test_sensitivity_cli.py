@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from illumon import datasets
 from illumon.camera import render
-from illumon.reflectance import colourchecker_reflectances
 from illumon.cli.sensitivity import add_sensitivity_command, run
+from illumon.reflectance import colourchecker_reflectances
 from illumon.spectra import SpectralInputError, read_sensitivities, read_spectral_csv
 
 

@@ -2,7 +2,8 @@
 
 Histories: :func:`illumon.diagnosis.effects.hide_effect` with the test cameras (``TEST_CAMERAS``) and seeds 10 000…
 19 999, never used while developing the method (development: ``DEV_CAMERAS``, seeds < 10 000; benchmark: held-out
-cameras, seeds ≥ 1 000 000).
+cameras, seeds ≥ 1 000 000); and histories of the independent raw pipeline (``benchmarks/rawsim.py``, issue 16) on its
+score cameras and surfaces, seeds 10 000…
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import pytest
 from illumon.camera import angular_error_deg
 from illumon.diagnosis import bilinear as bl
 from illumon.diagnosis.effects import EFFECTS, LOCATED_EFFECTS, TEST_CAMERAS, hide_effect
-from illumon.diagnosis.fit import corrected_observations, diagnose, estimate_with_effect
+from illumon.diagnosis.fit import NONE_MARGIN, corrected_observations, diagnose, estimate_with_effect
 from illumon.retrieval import retrieve_illuminants
 
 SEED0 = 10_000
@@ -86,14 +87,27 @@ def test_generator_is_seeded_and_hides_what_it_says(shared_data):
 
 
 def test_fitted_parameters_match_the_hidden_ones(shared_data):
-    h = _hist("nonlinear_response", 7)
-    d = diagnose(h.observations, h.history.sensitivities, reestimate=False)
-    assert d.effect == "nonlinear_response"
-    assert d.parameters["gamma"] == pytest.approx(h.parameters["gamma"], rel=0.08)
-    h = _hist("black_offset", 7)
-    d = diagnose(h.observations, h.history.sensitivities, reestimate=False)
-    assert d.effect == "black_offset"
-    np.testing.assert_allclose(d.parameters["offsets"], h.parameters["offsets"], atol=0.006)
+    """The tone curve is detected with the noise learned from the history; γ is then estimated with shot noise plus a
+    floor (``GAMMA_NOISE_FLOOR``), less tightly than with the project simulator's own noise assumed (within 8 % before
+    issue 16)."""
+    for i in (9, 11):
+        h = _hist("nonlinear_response", i)
+        d = diagnose(h.observations, h.history.sensitivities, reestimate=False)
+        assert d.effect == "nonlinear_response" and d.parameters["curve"] == "gamma"
+        assert h.parameters["gamma"] * 0.9 < d.parameters["gamma"] < h.parameters["gamma"] * 1.6
+    # black offsets: ~92 % named on development histories (one in 12 taken for a tone curve, as is seed 7 here); with
+    # the noise learned from the history the offsets themselves are looser than with the simulator's noise assumed
+    # (before issue 16 within 0.006; now e.g. 0.003 for 0.022 in one channel)
+    named = 0
+    for i in (5, 6, 7):
+        h = _hist("black_offset", i)
+        d = diagnose(h.observations, h.history.sensitivities, reestimate=False)
+        if d.effect == "black_offset":
+            named += 1
+            np.testing.assert_allclose(d.parameters["offsets"], h.parameters["offsets"], atol=0.025)
+            assert np.max(np.abs(np.subtract(d.parameters["offsets"], h.parameters["offsets"]))) < 0.5 * max(
+                h.parameters["offsets"])
+    assert named >= 2
 
 
 def test_clean_low_rank_data_fit_to_noise_level(shared_data):
@@ -148,3 +162,54 @@ def test_generator_fluorophores_are_short_wave_excited_and_daylight_mixture_is_n
     w, mu, cov = daylight_mixture()
     assert w.sum() == pytest.approx(1.0) and mu.shape == (w.size, 4) and cov.shape == (w.size, 4, 4)
     assert np.all(np.linalg.eigvalsh(cov) > 0)
+
+
+def _raw(effect: str, seed: int):
+    import rawsim
+
+    return rawsim.hide_effect_raw(effect, rawsim.SCORE_CAMERAS[seed % len(rawsim.SCORE_CAMERAS)], seed, split="score",
+                                  frames=24, patches=8)
+
+
+@pytest.mark.parametrize("seed", [10002, 10006])
+def test_raw_pipeline_clean_history_is_not_a_tone_curve(shared_data, seed):
+    """Clean 10- and 8-bit raw-pipeline histories (black clipping, rounding, per-camera gain): with the noise assumed
+    (the method before issue 16) both were reported as ``nonlinear_response``."""
+    h = _raw("none", seed)
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    tone = next(c for c in d.candidates if c.effect == "nonlinear_response")
+    assert d.effect == "none", [(c.effect, round(c.score, 1)) for c in d.candidates]
+    assert tone.score > -NONE_MARGIN["nonlinear_response"]
+
+
+@pytest.mark.parametrize("seed", [10000, 10003])
+def test_raw_pipeline_srgb_output_is_named_nonlinear_response(shared_data, seed):
+    """sRGB-encoded output (a gamma with a linear toe): with a pure gamma only, it was reported as ``black_offset``."""
+    h = _raw("nonlinear_response", seed)
+    assert h.parameters["tone"] == "srgb"
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    assert d.effect == "nonlinear_response" and d.parameters["curve"] == "srgb"
+    assert d.parameters["gamma"] > 1.0  # the best pure gamma: encoded, as the service's tone hint reads it
+    c = corrected_observations(h.observations, d)
+    np.testing.assert_allclose(c.values, h.history.linear_output, atol=2e-3)
+
+
+def test_noise_is_learned_from_the_residuals(shared_data):
+    """Clean 12-bit raw-pipeline history: the shot-noise coefficient learned from the rank-4 residuals is the region
+    mean's, 1 / (gain · white · pixels) (the default assumed 2e-5 is ~100× too large)."""
+    import rawsim
+    from illumon import datasets
+
+    rng = np.random.default_rng(3)
+    e = rawsim.daylight_run("score", 30, rng)
+    r = rawsim.draw_reflectances("score", 10, rng)
+    h = rawsim.simulate_raw_history(datasets.load_camera("Canon_50D"), e, r, rng=4, bits=12, conversion_gain=1.5,
+                                    read_noise_e=3.0, pixels=200)
+    y = h.observations.values.reshape(30, -1)
+    nz = bl.estimate_noise(y, 4)
+    a_true = 1.0 / (1.5 * (4095 - 256) * 200)
+    assert 0.5 * a_true < nz.shot < 2.0 * a_true
+    assert nz.step == 0.0 and not nz.censored.any()
+    q = np.round(y * 255) / 255  # delivered as 8-bit codes: on the grid, black values censored
+    nq = bl.estimate_noise(q, 4)
+    assert nq.step == pytest.approx(1 / 255) and nq.read >= (1 / 255) / np.sqrt(12) - 1e-12

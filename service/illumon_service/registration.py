@@ -17,8 +17,9 @@ re-anchors a view on its latest frame after the camera was moved for good.
 from __future__ import annotations
 
 import re
+import threading
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import datetime, timedelta
 from pathlib import Path
 
 import cv2
@@ -33,7 +34,7 @@ from .storage import Camera, CameraView, Frame, as_utc
 __all__ = [
     "MAX_SHIFT_FRACTION", "MIN_RESPONSE", "MIN_STRUCTURE", "Registration", "thumbs_dir", "reference_path", "view_key",
     "parse_view", "view_regions", "set_view_regions", "register_frame", "shift_regions", "prune_thumbnails", "set_reference",
-    "view_thumbnails", "phase_shift",
+    "view_thumbnails", "phase_shift", "thumbnail_due", "THUMB_EVERY",
 ]
 
 MAX_SHIFT_FRACTION = 0.05
@@ -44,6 +45,8 @@ the development scenes of ``benchmarks/regions_setup.py``: frames of the same vi
 under other daylight peak at 0.72 or more and register within 0.21 px; another scene of the same layout peaks at
 0.012…0.052)."""
 
+THUMB_EVERY = timedelta(minutes=10)
+"""A view keeps at most one new thumbnail per this much frame time (and one at every change of view state)."""
 MIN_STRUCTURE = 0.02
 """Standard deviation of a thumbnail's log grey below which it is featureless and is not registered."""
 
@@ -144,11 +147,34 @@ def phase_shift(ref: Thumbnail, thumb: Thumbnail, regions: list[dict]) -> tuple[
     return float(dx) * ref.factor, float(dy) * ref.factor, float(response)
 
 
+_REFERENCES: dict[str, tuple[int, Thumbnail]] = {}
+_REF_LOCK = threading.Lock()
+
+
+def _reference(path: Path, width: int) -> Thumbnail | None:
+    """The reference thumbnail at ``path``, read once per file version (``None`` when there is none)."""
+    try:
+        mtime = path.stat().st_mtime_ns
+    except FileNotFoundError:
+        return None
+    with _REF_LOCK:
+        hit = _REFERENCES.get(str(path))
+    if hit is not None and hit[0] == mtime:
+        return hit[1]
+    ref = load_thumbnail(path, width)
+    if ref is not None:
+        with _REF_LOCK:
+            if len(_REFERENCES) > 1024:
+                _REFERENCES.clear()
+            _REFERENCES[str(path)] = (mtime, ref)
+    return ref
+
+
 def register_frame(data_dir: Path | str, camera_id: int, view: str | None, thumb: Thumbnail,
                    regions: list[dict], size: tuple[int, int]) -> Registration:
     """Register ``thumb`` to its view's reference frame (the frame becomes the reference when there is none)."""
     path = reference_path(data_dir, camera_id, view)
-    ref = load_thumbnail(path, size[0]) if path.is_file() else None
+    ref = _reference(path, size[0])
     if ref is None or ref.unclipped.shape != thumb.unclipped.shape:
         save_thumbnail(path, thumb)
         return Registration("reference", (0.0, 0.0), None)
@@ -183,6 +209,25 @@ def shift_regions(regions: list[dict], reg: Registration, size: tuple[int, int])
         else:
             inside.append(moved)
     return inside, outside
+
+
+def thumbnail_due(session: Session, camera_id: int, view: str | None, taken_at: datetime,
+                  reg: Registration | None) -> bool:
+    """Whether a new frame's thumbnail is kept: when the view's latest kept one is :data:`THUMB_EVERY` away in time,
+    or was registered otherwise (the first frame after a view change, or back), so a camera posting every few seconds
+    writes one small file per ten minutes, not one per frame."""
+    last = session.execute(
+        select(Frame.taken_at, Frame.registration)
+        .where(Frame.camera_id == camera_id, Frame.thumb_path.is_not(None),
+               Frame.view.is_(None) if view is None else Frame.view == view)
+        .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(1)
+    ).first()
+    if last is None:
+        return True
+    moved = (last.registration or {}).get("state") == "view_change"
+    if moved != (reg is not None and reg.state == "view_change"):
+        return True
+    return abs(taken_at - as_utc(last.taken_at)) >= THUMB_EVERY
 
 
 def prune_thumbnails(session: Session, camera_id: int, view: str | None) -> None:

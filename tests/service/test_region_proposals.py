@@ -92,6 +92,13 @@ def test_thumbnails_kept_per_hour_and_recent(client, tex, tmp_path) -> None:
     hours = {(T0 + timedelta(minutes=50 * k)).hour for k in range(30 - KEEP_RECENT)}
     assert KEEP_RECENT < len(kept) <= KEEP_RECENT + len(hours)
     assert len(kept) < 30
+    # frames minutes apart: one thumbnail per ten minutes of frames
+    for m in (1, 2, 3):
+        data = {"taken_at": (T0 + timedelta(minutes=50 * 29 + m)).isoformat()}
+        r = client.post(f"/v1/cameras/{cam}/frames", files={"image": ("f.png", rs.png(img), "image/png")}, data=data,
+                        headers=bearer(token))
+        assert r.status_code == 201 and r.json()["registration"]["state"] == "ok"
+    assert len(list((tmp_path / "thumbs" / f"camera-{cam}").glob("[0-9]*.png"))) == len(kept)
 
 
 def _chroma(v: list[float]) -> np.ndarray:

@@ -214,8 +214,15 @@ def camera_page(camera_id: int, request: Request, session: SessionDep, limit: in
                                             "count": len(history), "principal": principal})
 
 
-KEEP_SCORE = 0.5
-"""Proposals at or above this score are ticked on the regions page of a camera without regions."""
+KEEP_FRACTION = 0.5
+"""On the regions page of a camera without regions, proposals scoring at least this fraction of the best one are
+ticked (scores are comparable within a scene, not across scenes: the day's light makes every surface drift more or
+less)."""
+
+
+def ticked_score(proposals: list[dict]) -> float:
+    """The score from which proposals are ticked by default (:data:`KEEP_FRACTION` of the best)."""
+    return KEEP_FRACTION * max((p["score"] for p in proposals), default=0.0)
 
 
 def _view_arg(view: str | None) -> str | None:
@@ -230,7 +237,7 @@ def _regions_context(session: Session, cam: Camera, view: str | None) -> dict:
     thumbs, frames = view_thumbnails(session, cam, view, MAX_FRAMES)
     ctx: dict = {"cam": cam, "view": view, "regions": view_regions(session, cam, view), "proposals": [],
                  "frames_used": 0, "proposal_error": None, "size": None, "latest_at": None, "view_changed": False,
-                 "error": None, "saved": False, "keep_score": KEEP_SCORE}
+                 "error": None, "saved": False, "keep_score": 0.0}
     if frames:
         ctx["size"] = (frames[0].width, frames[0].height)
         ctx["latest_at"] = as_utc(frames[0].taken_at)
@@ -241,6 +248,7 @@ def _regions_context(session: Session, cam: Camera, view: str | None) -> dict:
     try:
         out = proposals_for(session, cam, view, 12)
         ctx["proposals"], ctx["frames_used"] = out["proposals"], out["frames_used"]
+        ctx["keep_score"] = round(ticked_score(out["proposals"]), 2)
     except HTTPException as exc:
         ctx["proposal_error"] = f"No proposals yet: {exc.detail}."
     return ctx

@@ -19,12 +19,15 @@ import logging
 import os
 import threading
 from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from illumon import model as scene_model
+from illumon.model import FrameSolver
 from illumon.observations import Observations
+from illumon.retrieval.common import RetrievalResult
 from illumon.spectra import WAVELENGTHS
 from numpy.typing import NDArray
 
@@ -102,7 +105,7 @@ def build_observations(
     return Observations([f[0] for f in frames], list(region_ids), values, [f[1] for f in frames])
 
 
-def _row(result: Any, i: int, confidence: float, source: str, intervals: dict | None = None) -> dict:
+def _row(result: RetrievalResult, i: int, confidence: float, source: str, intervals: dict | None = None) -> dict:
     return {
         "cct_k": float(result.cct[i]),
         "duv": float(result.duv[i]),
@@ -116,37 +119,50 @@ def _row(result: Any, i: int, confidence: float, source: str, intervals: dict | 
     }
 
 
-_MODEL_CACHE: dict[str, tuple[int, Any]] = {}
+@dataclass
+class _Loaded:
+    """A scene model file as loaded (its modification time) and the per-frame solvers built for it, one per list of
+    the camera's regions (building one costs more than solving a frame)."""
+
+    mtime: int
+    model: scene_model.SceneModel
+    solvers: dict[tuple[int, ...], FrameSolver] = field(default_factory=dict)
+
+
+_MODEL_CACHE: dict[str, _Loaded] = {}
 _CACHE_LOCK = threading.Lock()
 
 
-def _load_model(path: Path) -> scene_model.SceneModel:
+def _load_model(path: Path) -> _Loaded:
     """The scene model at ``path``, loaded once per file version (the per-frame solve is then ~1 ms)."""
     mtime = path.stat().st_mtime_ns
     key = str(path)
     with _CACHE_LOCK:
         hit = _MODEL_CACHE.get(key)
-        if hit is not None and hit[0] == mtime:
-            return hit[1]
-    loaded = scene_model.SceneModel.load(path)
+        if hit is not None and hit.mtime == mtime:
+            return hit
+    loaded = _Loaded(mtime, scene_model.SceneModel.load(path))
     with _CACHE_LOCK:
-        _MODEL_CACHE[key] = (mtime, loaded)
+        _MODEL_CACHE[key] = loaded
     return loaded
 
 
-def _solver(scene: Any, region_ids: list[str]) -> Any:
-    """The model's per-frame solver over the regions it knows, built once per loaded model and region list (building
-    it costs more than solving a frame) and kept on the model object. ``SceneModel.estimate`` matches patches in this
-    same order."""
-    index = {p: i for i, p in enumerate(scene.patches)}
-    mi = tuple(index[p] for p in region_ids if p in index)
+def _known_indices(model: scene_model.SceneModel, region_ids: Sequence[str]) -> tuple[int, ...]:
+    """The model's indices of the regions it knows, in the regions' order (as ``SceneModel.estimate`` matches them)."""
+    index = {p: i for i, p in enumerate(model.patches)}
+    return tuple(index[p] for p in region_ids if p in index)
+
+
+def _solver(loaded: _Loaded, region_ids: list[str]) -> FrameSolver:
+    """The model's per-frame solver over the regions it knows, built once per loaded model and region list and kept
+    in the service's cache. ``SceneModel.estimate`` matches patches in this same order."""
+    mi = _known_indices(loaded.model, region_ids)
     with _CACHE_LOCK:
-        cache = scene.__dict__.setdefault("_service_solvers", {})
-        hit = cache.get(mi)
+        hit = loaded.solvers.get(mi)
     if hit is None:
-        hit = scene.solver(list(mi))
+        hit = loaded.model.solver(list(mi))
         with _CACHE_LOCK:
-            cache[mi] = hit
+            loaded.solvers[mi] = hit
     return hit
 
 
@@ -163,7 +179,7 @@ def json_safe(value: Any) -> Any:
     return value
 
 
-def _intervals(result: Any, extra: dict, i: int) -> dict | None:
+def _intervals(result: RetrievalResult, extra: dict, i: int) -> dict | None:
     """95 % intervals of frame ``i`` (``cct_lo`` … ``gain_hi``); an unbounded end is ``None``."""
     out: dict[str, Any] = {k: float(np.asarray(v)[i]) for k, v in (extra or {}).items() if k != "confidence"}
     for k in ("gain_lo", "gain_hi"):
@@ -185,8 +201,8 @@ def estimate_frame(
     if present.sum() < 2:
         return None
     try:
-        scene = _load_model(path)
-        result, extra = scene.estimate(obs, solver=_solver(scene, list(region_ids)))
+        loaded = _load_model(path)
+        result, extra = loaded.model.estimate(obs, solver=_solver(loaded, list(region_ids)))
     except Exception as exc:  # noqa: BLE001 - the frame is stored either way; an unreadable model must not lose it
         log.warning("scene model estimate failed for camera %s: %s", camera_id, exc)
         return None
@@ -196,7 +212,7 @@ def estimate_frame(
     return _row(result, 0, conf, "model", _intervals(result, extra, 0))
 
 
-def _save_model(fitted: Any, path: Path) -> None:
+def _save_model(fitted: scene_model.SceneModel, path: Path) -> None:
     """Write a fitted scene model atomically: readers see the old or the new model, never half of one."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_suffix(f".{os.getpid()}.{threading.get_ident()}.tmp")
@@ -239,7 +255,7 @@ ESTIMATE_CHUNK = 10_000
 """Frames estimated per call of the scene model at a refit."""
 
 
-def _history_estimates(fitted: scene_model.SceneModel, obs: Observations) -> Iterator[tuple[Any, dict]]:
+def _history_estimates(fitted: scene_model.SceneModel, obs: Observations) -> Iterator[tuple[RetrievalResult, dict]]:
     """``fitted.estimate`` of every frame of ``obs`` in chunks (they keep the solver's temporaries in cache); the
     fit's own estimate of the same frames when it has one (computed for its training summary: the same numbers)."""
     done = fitted.history_estimate
@@ -250,7 +266,7 @@ def _history_estimates(fitted: scene_model.SceneModel, obs: Observations) -> Ite
     for start in range(0, len(obs.frames), ESTIMATE_CHUNK):
         part = obs.subset(slice(start, start + ESTIMATE_CHUNK))
         if solver is None:
-            solver = _solver(fitted, list(part.patches))
+            solver = fitted.solver(list(_known_indices(fitted, part.patches)))
         try:
             est = fitted.estimate(part, solver=solver)
         except ValueError:  # no frame of this chunk has two of the model's patches
@@ -359,7 +375,7 @@ def refit_estimates(
 
 
 
-def retrieve(obs: Observations, css: NDArray[np.float64], method: str, kwargs: dict) -> Any:
+def retrieve(obs: Observations, css: NDArray[np.float64], method: str, kwargs: dict) -> RetrievalResult:
     """Call :func:`illumon.retrieval.retrieve_illuminants` (imported lazily: it loads SciPy)."""
     from illumon.retrieval import retrieve_illuminants
 

@@ -127,7 +127,7 @@ def test_regions_follow_shifts_and_a_jump_is_a_view_change(client, tex) -> None:
     assert j["estimate"] is None and "view change" in j["warnings"][0]
     assert "view_change" in _alerts(client, cam)
     page = client.get(f"/cameras/{cam}", headers=admin_headers())
-    assert 'data-kind="view_change"' in page.text
+    assert 'data-kind="view_change"' in page.text and f'href="/cameras/{cam}/regions"' in page.text
     frames = client.get(f"/v1/cameras/{cam}/frames", headers=admin_headers()).json()
     assert frames[-1]["registration"]["state"] == "view_change"
     r = _post(client, cam, tex.frame(0, 2, 1)[0], 10, token)

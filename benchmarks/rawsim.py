@@ -33,7 +33,6 @@ import numpy as np
 from illumon import datasets
 from illumon.observations import Observations
 from illumon.reflectance import unseen_reflectances
-from illumon.sensitivity.evaluate import camera_manufacturer
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
@@ -89,8 +88,12 @@ SCORE_DAYLIGHT = slice(1300, 2600)
 """Score daylight: Granada spectra 1300…2599, held out of the shipped measured-daylight model and mixture (the
 sensitivity estimator's daylight prior used all 2600; its benchmark says so)."""
 
-manufacturer = camera_manufacturer
-"""Manufacturer of a measured camera from its file stem (:func:`illumon.sensitivity.evaluate.camera_manufacturer`)."""
+def manufacturer(camera: str) -> str:
+    """Manufacturer of a measured camera from its file stem (:func:`illumon.sensitivity.evaluate.camera_manufacturer`,
+    imported when called so the simulator does not load the sensitivity package)."""
+    from illumon.sensitivity.evaluate import camera_manufacturer
+
+    return camera_manufacturer(camera)
 
 
 def reflectance_pool(split: str) -> list[NDArray[np.float64]]:

@@ -98,13 +98,20 @@ class AlertContext:
     """No measured sensitivities and no calibration image."""
 
 
+def _measured(frame: Frame) -> bool:
+    """A frame of the default view that was measured with its regions (not a view change, not another preset)."""
+    reg = getattr(frame, "registration", None) or {}
+    return getattr(frame, "view", None) is None and reg.get("state") != "view_change"
+
+
 def _regions_missing(ctx: AlertContext) -> list[Alert]:
     ids = [r["id"] for r in ctx.camera.regions]
-    n = len(ctx.frames)
+    frames = [f for f in ctx.frames if _measured(f)]
+    n = len(frames)
     if n == 0 or not ids:
         return []
     need = max(MISSING_MIN_FRAMES, math.ceil(MISSING_FRACTION * n))
-    counts = {rid: sum(1 for f in ctx.frames if f.patches.get(rid) is None) for rid in ids}
+    counts = {rid: sum(1 for f in frames if f.patches.get(rid) is None) for rid in ids}
     worst = sorted((rid for rid in ids if counts[rid] >= need), key=lambda rid: (-counts[rid], rid))
     if not worst:
         return []

@@ -158,6 +158,7 @@ def test_views_have_their_own_regions_reference_and_model(client, tex) -> None:
             j = _post(client, cam, tex.frame(k, dx + (k % 3) - 1, 0)[0], k + 1, token, view=view).json()
             assert j["registration"]["state"] == ("reference" if k == 0 and view is None else "ok"), j
             assert set(j["regions"]) == {r["id"] for r in (regions if view is None else east)}
+    assert "regions_missing" not in _alerts(client, cam)  # another preset's frames lack the default view's regions
     r = client.post(f"/v1/cameras/{cam}/refit", headers=bearer(token))
     assert r.status_code == 202
     job = client.get(f"/v1/jobs/{r.json()['job_id']}", headers=bearer(token)).json()

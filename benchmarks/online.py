@@ -1,7 +1,8 @@
 """Online estimation benchmark (issue 4): per-frame latency, fit time vs history length, accuracy vs visible patches.
 
-Run: ``python benchmarks/online.py [--long]`` (``--long`` adds a 100k-frame history). Writes
-``benchmarks/results/online.json``.
+Run: ``python benchmarks/online.py [--long] [--quick]`` (``--long`` adds a 100k-frame history, ``--quick`` runs only
+the shorter morning → afternoon setting). The morning → afternoon accuracy is measured on both simulators (the
+project's and the independent raw pipeline ``rawsim``, issue 16). Writes ``benchmarks/results/online.json``.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+import rawsim  # noqa: E402
 from illumon import datasets  # noqa: E402
 from illumon.camera import angular_error_deg  # noqa: E402
 from illumon.daylight import cct_duv_from_xy, spectrum_to_xy  # noqa: E402
@@ -27,20 +29,42 @@ from illumon.simulate import simulate_history  # noqa: E402
 HELD_OUT = ("Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf", "Phase_One")
 
 
-def morning_afternoon(histories: int, frames: int) -> dict:
+def _raw_run(camera: str, frames: int, seed: int):
+    """A contiguous run of score-split Granada daylight through the independent raw pipeline (``rawsim``: a body of
+    ``camera`` at ISO 100…1600, 8/10/12-bit linear output, score surfaces): (observations, css, illuminants, truth)."""
+    rng = np.random.default_rng(seed)
+    pool = rawsim.daylight_pool("score")
+    start = int(rng.integers(0, pool.shape[0] - frames))
+    e = pool[start : start + frames]
+    css = datasets.load_camera(camera)
+    prof = rawsim.camera_profile(camera, rng=rng)
+    h = rawsim.simulate_raw_history(css, e, rawsim.draw_reflectances("score", 10, rng), rng=rng,
+                                    bits=int(rng.choice([8, 10, 12])), conversion_gain=prof["conversion_gain"],
+                                    read_noise_e=prof["read_noise_e"], black_level=prof["black_level"],
+                                    full_well_e=prof["full_well_e"], adc_bits=prof["adc_bits"], texture=0.02)
+    return h.observations, css, e, h.true_white_raw
+
+
+def morning_afternoon(histories: int, frames: int, sim: str = "illumon") -> dict:
     """Fit on the first half of a run of Granada daylight, estimate the second half frame by frame (held-out cameras,
-    10 patches the reflectance basis never saw, noise and auto-exposure jitter)."""
+    10 patches the reflectance basis never saw; the project's simulator's noise and auto-exposure jitter, or the raw
+    pipeline of ``rawsim``)."""
     hits: dict[str, list] = {"cct": [], "duv": [], "gain_r": [], "gain_b": []}
     ae, fit_s = [], []
     half = frames // 2
     for i in range(histories):
-        h = measured_daylight_history(HELD_OUT[i % len(HELD_OUT)], frames=frames, patches=10, seed=5000 + i, contiguous=True)
+        if sim == "rawsim":
+            obs, css, illum, truth = _raw_run(HELD_OUT[i % len(HELD_OUT)], frames, 5000 + i)
+        else:
+            h = measured_daylight_history(HELD_OUT[i % len(HELD_OUT)], frames=frames, patches=10, seed=5000 + i,
+                                          contiguous=True)
+            obs, css, illum, truth = h.observations, h.sensitivities, h.illuminants, h.true_white
         t = time.perf_counter()
-        model = fit_scene_model(h.observations.subset(slice(0, half)), h.sensitivities)
+        model = fit_scene_model(obs.subset(slice(0, half)), css)
         fit_s.append(time.perf_counter() - t)
-        res, extra = model.estimate(h.observations.subset(slice(half, None)))
-        cct, duv = cct_duv_from_xy(spectrum_to_xy(h.illuminants[half:]))
-        w = h.true_white[half:]
+        res, extra = model.estimate(obs.subset(slice(half, None)))
+        cct, duv = cct_duv_from_xy(spectrum_to_xy(illum[half:]))
+        w = truth[half:]
         g = w[:, 1:2] / w
         hits["cct"] += list((cct >= extra["cct_lo"]) & (cct <= extra["cct_hi"]))
         hits["duv"] += list((duv >= extra["duv_lo"]) & (duv <= extra["duv_hi"]))
@@ -60,13 +84,18 @@ def main() -> None:
     warnings.simplefilter("ignore")
     out_ma = []
     print("morning → afternoon (fit on the first half, estimate the second; held-out cameras, unseen patches)")
-    print(" histories  fit/est frames  median°   p95°   max°  cover CCT   Duv  gain_r gain_b  fit s")
+    print("sim      histories  fit/est frames  median°   p95°   max°  cover CCT   Duv  gain_r gain_b  fit s")
     for n_hist, frames in ((24, 120), (12, 300)):
-        r = morning_afternoon(n_hist, frames)
-        out_ma.append(r)
-        c = r["coverage"]
-        print(f"{n_hist:10d} {frames // 2:7d}/{frames // 2:<7d} {r['median_deg']:7.2f} {r['p95_deg']:6.2f} {r['max_deg']:6.2f}"
-              f"  {c['cct']:9.3f} {c['duv']:5.3f} {c['gain_r']:7.3f} {c['gain_b']:6.3f} {r['fit_s_median']:6.2f}")
+        for sim in ("illumon", "rawsim"):
+            r = morning_afternoon(n_hist, frames, sim)
+            r["sim"] = sim
+            out_ma.append(r)
+            c = r["coverage"]
+            print(f"{sim:<8} {n_hist:9d} {frames // 2:7d}/{frames // 2:<7d} {r['median_deg']:7.2f} {r['p95_deg']:6.2f} "
+                  f"{r['max_deg']:6.2f}  {c['cct']:9.3f} {c['duv']:5.3f} {c['gain_r']:7.3f} {c['gain_b']:6.3f} "
+                  f"{r['fit_s_median']:6.2f}")
+        if "--quick" in sys.argv:
+            break
     _, granada = datasets.load_granada_daylight()
     css = datasets.load_camera("Nikon_D5100")
     _, refl = colourchecker_reflectances()

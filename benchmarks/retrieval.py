@@ -1,7 +1,7 @@
 """Multi-frame retrieval benchmark: the paper's protocol (Tables 1–3 layout) and measured-daylight histories.
 
-Run: ``python benchmarks/retrieval.py [--quick] [--skip-paper] [--analysis]``. Prints tables and writes
-``benchmarks/results/retrieval.json``. Metric: angular error (degrees) between the camera white under the true and the
+Run: ``python benchmarks/retrieval.py [--quick] [--skip-paper] [--analysis] [--sims illumon,rawsim]``. Prints tables
+and writes ``benchmarks/results/retrieval.json``. Metric: angular error (degrees) between the camera white under the true and the
 estimated illuminant.
 
 ``--analysis`` adds what limits the paper protocol (issue 3): ``joint`` on the protocol exactly as published
@@ -23,6 +23,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import rawsim
 from illumon import datasets
 from illumon.camera import angular_error_deg
 from illumon.daylight_models import daylight_model
@@ -126,19 +127,40 @@ MARGUIER_MAX_FRAMES = 30
 """marguier2007's finite-difference descent costs O(frames²) error evaluations; longer histories skip it."""
 
 
-def measured(cameras: tuple[str, ...], seeds: int, frames: int, patches: int) -> dict:
+def raw_history(camera: str, frames: int, patches: int, seed: int):
+    """A history of the independent raw pipeline (``rawsim``): score-split Granada daylight (random draw) and surfaces,
+    a body of ``camera`` at ISO 100…1600, 8/10/12-bit linear output. Returns (observations, sensitivities, truth)."""
+    rng = np.random.default_rng(10_000 + seed)
+    pool = rawsim.daylight_pool("score")
+    e = pool[rng.choice(pool.shape[0], frames, replace=False)]
+    r = rawsim.draw_reflectances("score", patches, rng)
+    css = datasets.load_camera(camera)
+    prof = rawsim.camera_profile(camera, rng=rng)
+    h = rawsim.simulate_raw_history(css, e, r, rng=rng, bits=int(rng.choice([8, 10, 12])),
+                                    conversion_gain=prof["conversion_gain"], read_noise_e=prof["read_noise_e"],
+                                    black_level=prof["black_level"], full_well_e=prof["full_well_e"],
+                                    adc_bits=prof["adc_bits"], texture=0.02)
+    return h.observations, css, h.true_white_raw
+
+
+def measured(cameras: tuple[str, ...], seeds: int, frames: int, patches: int, sim: str = "illumon") -> dict:
     methods = [m for m in METHODS if m != "marguier2007" or frames <= MARGUIER_MAX_FRAMES]
     per_method = {m: [] for m in methods}
     times = {m: [] for m in methods}
     for cam in cameras:
         for seed in range(seeds):
-            h = measured_daylight_history(cam, frames=frames, patches=patches, seed=seed)
+            if sim == "rawsim":
+                obs, css, truth = raw_history(cam, frames, patches, seed)
+            else:
+                h = measured_daylight_history(cam, frames=frames, patches=patches, seed=seed)
+                obs, css, truth = h.observations, h.sensitivities, h.true_white
             for m in methods:
                 t = time.perf_counter()
-                res = retrieve_illuminants(h.observations, h.sensitivities, method=m)
+                res = retrieve_illuminants(obs, css, method=m)
                 times[m].append(time.perf_counter() - t)
-                per_method[m] += list(angular_error_deg(res.white, h.true_white))
+                per_method[m] += list(angular_error_deg(res.white, truth))
     return {
+        "sim": sim,
         "frames": frames,
         "patches": patches,
         "cameras": list(cameras),
@@ -153,8 +175,12 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="fewer cases")
     ap.add_argument("--skip-paper", action="store_true", help="only the measured-daylight histories")
     ap.add_argument("--analysis", action="store_true", help="what limits the paper protocol (see module docstring)")
+    ap.add_argument("--sims", default="illumon,rawsim", help="simulators of the measured-daylight histories")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "retrieval.json"))
     args = ap.parse_args()
+    if any(x not in ("illumon", "rawsim") for x in args.sims.split(",")):
+        print("illumon: error: --sims takes illumon and/or rawsim", file=sys.stderr)
+        return 2
     if datasets.shared_data_dir() is None:
         print("measured data (../shared/data) not found: nothing to benchmark", file=sys.stderr)
         return 1
@@ -184,19 +210,23 @@ def main() -> int:
               + ", ".join(f"{int(t) + 1} images {r:.3g}" for t, r in a["shift_range"].items()))
     cams = HELD_OUT_CAMERAS[:3] if args.quick else HELD_OUT_CAMERAS
     seeds = 1 if args.quick else 3
-    print("\nMeasured Granada daylight, unseen reflectances, noise + exposure jitter")
-    print(f"{'frames×patches':<16} " + " ".join(f"{m + ' med/p95/max':>26}" for m in METHODS) + "   s/history (joint)")
+    print("\nMeasured Granada daylight, unseen reflectances: illumon = the project's simulator (noise + exposure jitter),"
+          " rawsim = the independent raw pipeline (score daylight and surfaces, per-pixel noise, 8/10/12 bits)")
+    print(f"{'sim':<8} {'frames×patches':<16} " + " ".join(f"{m + ' med/p95/max':>26}" for m in METHODS)
+          + "   s/history (joint)")
     out["measured"] = []
     for frames, patches in ((10, 6), (30, 10), (100, 16)):
         if args.quick and frames > 30:
             continue
-        r = measured(cams, seeds, frames, patches)
-        out["measured"].append(r)
-        s = r["summary"]
-        cells = " ".join(
-            f"{s[m]['median']:8.2f}{s[m]['p95']:8.2f}{s[m]['max']:8.2f}  " if m in s else f"{'(skipped)':>26}" for m in METHODS
-        )
-        print(f"{f'{frames}×{patches}':<16} {cells} {r['seconds_per_history']['joint']:8.2f}")
+        for sim in args.sims.split(","):
+            r = measured(cams, seeds, frames, patches, sim)
+            out["measured"].append(r)
+            s = r["summary"]
+            cells = " ".join(
+                f"{s[m]['median']:8.2f}{s[m]['p95']:8.2f}{s[m]['max']:8.2f}  " if m in s else f"{'(skipped)':>26}"
+                for m in METHODS
+            )
+            print(f"{sim:<8} {f'{frames}×{patches}':<16} {cells} {r['seconds_per_history']['joint']:8.2f}")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(out, indent=1))
     print(f"\nwrote {args.out}")

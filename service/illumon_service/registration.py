@@ -20,10 +20,12 @@ import re
 import threading
 from dataclasses import dataclass
 from datetime import datetime, timedelta
+from functools import lru_cache
 from pathlib import Path
 
 import cv2
 import numpy as np
+from numpy.typing import NDArray
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
@@ -133,21 +135,34 @@ def _weights(ref: Thumbnail, regions: list[dict]) -> np.ndarray:
     return win * static
 
 
-def phase_shift(ref: Thumbnail, thumb: Thumbnail, regions: list[dict]) -> tuple[float, float, float]:
-    """(dx, dy, response): the shift of ``thumb``'s content relative to ``ref`` in full-resolution pixels, by phase
-    correlation of the mean-removed log-grey images (``ref`` weighted by :func:`_weights`)."""
-    a, b = thumbnail_grey(ref), thumbnail_grey(thumb)
-    if a.shape != b.shape:
-        return 0.0, 0.0, 0.0
+def _prepared_reference(ref: Thumbnail, regions: list[dict]) -> NDArray[np.float32]:
+    """The reference's log grey, mean removed and weighted by :func:`_weights` (cached with the reference)."""
+    a = thumbnail_grey(ref)
     wts = _weights(ref, regions)
-    a = (a - float((a * wts).sum() / wts.sum())) * wts
-    win = cv2.createHanningWindow((b.shape[1], b.shape[0]), cv2.CV_32F)
-    b = (b - float(b.mean())) * win
-    (dx, dy), response = cv2.phaseCorrelate(a.astype(np.float64), b.astype(np.float64))
+    return ((a - float((a * wts).sum() / wts.sum())) * wts).astype(np.float32)
+
+
+def phase_shift(ref: Thumbnail, thumb: Thumbnail, regions: list[dict],
+                prepared: NDArray[np.float32] | None = None) -> tuple[float, float, float]:
+    """(dx, dy, response): the shift of ``thumb``'s content relative to ``ref`` in full-resolution pixels, by phase
+    correlation of the mean-removed log-grey images (``ref`` weighted by :func:`_weights`; ``prepared``: that image
+    already computed)."""
+    b = thumbnail_grey(thumb)
+    if ref.unclipped.shape != b.shape:
+        return 0.0, 0.0, 0.0
+    a = _prepared_reference(ref, regions) if prepared is None else prepared
+    b = cv2.multiply(cv2.subtract(b, float(cv2.mean(b)[0])), _hanning(b.shape))
+    (dx, dy), response = cv2.phaseCorrelate(a, b)
     return float(dx) * ref.factor, float(dy) * ref.factor, float(response)
 
 
+@lru_cache(maxsize=16)
+def _hanning(shape: tuple[int, int]) -> NDArray[np.float32]:
+    return cv2.createHanningWindow((shape[1], shape[0]), cv2.CV_32F)
+
+
 _REFERENCES: dict[str, tuple[int, Thumbnail]] = {}
+_PREPARED: dict[str, tuple[Thumbnail, tuple, NDArray[np.float32]]] = {}
 _REF_LOCK = threading.Lock()
 
 
@@ -166,6 +181,7 @@ def _reference(path: Path, width: int) -> Thumbnail | None:
         with _REF_LOCK:
             if len(_REFERENCES) > 1024:
                 _REFERENCES.clear()
+                _PREPARED.clear()
             _REFERENCES[str(path)] = (mtime, ref)
     return ref
 
@@ -181,7 +197,14 @@ def register_frame(data_dir: Path | str, camera_id: int, view: str | None, thumb
     if float(thumbnail_grey(thumb).std()) < MIN_STRUCTURE or float(thumbnail_grey(ref).std()) < MIN_STRUCTURE:
         # nothing to register on (fog, a flat image): no evidence that the view moved; regions stay where they are
         return Registration("featureless", (0.0, 0.0), None)
-    dx, dy, response = phase_shift(ref, thumb, regions)
+    key = tuple((r["x"], r["y"], r["width"], r["height"]) for r in regions)
+    with _REF_LOCK:
+        hit = _PREPARED.get(str(path))
+    if hit is None or hit[0] is not ref or hit[1] != key:
+        hit = (ref, key, _prepared_reference(ref, regions))
+        with _REF_LOCK:
+            _PREPARED[str(path)] = hit
+    dx, dy, response = phase_shift(ref, thumb, regions, hit[2])
     ok = response >= MIN_RESPONSE and abs(dx) <= MAX_SHIFT_FRACTION * size[0] and abs(dy) <= MAX_SHIFT_FRACTION * size[1]
     return Registration("ok" if ok else "view_change", (dx, dy), response)
 

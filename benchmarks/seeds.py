@@ -70,10 +70,10 @@ MARGUIER_PUBLISHED: dict[tuple[int, ...], tuple[float, ...]] = {
 
 HUYNH_PUBLISHED: dict[str, dict[str, tuple[float, float, float]]] = {
     # Table I (Jiang et al.'s camera set); Table II's cameras (Kodak DCS 460, Canon 400D) are not in ../shared/data.
-    "Nikon_D40": {"huynh2016": (0.15, 0.1, 0.11), "jiang2013": (0.082, 0.03, 0.095)},
-    "Nikon_D700": {"huynh2016": (0.063, 0.074, 0.056), "jiang2013": (0.072, 0.029, 0.04)},
-    "Pentax_K-5": {"huynh2016": (0.053, 0.085, 0.037), "jiang2013": (0.056, 0.047, 0.05)},
-    "average (Table I)": {"huynh2016": (0.085, 0.081, 0.071), "jiang2013": (0.088, 0.049, 0.079)},
+    "Nikon_D40": {"huynh2014": (0.15, 0.1, 0.11), "jiang2013": (0.082, 0.03, 0.095)},
+    "Nikon_D700": {"huynh2014": (0.063, 0.074, 0.056), "jiang2013": (0.072, 0.029, 0.04)},
+    "Pentax_K-5": {"huynh2014": (0.053, 0.085, 0.037), "jiang2013": (0.056, 0.047, 0.05)},
+    "average (Table I)": {"huynh2014": (0.085, 0.081, 0.071), "jiang2013": (0.088, 0.049, 0.079)},
 }
 """Huynh & Robles-Kelly Table I: RMS error per channel (R, G, B) of max-normalised sensitivities."""
 
@@ -211,7 +211,7 @@ def huynh(quick: bool) -> dict:
     illum = np.stack([_cie_a(), daylight_spectrum(daylight_locus_xy(cie_d_cct(5500)))])
     test = [c for c in HUYNH_PUBLISHED if c in cams]
     out: dict = {"cameras": test, "illuminants": ["CIE A", "D55"], "noise": 0.002, "rows": {}}
-    for m in ("huynh2016", "jiang2013"):
+    for m in ("huynh2014", "jiang2013"):
         res = leave_one_out(CSS_METHODS[m], cams, illum, cc, test_cameras=test, noise=0.002, seed=0, name=m)
         out["rows"][m] = {n: r.tolist() for n, r in zip(res.cameras, res.rmse, strict=True)}
         out["rows"][m]["average (Table I)"] = res.mean.tolist()
@@ -222,11 +222,11 @@ def huynh(quick: bool) -> dict:
 def print_huynh(r: dict) -> None:
     print(f"\nHuynh & Robles-Kelly Table I: RMS error (R G B) of max-normalised sensitivities; ColorChecker under "
           f"{' and '.join(r['illuminants'])}, noise {r['noise']}, leave-one-camera-out priors")
-    print(f"{'camera':<18} {'paper huynh2016':>17} {'ours huynh2016':>17} {'paper jiang2013':>17} {'ours jiang2013':>17}")
+    print(f"{'camera':<18} {'paper huynh2014':>17} {'ours huynh2014':>17} {'paper jiang2013':>17} {'ours jiang2013':>17}")
     for cam, pub in HUYNH_PUBLISHED.items():
-        ours = {m: r["rows"][m].get(cam) for m in ("huynh2016", "jiang2013")}
+        ours = {m: r["rows"][m].get(cam) for m in ("huynh2014", "jiang2013")}
         cells = []
-        for m in ("huynh2016", "jiang2013"):
+        for m in ("huynh2014", "jiang2013"):
             cells.append(" ".join(f"{v:5.3f}" for v in pub[m]))
             cells.append(" ".join(f"{v:5.3f}" for v in ours[m]) if ours[m] else f"{'(not measured)':>17}")
         print(f"{cam:<18} " + " ".join(f"{c:>17}" for c in cells))

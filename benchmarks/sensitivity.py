@@ -36,7 +36,7 @@ from illumon import datasets  # noqa: E402
 from illumon.camera import render  # noqa: E402
 from illumon.daylight import CMFS  # noqa: E402
 from illumon.reflectance import colourchecker_reflectances  # noqa: E402
-from illumon.sensitivity import METHODS, channel_gains_Han2012, daylight_Han2012, to_cie1931_Huynh2016  # noqa: E402
+from illumon.sensitivity import METHODS, channel_gains_Han2012, daylight_Han2012, to_cie1931_Huynh2014  # noqa: E402
 from illumon.sensitivity.evaluate import camera_manufacturer, camera_model, leave_one_out, simulate_chart  # noqa: E402
 from illumon.sensitivity.han2012 import (  # noqa: E402
     fluorescent_reflectances,
@@ -87,7 +87,7 @@ def daylight_and_correction(cams: dict, gran: np.ndarray, refl: np.ndarray, rng:
             before.append(np.abs(src / src.max() - dst / dst.max()).mean())
             after.append(np.abs(src * g / dst.max() - dst / dst.max()).mean())
             xyz = render(CMFS, gran[i], refl)
-            est = to_cie1931_Huynh2016(render(c / c.max(), gran[i], refl), c)
+            est = to_cie1931_Huynh2014(render(c / c.max(), gran[i], refl), c)
             xyz_err.append(np.linalg.norm(est / est[:, 1].max() - xyz / xyz[:, 1].max(), axis=1).mean())
     out["correction"] = {
         "illuminant_change_mean_abs_before": float(np.mean(before)),
@@ -98,7 +98,7 @@ def daylight_and_correction(cams: dict, gran: np.ndarray, refl: np.ndarray, rng:
 
 
 PROTOCOLS = ("camera", "manufacturer", "rawsim")
-ALL_METHODS = ("default", "bayes", "jiang2013", "huynh2016", "han2012")
+ALL_METHODS = ("default", "kinoshita2023", "jiang2013", "huynh2014", "han2012")
 
 
 def main() -> int:

@@ -37,7 +37,7 @@ def chart_values():
     return 4000 * render(c, e, refl) / render(c, e, refl).max(), c
 
 
-@pytest.mark.parametrize("method", ["default", "jiang2013", "bayes"])
+@pytest.mark.parametrize("method", ["default", "jiang2013", "kinoshita2023"])
 def test_cli_writes_usable_sensitivities(tmp_path, method):
     rgb, truth = chart_values()
     chart = tmp_path / "chart.csv"

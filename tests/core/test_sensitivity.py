@@ -24,7 +24,7 @@ from illumon.sensitivity import (
     default_daylight_prior,
     estimate_sensitivities,
     rmse_per_channel,
-    to_cie1931_Huynh2016,
+    to_cie1931_Huynh2014,
 )
 from illumon.sensitivity.evaluate import leave_one_out
 from illumon.sensitivity.han2012 import (
@@ -58,7 +58,7 @@ def loo(data):
     cams, _, daylights, refl, subset = data
     return {
         m: leave_one_out(METHODS[m], cams, daylights, refl, test_cameras=subset, noise=NOISE, seed=2, name=m)
-        for m in ("default", "bayes", "jiang2013")
+        for m in ("default", "kinoshita2023", "jiang2013")
     }
 
 
@@ -106,21 +106,21 @@ def test_default_beats_baselines(loo, data):
     assert loo["default"].overall < loo["jiang2013"].overall - 0.01
     cams, _, daylights, refl, subset = data
     lomo = {m: leave_one_out(METHODS[m], cams, daylights, refl, test_cameras=subset, noise=NOISE, seed=2, name=m,
-                             group=camera_manufacturer) for m in ("default", "bayes")}
-    assert lomo["default"].overall < lomo["bayes"].overall - 0.005, {m: r.overall for m, r in lomo.items()}
+                             group=camera_manufacturer) for m in ("default", "kinoshita2023")}
+    assert lomo["default"].overall < lomo["kinoshita2023"].overall - 0.005, {m: r.overall for m, r in lomo.items()}
 
 
 @needs_data
 def test_baselines_in_expected_range(loo):
     assert 0.04 <= loo["jiang2013"].overall <= 0.09  # Jiang LOO ≈ 0.069 in the issue
-    assert loo["bayes"].overall <= 0.06
+    assert loo["kinoshita2023"].overall <= 0.06
 
 
 @needs_data
-def test_huynh2016_runs_and_is_bounded(data):
+def test_huynh2014_runs_and_is_bounded(data):
     cams, _, daylights, refl, subset = data
     res = leave_one_out(
-        METHODS["huynh2016"], cams, daylights[:1], refl, test_cameras=subset[:2], noise=0.005, seed=3
+        METHODS["huynh2014"], cams, daylights[:1], refl, test_cameras=subset[:2], noise=0.005, seed=3
     )
     assert np.all(np.isfinite(res.rmse))
     assert res.overall <= 0.2
@@ -196,8 +196,8 @@ def test_transfer_to_cie1931_with_estimated_sensitivities(data):
     xyz = render(CMFS, e, refl)
     xyz = xyz / xyz[:, 1].max()
     rgb = render(c, e, refl)
-    out_true = to_cie1931_Huynh2016(rgb, c)
-    out_est = to_cie1931_Huynh2016(rgb, est)
+    out_true = to_cie1931_Huynh2014(rgb, c)
+    out_est = to_cie1931_Huynh2014(rgb, est)
     err_true = np.linalg.norm(out_true / out_true[:, 1].max() - xyz, axis=1).mean()
     err_est = np.linalg.norm(out_est / out_est[:, 1].max() - xyz, axis=1).mean()
     err_raw = np.linalg.norm(rgb / rgb[:, 1].max() - xyz, axis=1).mean()
@@ -218,7 +218,7 @@ def test_leave_one_manufacturer_out_holds_out_every_model_of_the_maker(data):
 
     for name in ("Canon_50D", "Nikon_D50", "Phase_One"):
         held = [name]
-        leave_one_out(METHODS["bayes"], cams, daylights[:1], refl, test_cameras=[name], noise=0.005, seed=0,
+        leave_one_out(METHODS["kinoshita2023"], cams, daylights[:1], refl, test_cameras=[name], noise=0.005, seed=0,
                       prior_builder=spy, group=camera_manufacturer)
     makers = [camera_manufacturer(n) for n in cams]
     assert seen == {n: len(cams) - makers.count(camera_manufacturer(n)) for n in seen}
@@ -239,3 +239,17 @@ def test_default_leave_one_manufacturer_out_on_raw_pipeline_charts(data):
     res = leave_one_out(METHODS["default"], cams, day, refl, test_cameras=test, seed=3, name="default",
                         group=camera_manufacturer, chart_renderer=rawsim.render_chart)
     assert res.overall <= 0.055, res.rmse
+
+
+def test_methods_are_named_after_their_paper_and_old_names_still_work(tmp_path):
+    """``kinoshita2023`` and ``huynh2014`` are the names; ``bayes`` and the misdated ``huynh2016`` still select them."""
+    from illumon.cli import main
+    from illumon.sensitivity import ALIASES, METHODS, sensitivities_Huynh2014, sensitivities_Kinoshita2023
+
+    assert METHODS["kinoshita2023"] is sensitivities_Kinoshita2023 and METHODS["huynh2014"] is sensitivities_Huynh2014
+    assert {ALIASES[k] for k in ("bayes", "huynh2016")} <= set(METHODS)
+    chart = tmp_path / "chart.csv"
+    chart.write_text("patch,r,g,b\n" + "".join(f"{i},{10 + i},{20 + i},{5 + 2 * i}\n" for i in range(1, 25)))
+    out = tmp_path / "s.csv"
+    assert main(["sensitivity", str(chart), "--out", str(out), "--method", "bayes"]) == 0
+    assert out.read_text().count("\n") > 60

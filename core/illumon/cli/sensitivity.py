@@ -21,12 +21,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..reflectance import colourchecker_reflectances
-from ..sensitivity import METHODS, estimate_sensitivities
+from ..sensitivity import ALIASES, METHODS, estimate_sensitivities
 from ..spectra import WAVELENGTHS, SpectralInputError, write_spectral_csv
 
 __all__ = ["add_sensitivity_command", "run", "read_chart_csv"]
 
-SELECTABLE = [m for m in METHODS if m != "han2012"]  # han2012 needs a fluorescent chart, not a CLI input
+SELECTABLE = [m for m in METHODS if m != "han2012"] + list(ALIASES)  # han2012 needs a fluorescent chart
 
 
 def read_chart_csv(path: str | Path, n_patches: int = 24) -> NDArray[np.float64]:

@@ -1,22 +1,19 @@
-"""Camera spectral sensitivities from one chart image under unknown light, daylight recovery, colour
-correction.
+"""Camera spectral sensitivities from one chart image under unknown light, daylight recovery, colour correction.
 
 Methods (select by name with :func:`estimate_sensitivities`):
 
 ``default``
-    illumon's estimator: measured-camera and measured-daylight Gaussian priors, sensitivities integrated out
-    to
+    illumon's estimator: measured-camera and measured-daylight Gaussian priors, sensitivities integrated out to
     choose the daylight, then a non-negative MAP (:func:`~illumon.sensitivity.default.sensitivities_illumon`).
-``bayes``
+``kinoshita2023`` (formerly ``bayes``)
     Kinoshita & Kiya's Gaussian posteriors (eqs. 11–16), alternated for an unknown daylight.
 ``jiang2013``
     Jiang et al. (WACV 2013): 2 eigenvectors per channel and a CIE-D search, with colour-science's
     :func:`colour.recovery.RGB_to_msds_camera_sensitivities_Jiang2013`.
-``huynh2016``
+``huynh2014`` (formerly ``huynh2016``)
     Huynh & Robles-Kelly: NNLS (eq. 3) and coordinate descent on eq. (8).
 ``han2012``
-    Han et al. (CVPR 2012): fluorescent chart + reference chart (eqs. 6–16); needs the fluorescent chart's
-    inputs.
+    Han et al. (CVPR 2012): fluorescent chart + reference chart (eqs. 6–16); needs the fluorescent chart's inputs.
 """
 
 from __future__ import annotations
@@ -26,19 +23,19 @@ from collections.abc import Callable
 from numpy.typing import ArrayLike
 
 from .._blas import single_blas_thread
-from .bayes import sensitivities_Kinoshita2023
 from .common import SensitivityResult, rmse_per_channel
 from .correction import (
     channel_gains_Han2012,
     correct_Han2012,
-    to_cie1931_Huynh2016,
-    transfer_matrix_Huynh2016,
+    to_cie1931_Huynh2014,
+    transfer_matrix_Huynh2014,
 )
 from .daylight_recovery import daylight_Han2012
 from .default import sensitivities_illumon
 from .han2012 import sensitivities_Han2012
-from .huynh2016 import sensitivities_Huynh2016
+from .huynh2014 import sensitivities_Huynh2014
 from .jiang2013 import sensitivities_Jiang2013
+from .kinoshita2023 import sensitivities_Kinoshita2023
 from .prior import (
     CameraPrior,
     DaylightPrior,
@@ -50,19 +47,20 @@ from .prior import (
 
 __all__ = [
     "METHODS",
+    "ALIASES",
     "estimate_sensitivities",
     "SensitivityResult",
     "rmse_per_channel",
     "sensitivities_illumon",
     "sensitivities_Kinoshita2023",
     "sensitivities_Jiang2013",
-    "sensitivities_Huynh2016",
+    "sensitivities_Huynh2014",
     "sensitivities_Han2012",
     "daylight_Han2012",
     "channel_gains_Han2012",
     "correct_Han2012",
-    "transfer_matrix_Huynh2016",
-    "to_cie1931_Huynh2016",
+    "transfer_matrix_Huynh2014",
+    "to_cie1931_Huynh2014",
     "CameraPrior",
     "DaylightPrior",
     "build_camera_prior",
@@ -73,12 +71,15 @@ __all__ = [
 
 METHODS: dict[str, Callable[..., SensitivityResult]] = {
     "default": sensitivities_illumon,
-    "bayes": sensitivities_Kinoshita2023,
+    "kinoshita2023": sensitivities_Kinoshita2023,
     "jiang2013": sensitivities_Jiang2013,
-    "huynh2016": sensitivities_Huynh2016,
+    "huynh2014": sensitivities_Huynh2014,
     "han2012": sensitivities_Han2012,
 }
-"""Sensitivity estimators by name."""
+"""Sensitivity estimators by name (after the paper and year each implements)."""
+
+ALIASES: dict[str, str] = {"bayes": "kinoshita2023", "huynh2016": "huynh2014"}
+"""Earlier names of methods, still accepted: ``huynh2016`` was misdated (the paper is ICPR 2014)."""
 
 
 @single_blas_thread
@@ -100,7 +101,7 @@ def estimate_sensitivities(
         ``fluorescent_emissions`` and ``fluorescent_reflectances``).
     """
     try:
-        fn = METHODS[method]
+        fn = METHODS[ALIASES.get(method, method)]
     except KeyError:
         raise ValueError(f"unknown sensitivity method {method!r}; choose from {', '.join(METHODS)}") from None
     return fn(chart_rgb, chart_reflectances, **kwargs)

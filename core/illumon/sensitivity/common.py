@@ -30,8 +30,7 @@ class SensitivityResult:
     Attributes
     ----------
     sensitivities
-        Estimated sensitivities on :data:`~illumon.spectra.GRID` (61 × 3), non-negative, max-normalised over
-        all
+        Estimated sensitivities on :data:`~illumon.spectra.GRID` (61 × 3), non-negative, max-normalised over all
         channels.
     illuminant
         Recovered illuminant spectrum (61,), unit mean over the grid, or ``None`` when the method gives none.
@@ -72,8 +71,7 @@ def check_chart(
 def chart_operator(reflectances: NDArray[np.float64], illuminant: NDArray[np.float64]) -> NDArray[np.float64]:
     """Matrix ``A`` (3P × 183) with ``A @ c = vec(rgb)`` for stacked sensitivities ``c = [r; g; b]``.
 
-    The rows of ``vec(rgb)`` are patch-major (``rgb.ravel()``), the model of Kinoshita & Kiya (2023) eq. (2)
-    and
+    The rows of ``vec(rgb)`` are patch-major (``rgb.ravel()``), the model of Kinoshita & Kiya (2023) eq. (2) and
     Huynh & Robles-Kelly eq. (2) with the illuminant folded into the reflectances.
     """
     b = reflectances * illuminant

@@ -1,10 +1,9 @@
-"""Colour correction with known sensitivities: per-channel gains (Han et al. 2012) and a 3 × 3 transfer
-(Huynh).
+"""Colour correction with known sensitivities: per-channel gains (Han et al. 2012) and a 3 × 3 transfer (Huynh).
 
 * :func:`channel_gains_Han2012` — eq. (20): a scene point seen by camera ``c`` under light ``l`` is predicted
 for
   camera ``c̄`` under light ``l̄`` by multiplying each channel by ``∫ c̄ l̄ / ∫ c l``.
-* :func:`transfer_matrix_Huynh2016` — Huynh & Robles-Kelly §IV: camera colours ``I`` (m × 3) map to the CIE
+* :func:`transfer_matrix_Huynh2014` — Huynh & Robles-Kelly §IV: camera colours ``I`` (m × 3) map to the CIE
 1931
   2° observer as ``I Q† Q̂ diag(σ)``, with ``Q`` the camera's and ``Q̂`` the observer's (normalised) curves.
 """
@@ -17,7 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from ..camera import camera_white
 from ..daylight import CMFS
 
-__all__ = ["channel_gains_Han2012", "correct_Han2012", "transfer_matrix_Huynh2016", "to_cie1931_Huynh2016"]
+__all__ = ["channel_gains_Han2012", "correct_Han2012", "transfer_matrix_Huynh2014", "to_cie1931_Huynh2014"]
 
 
 def channel_gains_Han2012(
@@ -37,7 +36,7 @@ def correct_Han2012(rgb: ArrayLike, gains: ArrayLike) -> NDArray[np.float64]:
     return np.asarray(rgb, dtype=float) * np.asarray(gains, dtype=float)
 
 
-def transfer_matrix_Huynh2016(
+def transfer_matrix_Huynh2014(
     sensitivities: ArrayLike, target: ArrayLike | None = None, sigma: ArrayLike | None = None
 ) -> NDArray[np.float64]:
     """The 3 × 3 matrix ``Q† Q̂ diag(σ)`` taking camera colours to the target curves (default: CIE 1931 2°).
@@ -54,6 +53,6 @@ def transfer_matrix_Huynh2016(
     return m * s[None, :]
 
 
-def to_cie1931_Huynh2016(rgb: ArrayLike, sensitivities: ArrayLike) -> NDArray[np.float64]:
+def to_cie1931_Huynh2014(rgb: ArrayLike, sensitivities: ArrayLike) -> NDArray[np.float64]:
     """Camera colours (m × 3) → CIE 1931 XYZ up to the normalisation of the curves (Huynh §IV)."""
-    return np.asarray(rgb, dtype=float) @ transfer_matrix_Huynh2016(sensitivities)
+    return np.asarray(rgb, dtype=float) @ transfer_matrix_Huynh2014(sensitivities)

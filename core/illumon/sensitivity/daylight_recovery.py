@@ -1,10 +1,8 @@
 """Daylight spectrum from known camera sensitivities and a chart image (Han et al. 2012, §6.2).
 
 With the sensitivities ``c`` known, a chart patch's value is linear in the coefficients of a daylight basis
-(eqs. 17–19): ``R_q = Σ_j γ_j ∫ s_q c_R b_j``. The 3 × 24 equations give the coefficients by least squares.
-The
-basis is either the CIE D-series S0, S1, S2 (Judd et al., the paper's choice) or illumon's measured-daylight
-basis
+(eqs. 17–19): ``R_q = Σ_j γ_j ∫ s_q c_R b_j``. The 3 × 24 equations give the coefficients by least squares. The
+basis is either the CIE D-series S0, S1, S2 (Judd et al., the paper's choice) or illumon's measured-daylight basis
 (mean and principal components of the Granada spectra).
 """
 

@@ -1,21 +1,16 @@
 """illumon's own single-chart estimator: everything measured, marginalised properly.
 
 The camera's stacked sensitivities ``c`` (183-vector) get a Gaussian prior from measured cameras
-(:class:`~illumon.sensitivity.prior.CameraPrior`: joint principal components with their sample variances,
-plus a
+(:class:`~illumon.sensitivity.prior.CameraPrior`: joint principal components with their sample variances, plus a
 smooth squared-exponential floor so that curves may leave the span of the training cameras only smoothly). The
 unknown daylight is ``E = mean + V y`` with the Gaussian prior of the measured Granada spectra
 (:class:`~illumon.sensitivity.prior.DaylightPrior`). Given ``E`` and an exposure ``a``, the chart values
-``x = a A(E) c + n`` are linear-Gaussian in ``c``, so ``c`` is integrated out analytically and the few
-daylight and
-exposure parameters are chosen by maximising the marginal likelihood (type-II maximum likelihood) plus the
-daylight
-prior. The sensitivities are then the non-negative MAP given that daylight (bounded least squares on the
-whitened
+``x = a A(E) c + n`` are linear-Gaussian in ``c``, so ``c`` is integrated out analytically and the few daylight and
+exposure parameters are chosen by maximising the marginal likelihood (type-II maximum likelihood) plus the daylight
+prior. The sensitivities are then the non-negative MAP given that daylight (bounded least squares on the whitened
 posterior), which enforces the physical constraints: non-negative, smooth, close to measured cameras in shape.
 
-Compared with iterating the illumination and sensitivity posteriors of Kinoshita & Kiya (2023), marginalising
-``c``
+Compared with iterating the illumination and sensitivity posteriors of Kinoshita & Kiya (2023), marginalising ``c``
 avoids the bias of fitting the daylight to one point estimate of the sensitivities.
 """
 
@@ -69,8 +64,7 @@ def sensitivities_illumon(
     chart_reflectances
         Reflectances of the same patches on the grid (P × 61).
     camera_prior
-        Prior from measured cameras (default: the shipped prior of all 24 cameras). Leave-one-out evaluation
-        passes
+        Prior from measured cameras (default: the shipped prior of all 24 cameras). Leave-one-out evaluation passes
         a prior built without the camera under test.
     daylight_prior
         Prior of measured daylight (default: shipped Granada prior).

@@ -1,10 +1,8 @@
 """Leave-one-camera-out evaluation of the single-chart estimators on simulated charts.
 
 A chart is rendered with a measured camera under a measured daylight spectrum (linear model,
-:func:`illumon.camera.render`), Gaussian noise with standard deviation ``noise × max`` is added, and each
-method
-estimates the sensitivities with priors rebuilt *without* the camera under test (and without another
-measurement of
+:func:`illumon.camera.render`), Gaussian noise with standard deviation ``noise × max`` is added, and each method
+estimates the sensitivities with priors rebuilt *without* the camera under test (and without another measurement of
 the same model: the two Nikon D50 files are one camera). The metric is
 :func:`~illumon.sensitivity.common.rmse_per_channel`.
 """
@@ -115,8 +113,7 @@ def leave_one_out(
     noise
         Relative noise level, or one per illuminant (cycled).
     chart_maker
-        Optional ``chart_maker(camera, illuminant, rng) -> dict`` of extra keyword arguments per chart (Han
-        et al.'s
+        Optional ``chart_maker(camera, illuminant, rng) -> dict`` of extra keyword arguments per chart (Han et al.'s
         fluorescent chart values).
     group
         Name → group; the prior is rebuilt without every camera of the test camera's group.

@@ -1,5 +1,4 @@
-"""Han, Matsushita, Sato, Okabe & Sato (CVPR 2012): sensitivities from a fluorescent chart under unknown
-light.
+"""Han, Matsushita, Sato, Okabe & Sato (CVPR 2012): sensitivities from a fluorescent chart under unknown light.
 
 S. Han et al., "Camera spectral sensitivity estimation from a single image under unknown illumination by using
 fluorescence", CVPR 2012. The fluorescence emitted by a material has a fixed spectral shape whatever the light
@@ -7,8 +6,7 @@ fluorescence", CVPR 2012. The fluorescence emitted by a material has a fixed spe
 
 1. Separate each fluorescent patch into reflective and fluorescent parts with a reference chart of known,
    non-fluorescent reflectances in the same frame (eqs. 6–11): the reference gives the integrals
-   ``∫ b_n c l`` of an 8-function reflectance basis (illumon's measured basis), which predict the reflective
-   part.
+   ``∫ b_n c l`` of an 8-function reflectance basis (illumon's measured basis), which predict the reflective part.
 2. The fluorescent parts' chromaticities give the homogeneous system of eqs. (13)–(15) in the coefficients of
 a
    Fourier basis for the sensitivities (eq. 12, 9 functions), stabilised with second-derivative smoothness

@@ -1,11 +1,9 @@
 """Jiang, Liu, Gu & Süsstrunk (WACV 2013) baseline: camera PCA basis and a CIE daylight search.
 
 J. Jiang, D. Liu, J. Gu, S. Süsstrunk, "What is the space of spectral sensitivity functions for digital color
-cameras?", WACV 2013. Each channel's sensitivity is a combination of the first two eigenvectors of measured
-cameras'
+cameras?", WACV 2013. Each channel's sensitivity is a combination of the first two eigenvectors of measured cameras'
 curves; for a *known* illuminant the coefficients follow by least squares — this step is colour-science's
-:func:`colour.recovery.RGB_to_msds_camera_sensitivities_Jiang2013`, used unchanged. For the unknown daylight
-the
+:func:`colour.recovery.RGB_to_msds_camera_sensitivities_Jiang2013`, used unchanged. For the unknown daylight the
 method searches CIE D-series illuminants over correlated colour temperature and keeps the one whose recovered
 sensitivities reproduce the chart best (smallest relative residual).
 """

@@ -5,18 +5,15 @@ Two Gaussian priors feed the single-chart estimators:
 * :class:`CameraPrior` — the 183-vector of a camera's (R, G, B) sensitivities on
 :data:`~illumon.spectra.GRID`,
   max-normalised over all channels, modelled as ``mean + components @ z`` with ``z ~ N(0, diag(variances))``
-  (joint principal components, so correlations *between* channels are kept). It also carries per-channel
-  uncentred
+  (joint principal components, so correlations *between* channels are kept). It also carries per-channel uncentred
   eigenvectors, the basis Jiang et al. (WACV 2013) use.
 * :class:`DaylightPrior` — daylight spectra (scaled to unit mean over 400–700 nm) as ``mean + components @
 y`` with
   ``y ~ N(coefficient_mean, coefficient_covariance)``, from the 2600 Granada measurements.
 
 Both can be rebuilt from arrays (:func:`build_camera_prior`, :func:`build_daylight_prior`), which is what the
-leave-one-camera-out tests and benchmark do: the camera under test is never in its own prior. The shipped
-versions
-(``illumon/data/camera_prior.csv|json`` and ``daylight_prior.csv|json``) are derived from all 24 measured
-cameras and
+leave-one-camera-out tests and benchmark do: the camera under test is never in its own prior. The shipped versions
+(``illumon/data/camera_prior.csv|json`` and ``daylight_prior.csv|json``) are derived from all 24 measured cameras and
 all Granada spectra by ``tools/build_sensitivity_priors.py``.
 """
 
@@ -168,8 +165,7 @@ def build_camera_prior(
     Notes
     -----
     The per-channel basis follows Jiang et al. (2013) as implemented by :func:`colour.recovery.PCA_Jiang2013`:
-    eigenvectors of the uncentred scatter matrix of each channel's curves, each curve normalised to a maximum
-    of 1.
+    eigenvectors of the uncentred scatter matrix of each channel's curves, each curve normalised to a maximum of 1.
     """
     arr = np.stack([max_normalise(c) for c in cameras])  # n × 61 × 3
     n = arr.shape[0]
@@ -200,8 +196,7 @@ def jiang2013_channel_bases(cameras: Sequence[ArrayLike], n_basis: int = 3) -> N
     """Per-channel eigenvectors (3 × 61 × ``n_basis``) of Jiang et al. (2013), via
     :func:`colour.recovery.PCA_Jiang2013`.
 
-    Each channel curve is normalised to a maximum of 1 and the eigenvectors of the uncentred scatter matrix
-    are
+    Each channel curve is normalised to a maximum of 1 and the eigenvectors of the uncentred scatter matrix are
     taken, largest eigenvalue first, signs fixed so that each vector's largest excursion is positive.
     """
     msds = {

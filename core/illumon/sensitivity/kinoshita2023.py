@@ -2,47 +2,27 @@
 
 Y. Kinoshita, H. Kiya, "Separated-spectral-distribution estimation based on Bayesian inference with single RGB
 camera". With Gaussian priors (eq. 6) and Gaussian pixel noise of precision β (eq. 7), the posterior of one
-spectral factor given the other two is Gaussian: for the sensitivity, eqs. (15)–(16); for the illumination,
-eqs.
-(11)–(12). (The extracted text prints ``Λ − β Σ …`` for the posterior precision; the derivation of eq. (10)
-gives
+spectral factor given the other two is Gaussian: for the sensitivity, eqs. (15)–(16); for the illumination, eqs.
+(11)–(12). (The extracted text prints ``Λ − β Σ …`` for the posterior precision; the derivation of eq. (10) gives
 ``Λ + β Σ …``, used here, and ``μ̂ = Λ̂⁻¹ (…)``.)
 
-The paper estimates one factor with the others known. Here the daylight is unknown too, so the two posteriors
-are
+The paper estimates one factor with the others known. Here the daylight is unknown too, so the two posteriors are
 alternated: sensitivity posterior given the current illuminant mean, then illumination posterior given the
 sensitivity mean, until the estimates settle. The priors are measured: the camera prior of
-:class:`~illumon.sensitivity.prior.CameraPrior` (eq. 18 uses the mean of measured cameras; the covariance is
-theirs
-too) and the Granada daylight prior (eq. 17 uses a mean daylight). The final estimate is max-normalised (eq.
-19).
+:class:`~illumon.sensitivity.prior.CameraPrior` (eq. 18 uses the mean of measured cameras; the covariance is theirs
+too) and the Granada daylight prior (eq. 17 uses a mean daylight). The final estimate is max-normalised (eq. 19).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import ArrayLike
 
+from ..bayes import GaussianPrior, gaussian_posterior
 from .common import SensitivityResult, chart_operator, check_chart, finish
 from .prior import CameraPrior, DaylightPrior, default_camera_prior, default_daylight_prior
 
-__all__ = ["sensitivities_Kinoshita2023", "gaussian_posterior"]
-
-
-def gaussian_posterior(
-    design: NDArray[np.float64],
-    values: NDArray[np.float64],
-    prior_mean: NDArray[np.float64],
-    prior_precision: NDArray[np.float64],
-    beta: float,
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Posterior mean and precision of ``v`` for ``values = design @ v + n``, Kinoshita & Kiya eqs. (11)–(16).
-
-    ``Λ̂ = Λ + β Mᵀ M`` and ``μ̂ = Λ̂⁻¹ (Λ μ + β Mᵀ x)``.
-    """
-    precision = prior_precision + beta * design.T @ design
-    mean = np.linalg.solve(precision, prior_precision @ prior_mean + beta * design.T @ values)
-    return mean, precision
+__all__ = ["sensitivities_Kinoshita2023"]
 
 
 def sensitivities_Kinoshita2023(
@@ -105,12 +85,13 @@ def sensitivities_Kinoshita2023(
     for it in range(1, max_iter + 1):
         iterations = it
         c_old, e_old = c, e
-        c, prec = gaussian_posterior(chart_operator(r, e), xv, mu_c, prec_c, beta)  # eqs. (15)–(16)
+        post_c = gaussian_posterior(chart_operator(r, e), xv, GaussianPrior(mu_c, prec_c), beta)  # eqs. (15)–(16)
+        c, prec = post_c.mean, post_c.precision
         cm = c.reshape(3, n)
         # rows must follow rgb.ravel() (patch-major): build them patch by patch
         design_e = np.stack([r * cm[k] for k in range(3)], axis=1).reshape(-1, n)
-        e, _ = gaussian_posterior(design_e, xv, mu_e, prec_e, beta)  # eqs. (11)–(12)
+        e = gaussian_posterior(design_e, xv, GaussianPrior(mu_e, prec_e), beta).mean  # eqs. (11)–(12)
         change = max(np.abs(c - c_old).max() / np.abs(c).max(), np.abs(e - e_old).max() / np.abs(e).max())
         if change < tol:
             break
-    return finish(c.reshape(3, n).T, e, "bayes", iterations=iterations, precision=prec)
+    return finish(c.reshape(3, n).T, e, "kinoshita2023", iterations=iterations, precision=prec)

@@ -1,7 +1,6 @@
 """Huynh & Robles-Kelly: sensitivities and a smooth illuminant from one colour-chart image.
 
-C. P. Huynh, A. Robles-Kelly, "Recovery of spectral sensitivity functions from a colour chart image under
-unknown
+C. P. Huynh, A. Robles-Kelly, "Recovery of spectral sensitivity functions from a colour chart image under unknown
 spectrally smooth illumination" (ICPR 2014). Two stages:
 
 1. Non-negative least squares for ``P_c = s_c L ⊙ Q_c`` per channel from the chart (eq. 3), lightly smoothed
@@ -9,20 +8,14 @@ because
    a 24-patch chart is under-determined (see ``nnls_smoothness``).
 2. Coordinate descent (Algorithm 1) on eq. (8): the spectral angle between ``P_c`` and ``Q_c ⊙ L``,
 second-derivative
-   smoothness of ``L`` and ``Q_c`` (eqs. 4–6), the distance of ``Q_c`` to a linear subspace (``‖T_c Q_c‖``,
-   Luther /
+   smoothness of ``L`` and ``Q_c`` (eqs. 4–6), the distance of ``Q_c`` to a linear subspace (``‖T_c Q_c‖``, Luther /
    camera basis) and a penalty on low-SNR bands (eq. 7), with ``‖Q_c‖ = ‖L‖ = 1``.
 
-The paper's parameters are used (α_L = 50, α_Q = 0.5, β_Q = 1, γ_Q = 1, ε = 0.05). They were set for 10-nm
-sampling,
-so the solve runs on 400–700 nm at 10 nm and the result is interpolated onto the 5-nm grid. The subspace
-``B_c`` is
-the first three per-channel eigenvectors of measured cameras (Jiang et al. 2013). Unit-norm constraints are
-handled
-by optimising an unnormalised non-negative vector ``u`` with ``Q = u / ‖u‖`` (every term is then scale-free),
-each
-step by L-BFGS-B with analytic gradients instead of the paper's interior-point solver. Per-channel scales
-lost to
+The paper's parameters are used (α_L = 50, α_Q = 0.5, β_Q = 1, γ_Q = 1, ε = 0.05). They were set for 10-nm sampling,
+so the solve runs on 400–700 nm at 10 nm and the result is interpolated onto the 5-nm grid. The subspace ``B_c`` is
+the first three per-channel eigenvectors of measured cameras (Jiang et al. 2013). Unit-norm constraints are handled
+by optimising an unnormalised non-negative vector ``u`` with ``Q = u / ‖u‖`` (every term is then scale-free), each
+step by L-BFGS-B with analytic gradients instead of the paper's interior-point solver. Per-channel scales lost to
 the normalisation are restored by least squares against the chart values (the ``s_c`` of eq. 1).
 """
 
@@ -36,7 +29,7 @@ from ..spectra import WAVELENGTHS
 from .common import SensitivityResult, check_chart, finish, second_difference
 from .prior import CameraPrior, default_camera_prior
 
-__all__ = ["sensitivities_Huynh2016", "decompose_Huynh2016"]
+__all__ = ["sensitivities_Huynh2014", "decompose_Huynh2014"]
 
 SUB = slice(None, None, 2)  # 10-nm sub-grid of the 5-nm grid
 OPTS = {"ftol": 1e-12, "gtol": 1e-9, "maxiter": 500}
@@ -61,7 +54,7 @@ def _rayleigh(m: NDArray[np.float64], u: NDArray[np.float64]) -> tuple[float, ND
     return rho, 2.0 * (mu - rho * u) / uu
 
 
-def decompose_Huynh2016(
+def decompose_Huynh2014(
     p: NDArray[np.float64],
     bases: NDArray[np.float64],
     *,
@@ -73,8 +66,7 @@ def decompose_Huynh2016(
     max_iter: int = 20,
     tol: float = 1e-5,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], int]:
-    """Algorithm 1: split ``P_c`` (n × 3) into a unit-norm illuminant ``L`` (n,) and unit-norm ``Q_c`` (n ×
-    3).
+    """Algorithm 1: split ``P_c`` (n × 3) into a unit-norm illuminant ``L`` (n,) and unit-norm ``Q_c`` (n × 3).
 
     ``bases`` are the per-channel subspaces ``B_c`` (3 × n × d). Returns ``(L, Q, iterations)``.
     """
@@ -129,7 +121,7 @@ def decompose_Huynh2016(
     return lum, q, iterations
 
 
-def sensitivities_Huynh2016(
+def sensitivities_Huynh2014(
     chart_rgb: ArrayLike,
     chart_reflectances: ArrayLike,
     *,
@@ -159,10 +151,8 @@ def sensitivities_Huynh2016(
     max_iter
         Coordinate-descent iterations at most.
     nnls_smoothness
-        Weight of a second-difference term added to the NNLS of eq. (3). The paper's images have m ≥ n pixels
-        of
-        distinct reflectance; a 24-patch chart gives 24 equations for 31 unknowns, and with 0.2–1 % noise the
-        plain
+        Weight of a second-difference term added to the NNLS of eq. (3). The paper's images have m ≥ n pixels of
+        distinct reflectance; a 24-patch chart gives 24 equations for 31 unknowns, and with 0.2–1 % noise the plain
         NNLS solution is spiky. ``0`` gives the literal eq. (3).
 
     Returns
@@ -180,10 +170,10 @@ def sensitivities_Huynh2016(
     pad = np.zeros(n - 2)
     p = np.column_stack([nnls(design, np.concatenate([xn[:, c], pad]), maxiter=50 * n)[0] for c in range(3)])
     if np.any(p.max(axis=0) <= 0):
-        raise ValueError("huynh2016: NNLS gave an all-zero channel")
+        raise ValueError("huynh2014: NNLS gave an all-zero channel")
     cp = camera_prior or default_camera_prior()
     bases = cp.channel_bases[:, SUB, :n_basis]
-    lum, q, it = decompose_Huynh2016(
+    lum, q, it = decompose_Huynh2014(
         p,
         bases,
         alpha_l=alpha_l,
@@ -200,4 +190,4 @@ def sensitivities_Huynh2016(
         scales[c] = max(pred @ xn[:, c], 0.0) / max(pred @ pred, 1e-30)
     q_full = np.column_stack([np.interp(WAVELENGTHS, wl, q[:, c] * scales[c]) for c in range(3)])
     l_full = np.interp(WAVELENGTHS, wl, lum)
-    return finish(q_full, l_full, "huynh2016", iterations=it)
+    return finish(q_full, l_full, "huynh2014", iterations=it)

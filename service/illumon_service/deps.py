@@ -32,20 +32,28 @@ class Principal:
     camera_id: int | None = None
 
 
-def get_principal(request: Request, session: SessionDep) -> Principal:
-    """Authenticate ``Authorization: Bearer <token>`` as the admin or a camera; 401 otherwise."""
-    header = request.headers.get("authorization", "")
-    scheme, _, token = header.partition(" ")
+def principal_from_token(request: Request, session: Session, token: str) -> Principal | None:
+    """The admin or the camera whose token is ``token`` (compared by its SHA-256 with the stored hashes), else
+    ``None``: the one token-to-caller lookup of the JSON API and the pages."""
     token = token.strip()
-    if scheme.lower() != "bearer" or not token:
-        raise HTTPException(401, "missing bearer token (Authorization: Bearer <token>)",
-                            headers={"WWW-Authenticate": "Bearer"})
+    if not token:
+        return None
     if hmac.compare_digest(hash_token(token), request.app.state.admin_token_hash):
         return Principal(admin=True)
     cam = camera_by_token(session, token)
-    if cam is None:
+    return None if cam is None else Principal(admin=False, camera_id=cam.id)
+
+
+def get_principal(request: Request, session: SessionDep) -> Principal:
+    """Authenticate ``Authorization: Bearer <token>`` as the admin or a camera; 401 otherwise."""
+    scheme, _, token = request.headers.get("authorization", "").partition(" ")
+    if scheme.lower() != "bearer" or not token.strip():
+        raise HTTPException(401, "missing bearer token (Authorization: Bearer <token>)",
+                            headers={"WWW-Authenticate": "Bearer"})
+    principal = principal_from_token(request, session, token)
+    if principal is None:
         raise HTTPException(401, "invalid token", headers={"WWW-Authenticate": "Bearer"})
-    return Principal(admin=False, camera_id=cam.id)
+    return principal
 
 
 PrincipalDep = Annotated[Principal, Depends(get_principal)]

@@ -14,7 +14,6 @@ another site (by their ``Origin``) are refused.
 
 from __future__ import annotations
 
-import hmac
 from datetime import datetime
 from pathlib import Path
 from urllib.parse import quote, urlsplit
@@ -29,16 +28,16 @@ from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from ...charts import Series, time_chart
-from ...deps import Principal, SessionDep
+from ...deps import Principal, SessionDep, principal_from_token
 from ...proposals import MAX_FRAMES, preview_jpeg
 from ...registration import parse_view, view_regions, view_thumbnails
 from ...status import NON_DAYLIGHT_DUV, camera_history, camera_status, fleet_status
-from ...storage import Camera, Frame, as_utc, camera_by_token, hash_token
+from ...storage import Camera, Frame, as_utc
 from ..schemas import RegionsIn
 from .cameras import save_regions
 from .proposals import proposals_for
 
-__all__ = ["router", "install", "COOKIE", "principal_from_token"]
+__all__ = ["router", "install", "COOKIE"]
 
 PACKAGE = Path(__file__).resolve().parents[2]
 TEMPLATES = Jinja2Templates(directory=str(PACKAGE / "templates"))
@@ -68,17 +67,6 @@ def _fmt_time(value: datetime | str | None) -> str:
 
 
 TEMPLATES.env.filters["utc"] = _fmt_time
-
-
-def principal_from_token(request: Request, session: Session, token: str) -> Principal | None:
-    """The admin or the camera whose token is ``token`` (compared by hash, as bearer tokens are), else ``None``."""
-    token = token.strip()
-    if not token:
-        return None
-    if hmac.compare_digest(hash_token(token), request.app.state.admin_token_hash):
-        return Principal(admin=True)
-    cam = camera_by_token(session, token)
-    return None if cam is None else Principal(admin=False, camera_id=cam.id)
 
 
 def _principal(request: Request, session: Session) -> Principal | None:

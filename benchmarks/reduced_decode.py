@@ -36,7 +36,8 @@ import ingest
 import numpy as np
 from illumon.camera import ResponseCurve, angular_error_deg, render
 from illumon_service import estimation
-from illumon_service.regions import Region, decode_image, region_means, response_for
+from illumon_service.decode import decode_image  # noqa: E402
+from illumon_service.regions import Region, region_means, response_for
 
 RESULTS = Path(__file__).with_name("results")
 SCALES = (2, 4, 8)

@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from illumon.camera import angular_error_deg
 from illumon.diagnosis import bilinear as bl
+from illumon.diagnosis import noise as dnoise
 from illumon.diagnosis.effects import EFFECTS, LOCATED_EFFECTS, TEST_CAMERAS, hide_effect
 from illumon.diagnosis.fit import NONE_MARGIN, corrected_observations, diagnose, estimate_with_effect
 from illumon.retrieval import retrieve_illuminants
@@ -114,7 +115,7 @@ def test_clean_low_rank_data_fit_to_noise_level(shared_data):
     h = _hist("none", 9)
     f, p, _ = h.observations.values.shape
     y = h.observations.values.reshape(f, -1)
-    fit = bl.wals(y, bl.noise_weights(y), 4)
+    fit = bl.wals(y, dnoise.noise_weights(y), 4)
     # the rank-4 bilinear model leaves residuals at the simulated noise level (whitened variance ≈ 1)
     assert 0.7 < fit.wrss / (fit.n - fit.k) < 1.4
 
@@ -206,10 +207,10 @@ def test_noise_is_learned_from_the_residuals(shared_data):
     h = rawsim.simulate_raw_history(datasets.load_camera("Canon_50D"), e, r, rng=4, bits=12, conversion_gain=1.5,
                                     read_noise_e=3.0, pixels=200)
     y = h.observations.values.reshape(30, -1)
-    nz = bl.estimate_noise(y, 4)
+    nz = dnoise.estimate_noise(y, 4)
     a_true = 1.0 / (1.5 * (4095 - 256) * 200)
     assert 0.5 * a_true < nz.shot < 2.0 * a_true
     assert nz.step == 0.0 and not nz.censored.any()
     q = np.round(y * 255) / 255  # delivered as 8-bit codes: on the grid, black values censored
-    nq = bl.estimate_noise(q, 4)
+    nq = dnoise.estimate_noise(q, 4)
     assert nq.step == pytest.approx(1 / 255) and nq.read >= (1 / 255) / np.sqrt(12) - 1e-12

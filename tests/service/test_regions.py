@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from illumon.camera import ResponseCurve
-from illumon_service.regions import Region, decode_image, region_means, response_for
+from illumon_service.decode import decode_image
+from illumon_service.regions import Region, region_means, response_for
 from svc_helpers import encode_png
 
 
@@ -97,7 +98,7 @@ def test_reduced_decode_weights_edges_by_coverage():
 def test_reduced_jpeg_decode():
     """jpeg_reduction picks the largest factor keeping every region ≥ 32 decoded pixels wide; decode_image then
     decodes at that size (JPEG only) and the region means stay within a fraction of a percent of the full decode's."""
-    from illumon_service.regions import jpeg_reduction
+    from illumon_service.decode import jpeg_reduction
 
     rng = np.random.default_rng(4)
     yy, xx = np.mgrid[0:300, 0:403]

@@ -9,7 +9,7 @@ Two stages, each a penalised-likelihood comparison against its own base model (S
    Extensions: tone curve (γ or sRGB), black offset (3 pedestals), clipping (censored values at the clip level), patch
    change (patch, onset), shadow (patch, run, per-channel scale). The tone curve is judged with each hypothesis's own
    learned noise in its linear light (shot noise carrying at least half the variance at the median signal), the
-   Jacobian of the curve, Huber's loss and the values within 3 % of black censored (:data:`.bilinear.DARK_LEVEL`).
+   Jacobian of the curve, Huber's loss and the values within 3 % of black censored (:data:`.noise.DARK_LEVEL`).
    Patch change and shadow are scored in units of the patches' median residual variance, or of the patch's own under
    the alternative when larger.
 2. **Spectral stage** (:mod:`.spectral`), only when no bilinear extension is supported: off-locus light and
@@ -50,6 +50,7 @@ from ..camera import angular_error_deg
 from ..observations import Observations
 from ..simulate import DEFAULT_NOISE
 from . import bilinear as bl
+from . import noise as nz
 from .spectral import (
     EXCITATION_CENTRES_NM,
     fit_spectral_base,
@@ -222,9 +223,9 @@ def _bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
                     learn_noise: bool = True) -> tuple[bl.LowRankFit, list[Candidate], dict]:
     f, m = y.shape
     if learn_noise:
-        noise = bl.estimate_noise(y, rank)
+        noise = nz.estimate_noise(y, rank)
     else:
-        noise = bl.NoiseLevel(DEFAULT_NOISE.shot, DEFAULT_NOISE.read, 0.0, np.zeros(y.shape, dtype=bool))
+        noise = nz.NoiseLevel(DEFAULT_NOISE.shot, DEFAULT_NOISE.read, 0.0, np.zeros(y.shape, dtype=bool))
     w = noise.weights(y)
     present = w > 0
     half_log_var = 0.5 * float(np.log(1.0 / w[present]).sum())
@@ -241,13 +242,13 @@ def _bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
     # learns its own Poissonian-Gaussian noise (σ² = a·x + b in its linear light, a and b free) from its residuals,
     # and the likelihood carries the Jacobian of the curve: the tone curve shows in the structure of the values and
     # in how their spread grows with the signal, without assuming how large the noise is
-    yc = np.clip(np.nan_to_num(y), bl.DARK_LEVEL, None)
-    lit = present & (np.nan_to_num(y) > bl.DARK_LEVEL)  # values near black are censored here (bl.DARK_LEVEL)
-    _, _, _, nll_lin = bl.fit_learned_noise(yc, lit, rank, base.U, updates=3, iters=30, floor=noise.read**2 * 1e-3,
+    yc = np.clip(np.nan_to_num(y), nz.DARK_LEVEL, None)
+    lit = present & (np.nan_to_num(y) > nz.DARK_LEVEL)  # values near black are censored here (nz.DARK_LEVEL)
+    _, _, _, nll_lin = nz.fit_learned_noise(yc, lit, rank, base.U, updates=3, iters=30, floor=noise.read**2 * 1e-3,
                                             huber=TONE_HUBER)
 
     def curve_nll(x: NDArray[np.float64], slope: NDArray[np.float64]) -> tuple[float, bl.LowRankFit]:
-        fit, _, _, nll = bl.fit_learned_noise(x, lit, rank, base.U, updates=3, iters=30, huber=TONE_HUBER,
+        fit, _, _, nll = nz.fit_learned_noise(x, lit, rank, base.U, updates=3, iters=30, huber=TONE_HUBER,
                                               floor=noise.read**2 * 1e-3 * float(np.median(slope[lit])) ** 2)
         return nll - float(np.log(slope[lit]).sum()), fit
 

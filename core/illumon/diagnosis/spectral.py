@@ -33,7 +33,7 @@ from ..reflectance import reflectance_basis
 from ..retrieval.common import gray_world_mired, imaging_operators
 from ..retrieval.joint import JointProblem
 from ..spectra import WAVELENGTHS
-from .bilinear import DARK_LEVEL
+from .noise import DARK_LEVEL
 
 __all__ = [
     "SpectralBase", "fit_spectral_base", "refine_with_measured_daylight", "off_locus_gains", "fluorescence_gains",
@@ -65,7 +65,7 @@ def fit_spectral_base(obs: Observations, sensitivities: NDArray[np.float64], max
     c = np.asarray(sensitivities, dtype=float)
     prob = JointProblem(obs, c, model, rb)
     # values within a few codes of black are censored (clipping at 0 after black subtraction, rounding of undithered
-    # dark pixels; :data:`.bilinear.DARK_LEVEL`): they carry no Gaussian residual
+    # dark pixels; :data:`.noise.DARK_LEVEL`): they carry no Gaussian residual
     prob.W = np.where(np.nan_to_num(np.asarray(obs.values, dtype=float)) <= dark_level, 0.0, prob.W)
     lo, hi = prob.bounds()
     nfr = prob.F * prob.nf

@@ -18,8 +18,9 @@ from ...calibration import (
     patch_regions,
     reference_box,
 )
+from ...decode import ImageError, decode_frame
 from ...deps import PrincipalDep, SessionDep, camera_for
-from ...regions import ImageError, Region, RegionError, decode_frame, region_means, response_for
+from ...regions import Region, RegionError, region_means, response_for
 from ...storage import Calibration
 from ..schemas import CAMERA_APPLIED, ERROR_RESPONSES, multipart_body
 from .frames import IMAGE_TYPES, parse_gains, parse_positive, read_multipart

@@ -13,10 +13,11 @@ from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from ...crud import estimate_out
+from ...decode import ImageError, decode_frame, sniff_format
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import estimate_frame, undo_camera_gains
 from ...proposals import MIN_FRAMES, Thumbnail, make_thumbnail, save_thumbnail
-from ...regions import ImageError, Region, RegionError, decode_frame, region_means, response_for, sniff_format
+from ...regions import Region, RegionError, region_means, response_for
 from ...registration import (
     Registration,
     parse_view,

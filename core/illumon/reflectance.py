@@ -89,9 +89,11 @@ def colourchecker_reflectances(name: str = "BabelColor Average") -> tuple[list[s
 
 @lru_cache(maxsize=1)
 def unseen_reflectances() -> tuple[list[str], NDArray[np.float64]]:
-    """Reflectances never used to build the shipped basis: ColorChecker (BabelColor average), CIE 1995 TCS01–14 and
-    NIST CQS 9.0 VS1–15, all shipped with colour-science (53 spectra, on the grid). Used to simulate scenes the
-    estimator has never seen."""
+    """ColorChecker (BabelColor average), CIE 1995 TCS01–14 and NIST CQS 9.0 VS1–15, all shipped with colour-science
+    (53 spectra, on the grid), used by :mod:`illumon.scenarios` to simulate scenes. The ColorChecker and TCS spectra
+    were never used to build the shipped basis; the fifteen VS spectra were (they are Munsell matt chips, identical
+    to spectra of ``munsell_matt_1269``), so scoring that must not see the basis' surfaces uses the first 38 only
+    (``benchmarks/rawsim.py``'s score surfaces)."""
     from colour.quality.datasets import SDS_TCS, SDS_VS
 
     names, cc = colourchecker_reflectances("BabelColor Average")

@@ -28,7 +28,8 @@ IsoDateTime = Annotated[datetime, BeforeValidator(_iso_text)]
 
 __all__ = [
     "SensitivitiesIn", "RegionIn", "ResponseIn", "CameraIn", "RegionsIn", "ObservationIn", "ErrorOut", "ERROR_RESPONSES",
-    "FRAME_UPLOAD", "MAX_LIST", "multipart_body", "CAMERA_APPLIED",
+    "FRAME_UPLOAD", "MAX_LIST", "multipart_body", "CAMERA_APPLIED", "EstimateOut", "SpectrumOut", "IlluminantOut", "JobRef",
+    "HealthOut",
 ]
 
 # strict: JSON numbers only (pydantic's lax mode would read true/false or numeric text as numbers, which the OpenAPI
@@ -153,6 +154,49 @@ class ObservationIn(_Strict):
     """White-balance gains (r, g, b) the camera applied to linear values in this frame; divided out."""
     exposure: Positive | None = None
     """Relative exposure the camera applied in this frame; divided out."""
+
+
+class EstimateOut(BaseModel):
+    """A frame's estimate: CCT (K), Duv (Ohno 2013), CIE 1931 xy, camera white (``white_rgb``, green = 1) and gains
+    (``gains_rgb`` = [G/R, 1, G/B]) in the camera's output space, ``confidence`` (posterior probability that the camera
+    white is within 1° of the truth; the fraction of regions seen for a retrieval-method estimate) and its ``source``."""
+
+    frame_id: int
+    taken_at: str
+    cct_k: float | None
+    duv: float | None
+    xy: list[float | None]
+    white_rgb: list[float | None]
+    gains_rgb: list[float | None]
+    confidence: float | None
+    source: str
+
+
+class SpectrumOut(BaseModel):
+    """Relative spectral power (100 at 560 nm) on the wavelengths given."""
+
+    wavelength_nm: list[float]
+    values: list[float | None] | None
+
+
+class IlluminantOut(EstimateOut):
+    """The estimate nearest the requested time with its spectrum and 95 % intervals (``null`` where the method gives
+    none; an unbounded interval end is ``null``)."""
+
+    spectrum: SpectrumOut
+    intervals: dict[str, Any] | None
+
+
+class JobRef(BaseModel):
+    """A queued job; poll ``GET /v1/jobs/{job_id}``."""
+
+    job_id: str
+
+
+class HealthOut(BaseModel):
+    """``ok`` when the database answers."""
+
+    status: str
 
 
 class ErrorOut(BaseModel):

@@ -11,7 +11,7 @@ from ... import crud
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import GRID_WAVELENGTHS
 from ...storage import Estimate
-from ..schemas import ERROR_RESPONSES, MAX_LIST, IsoDateTime
+from ..schemas import ERROR_RESPONSES, MAX_LIST, EstimateOut, IlluminantOut, IsoDateTime
 
 router = APIRouter(prefix="/v1/cameras", tags=["estimates"], responses=ERROR_RESPONSES)
 
@@ -24,7 +24,7 @@ def nearest_estimate(session: Session, camera_id: int, at: datetime | None) -> E
     return e
 
 
-@router.get("/{camera_id}/estimates")
+@router.get("/{camera_id}/estimates", response_model=list[EstimateOut])
 def list_estimates(camera_id: int, session: SessionDep, principal: PrincipalDep,
                    since: IsoDateTime | None = None, until: IsoDateTime | None = None,
                    limit: int = Query(10000, ge=1, le=MAX_LIST, description=f"1…{MAX_LIST} estimates")) -> list[dict]:
@@ -34,7 +34,7 @@ def list_estimates(camera_id: int, session: SessionDep, principal: PrincipalDep,
     return [crud.estimate_out(e) for e in rows]
 
 
-@router.get("/{camera_id}/illuminant")
+@router.get("/{camera_id}/illuminant", response_model=IlluminantOut)
 def get_illuminant(camera_id: int, session: SessionDep, principal: PrincipalDep, at: IsoDateTime | None = None) -> dict:
     """The estimate nearest ``at`` with its spectrum (relative, 100 at 560 nm) and intervals where known."""
     camera_for(session, principal, camera_id)

@@ -7,11 +7,12 @@ from fastapi.responses import PlainTextResponse
 from sqlalchemy import text
 
 from ...deps import SessionDep
+from ..schemas import HealthOut
 
 router = APIRouter(tags=["health"])
 
 
-@router.get("/healthz")
+@router.get("/healthz", response_model=HealthOut)
 def healthz(session: SessionDep) -> dict:
     """``{"status": "ok"}`` when the database answers."""
     session.execute(text("SELECT 1"))

@@ -6,12 +6,12 @@ from fastapi import APIRouter, HTTPException, Request, status
 
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...storage import Job, as_utc
-from ..schemas import ERROR_RESPONSES
+from ..schemas import ERROR_RESPONSES, JobRef
 
 router = APIRouter(tags=["jobs"], responses=ERROR_RESPONSES)
 
 
-@router.post("/v1/cameras/{camera_id}/refit", status_code=status.HTTP_202_ACCEPTED)
+@router.post("/v1/cameras/{camera_id}/refit", status_code=status.HTTP_202_ACCEPTED, response_model=JobRef)
 def refit(camera_id: int, request: Request, session: SessionDep, principal: PrincipalDep) -> dict:
     """Queue a refit: re-estimate the camera's most recent stored frames by multi-frame retrieval."""
     camera_for(session, principal, camera_id)

@@ -100,9 +100,13 @@ class CameraCalibration:
         }
 
 
+@lru_cache(maxsize=1)
+def _d65() -> NDArray[np.float64]:
+    return CIEDaylight().spectra(np.array([[1e6 / 6504.0, 0.0]]))[0]
+
+
 def _d65_white(c: NDArray[np.float64]) -> NDArray[np.float64]:
-    e = CIEDaylight().spectra(np.array([[1e6 / 6504.0, 0.0]]))[0]
-    return e @ c
+    return _d65() @ c
 
 
 def camera_transform_Kinoshita2023(
@@ -154,18 +158,20 @@ def camera_transform_Kinoshita2023(
         np.sum(values[f, ok[f], 1]) / max(np.sum(u[f, ok[f], 1]), 1e-300) if ok[f].any() else 1.0
         for f in range(u.shape[0])
     ])
+    # Censored values carry no weight: clipped at 0 after the black level (dark patches under a colour matrix) or at
+    # the white level (1 on the observations' scale). Weights per channel for T, a mask for the exposures.
+    xs = [values[..., c][ok] for c in range(3)]
+    weights = [np.where((x > 1e-3 * x.max()) & (x < CLIPPED), 1.0 / (relative_error * np.maximum(x, 1e-12)), 0.0)
+               for x in xs]
+    good = ok[..., None] & (values > 1e-3 * np.nanmax(values)) & (values < CLIPPED)
     t = np.eye(3)
     sd = np.zeros((3, 3))
     for _ in range(iterations):
         t_new = np.zeros((3, 3))
+        d = (s[:, None, None] * u)[ok]  # n × 3
         for c in range(3):
-            d = (s[:, None, None] * u)[ok]  # n × 3
-            x = values[..., c][ok]
-            # Censored values carry no weight: clipped at 0 after the black level (dark patches under a colour
-            # matrix) or at the white level (1 on the observations' scale).
-            usable = (x > 1e-3 * x.max()) & (x < CLIPPED)
-            w = np.where(usable, 1.0 / (relative_error * np.maximum(x, 1e-12)), 0.0)
-            dw, xw = d * w[:, None], x * w
+            w = weights[c]
+            dw, xw = d * w[:, None], xs[c] * w
             if diagonal:
                 prior = GaussianPrior(np.array([1.0]) * t[c, c], np.array([[1.0 / prior_sd**2]]))
                 post = gaussian_posterior(dw[:, [c]], xw, prior, 1.0)
@@ -178,7 +184,6 @@ def camera_transform_Kinoshita2023(
                 sd[:, c] = np.sqrt(np.diag(post.covariance))
         t = t_new
         pred = np.einsum("fpj,jc->fpc", u, t)
-        good = ok[..., None] & (values > 1e-3 * np.nanmax(values)) & (values < CLIPPED)
         s = np.array([
             np.sum((pred[f] * values[f])[good[f]]) / max(np.sum((pred[f] ** 2)[good[f]]), 1e-300) if good[f].any() else 1.0
             for f in range(u.shape[0])

@@ -39,18 +39,35 @@ class Observations:
         Camera values (F × P × 3) on a 0…1 scale (divided by the white level); NaN where a patch is missing.
     times
         ISO 8601 strings or ``""`` per frame.
+    sd
+        Optional standard errors of ``values`` (F × P × 3, same scale; NaN or 0 where unknown): the noise each value
+        is known to carry beyond the model's own (e.g. a region mean's pixel spread over √pixels, measured at
+        ingest). Estimators add ``sd²`` to the variance they assume for the value.
     """
 
     frames: list[str]
     patches: list[str]
     values: NDArray[np.float64]
     times: list[str] = field(default_factory=list)
+    sd: NDArray[np.float64] | None = None
 
     def __post_init__(self) -> None:
         if not self.times:
             self.times = [""] * len(self.frames)
         if self.values.shape != (len(self.frames), len(self.patches), 3):
             raise ObservationError("values must be frames × patches × 3")
+        if self.sd is not None:
+            self.sd = np.asarray(self.sd, dtype=float)
+            if self.sd.shape != self.values.shape:
+                raise ObservationError("sd must have the shape of values (frames × patches × 3)")
+            if np.any(self.sd[np.isfinite(self.sd)] < 0):
+                raise ObservationError("sd must not be negative")
+
+    def extra_variance(self) -> NDArray[np.float64]:
+        """``sd²`` with 0 where no standard error is known (F × P × 3)."""
+        if self.sd is None:
+            return np.zeros_like(self.values)
+        return np.where(np.isfinite(self.sd), self.sd, 0.0) ** 2
 
     @property
     def present(self) -> NDArray[np.bool_]:
@@ -61,7 +78,8 @@ class Observations:
         """A new :class:`Observations` with the selected frames."""
         idx = np.arange(len(self.frames))[frames]
         return Observations(
-            [self.frames[i] for i in idx], list(self.patches), self.values[idx].copy(), [self.times[i] for i in idx]
+            [self.frames[i] for i in idx], list(self.patches), self.values[idx].copy(), [self.times[i] for i in idx],
+            None if self.sd is None else self.sd[idx].copy(),
         )
 
 
@@ -69,7 +87,8 @@ class Observations:
         """The same frames with only ``patches`` (in that order)."""
         cols = [self.patches.index(p) for p in patches]
         return Observations(
-            frames=list(self.frames), patches=list(patches), values=self.values[:, cols], times=list(self.times)
+            frames=list(self.frames), patches=list(patches), values=self.values[:, cols], times=list(self.times),
+            sd=None if self.sd is None else self.sd[:, cols],
         )
 
 

@@ -196,7 +196,8 @@ class SceneModel:
         few = present.sum(axis=1) < 2
         if few.all():
             raise ValueError("no frame has two or more of the model's patches")
-        theta, cov, cost = solver.solve(y, present)
+        extra = None if obs.sd is None else obs.extra_variance()[:, oj] / self.noise["scale"] ** 2
+        theta, cov, cost = solver.solve(y, present, extra)
         return assemble_estimates(obs, self.noise, self.camera, theta, cov, few, solver, cost, len(shared),
                                   _patch_reflectances(self, obs.patches))
 

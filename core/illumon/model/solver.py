@@ -101,14 +101,19 @@ class FrameSolver:
         a = self.table.weights(mired, delta)
         return np.exp(logk)[..., None] * a / (a @ self.w[:, 1])[..., None]
 
-    def linear(self, y: NDArray[np.float64], present: NDArray[np.bool_]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    def linear(
+        self, y: NDArray[np.float64], present: NDArray[np.bool_], extra_var: NDArray[np.float64] | None = None
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Weighted linear least squares for ``b`` (F × 3) and its precision ``A`` (F × 3 × 3).
 
         ``y`` are observations on the model's scale (F × P × 3, NaN where missing). The per-patch noise covariance is
-        the noise model plus, after a first pass, the reflectance posterior mapped through the current ``b``.
+        the noise model plus ``extra_var`` (F × P × 3, the values' own measured variance on the model's scale, e.g.
+        from their pixel spread) plus, after a first pass, the reflectance posterior mapped through the current ``b``.
         """
         yy = np.where(present[..., None], y, 0.0)
         var = (self.noise_scale**2) * ((self.rel * yy) ** 2 + self.abs**2)  # F × P × 3
+        if extra_var is not None:
+            var = var + np.where(present[..., None], extra_var, 0.0)
         var = np.where(yy < CENSORED * self.abs, 1e12, var)  # censored at 0: no weight
         b = None
         for it in range(2 if self.H is not None else 1):
@@ -159,13 +164,14 @@ class FrameSolver:
         return b, np.stack([(bb[1] - b) / _H[0], (bb[2] - b) / _H[1], b], axis=-1)
 
     def solve(
-        self, y: NDArray[np.float64], present: NDArray[np.bool_]
+        self, y: NDArray[np.float64], present: NDArray[np.bool_], extra_var: NDArray[np.float64] | None = None
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Per-frame MAP ``θ = (mired, δ, log k)`` (F × 3), Laplace covariance (F × 3 × 3) and normalised cost (F,).
 
         Gauss–Newton with Levenberg damping on ``‖U(b(θ) − b̂)‖² + prior``, ``UᵀU = A``; all frames at once.
+        ``extra_var``: see :meth:`linear`.
         """
-        bhat, a = self.linear(y, present)
+        bhat, a = self.linear(y, present, extra_var)
         theta = self.start(bhat, a)
         pm, pp = self.prior_mean, self.prior_prec
         lam = 1e-3

@@ -39,6 +39,7 @@ __all__ = [
     "model_available",
     "sensitivities_array",
     "undo_camera_gains",
+    "undo_camera_gains_sd",
     "CALIBRATION_PREFIX",
     "build_observations",
     "estimate_frame",
@@ -88,21 +89,47 @@ def undo_camera_gains(
     return {**patches, **{k: [float(x) for x in v] for k, v in zip(ids, out, strict=True)}}
 
 
+def undo_camera_gains_sd(
+    sd: dict[str, Any] | None, applied_gains: Sequence[float] | None, exposure: float | None,
+    matrix: Sequence[Sequence[float]] | None = None,
+) -> dict[str, Any] | None:
+    """Standard errors of region means (:attr:`.storage.Frame.patch_sd`) through the same linear map as
+    :func:`undo_camera_gains` (variances through the map's squared entries: the channels' errors taken as independent)."""
+    if not sd or (applied_gains is None and exposure is None):
+        return sd
+    from illumon.camera import undo_applied
+
+    op2 = undo_applied(np.eye(3), applied_gains, exposure, matrix).T ** 2  # out = op @ v
+    return {k: None if v is None else [float(x) for x in np.sqrt(op2 @ np.square(np.asarray(v, dtype=float)))]
+            for k, v in sd.items()}
+
+
 CALIBRATION_PREFIX = "calibration-"
 """Frame ids of calibration images in a refit's history (``calibration-<id>``); they get no stored estimate."""
 
 
 def build_observations(
-    frames: Sequence[tuple[str, str, dict[str, Any]]], region_ids: Sequence[str]
+    frames: Sequence[tuple[str, str, dict[str, Any]] | tuple[str, str, dict[str, Any], dict[str, Any] | None]],
+    region_ids: Sequence[str],
 ) -> Observations:
-    """Observations from ``(frame id, ISO time, {region id: [r, g, b] | None})`` triples (values linear 0…1)."""
+    """Observations from ``(frame id, ISO time, {region id: [r, g, b] | None})`` triples (values linear 0…1), or
+    quadruples whose fourth item holds the regions' standard errors (``{region id: [r, g, b] | None}`` or ``None``,
+    measured at ingest from the pixels' spread; they become :attr:`Observations.sd`)."""
     values = np.full((len(frames), len(region_ids), 3), np.nan)
-    for i, (_, _, patches) in enumerate(frames):
+    sd = np.full_like(values, np.nan)
+    for i, frame in enumerate(frames):
+        patches = frame[2]
+        spread = frame[3] if len(frame) > 3 else None
         for j, rid in enumerate(region_ids):
             v = patches.get(rid)
             if v is not None:
                 values[i, j] = v
-    return Observations([f[0] for f in frames], list(region_ids), values, [f[1] for f in frames])
+                e = (spread or {}).get(rid)
+                if e is not None:
+                    sd[i, j] = e
+    has_sd = bool(np.isfinite(sd).any())
+    return Observations([f[0] for f in frames], list(region_ids), values, [f[1] for f in frames],
+                        sd if has_sd else None)
 
 
 def _row(result: RetrievalResult, i: int, confidence: float, source: str, intervals: dict | None = None) -> dict:
@@ -190,13 +217,14 @@ def _intervals(result: RetrievalResult, extra: dict, i: int) -> dict | None:
 
 def estimate_frame(
     data_dir: Path | str, camera_id: int, frame_id: str, taken_at: str, patches: dict, region_ids: Sequence[str],
-    view: str | None = None,
+    view: str | None = None, sd: dict | None = None,
 ) -> dict | None:
-    """Per-frame estimate from the camera's (view's) fitted scene model, or ``None`` when there is none (yet)."""
+    """Per-frame estimate from the camera's (view's) fitted scene model, or ``None`` when there is none (yet);
+    ``sd``: the regions' standard errors (see :func:`build_observations`)."""
     path = model_path(data_dir, camera_id, view)
     if not path.is_file():
         return None
-    obs = build_observations([(frame_id, taken_at, patches)], region_ids)
+    obs = build_observations([(frame_id, taken_at, patches, sd)], region_ids)
     present = obs.present[0]
     if present.sum() < 2:
         return None
@@ -225,8 +253,7 @@ def _seen_patches(obs: Observations) -> Observations:
     seen = obs.present.any(axis=0)
     if seen.all():
         return obs
-    keep = np.flatnonzero(seen)
-    return Observations(list(obs.frames), [obs.patches[j] for j in keep], obs.values[:, keep].copy(), list(obs.times))
+    return obs.select_patches([p for p, s in zip(obs.patches, seen, strict=True) if s])
 
 
 def _known_seen(obs: Observations, known: dict[str, NDArray[np.float64]] | None) -> dict | None:

@@ -29,6 +29,7 @@ from .estimation import (
     refit_estimates,
     sensitivities_array,
     undo_camera_gains,
+    undo_camera_gains_sd,
 )
 from .metrics import Metrics
 from .registration import view_regions
@@ -95,7 +96,7 @@ def refit_camera(
             raise ValueError(f"unknown camera {camera_id}")
         rows = s.execute(
             select(Frame.id, Frame.taken_at, Frame.patches, Frame.applied_gains, Frame.exposure, Frame.view,
-                   Frame.registration)
+                   Frame.registration, Frame.patch_sd)
             .where(Frame.camera_id == camera_id)
             .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(max_frames)
         ).all()
@@ -111,17 +112,14 @@ def refit_camera(
         cals = s.scalars(select(Calibration).where(Calibration.camera_id == camera_id).order_by(Calibration.id)).all()
         calibrations, known, cal_warnings = calibration_frames(cals, matrix)
     rows.reverse()
-    frames = [(str(r.id), as_utc(r.taken_at).isoformat(), undo_camera_gains(r.patches, r.applied_gains, r.exposure,
-                                                                            matrix))
-              for r in rows if r.view is None]
+    frames = [_history_row(r, matrix) for r in rows if r.view is None]
     times = {str(r.id): r.taken_at for r in rows}
     t_read = time.perf_counter()
     report(0.1)
     view_warnings = []
     estimates: dict = {}
     for v in views:  # each PTZ preset: its own regions and scene model (calibration images are of the default view)
-        vf = [(str(r.id), as_utc(r.taken_at).isoformat(), undo_camera_gains(r.patches, r.applied_gains, r.exposure,
-                                                                            matrix)) for r in rows if r.view == v]
+        vf = [_history_row(r, matrix) for r in rows if r.view == v]
         try:
             est_v, _ = refit_estimates(vf, view_ids[v], css, method=method, model_file=model_path(data_dir, camera_id, v),
                                        max_fit_frames=max_fit_frames)
@@ -161,6 +159,13 @@ def refit_camera(
     })
     report(1.0)
     return summary
+
+
+def _history_row(r: Frame, matrix: list | None) -> tuple[str, str, dict, dict | None]:
+    """A stored frame as a history row for :func:`.estimation.build_observations`: id, time, region means and their
+    standard errors, with the camera's applied gains and exposure divided out."""
+    return (str(r.id), as_utc(r.taken_at).isoformat(), undo_camera_gains(r.patches, r.applied_gains, r.exposure, matrix),
+            undo_camera_gains_sd(r.patch_sd, r.applied_gains, r.exposure, matrix))
 
 
 def calibration_frames(

@@ -25,15 +25,19 @@ import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import cv2
 import numpy as np
 from illumon.camera import ResponseCurve
 from numpy.typing import NDArray
 
-__all__ = ["RegionError", "Region", "region_means", "response_for", "clip_level", "clipped_regions"]
+__all__ = ["RegionError", "Region", "region_means", "region_stats", "response_for", "clip_level", "clipped_regions"]
 
 
+
+MeanSE = tuple[NDArray[np.float64], NDArray[np.float64]]
+"""A region's mean linear r g b and its standard error (pixel standard deviation over √pixels)."""
 
 _PER_REGION = False
 """Use the per-region numpy path (:func:`_robust_mean_codes`; kept as the reference of :func:`_region_means_cv`)."""
@@ -91,8 +95,9 @@ def _lut(response: ResponseCurve, size: int) -> NDArray[np.float64]:
     return response.linearise(np.arange(size, dtype=float))
 
 
-def _robust_mean(lin: NDArray[np.float64], k: float, min_keep: int) -> NDArray[np.float64] | None:
-    """Mean of the pixels (3 × N, channel-major for fast medians) within ``k`` robust σ of the median, trimmed twice.
+def _robust_mean(lin: NDArray[np.float64], k: float, min_keep: int) -> MeanSE | None:
+    """Mean (and standard error) of the pixels (3 × N, channel-major for fast medians) within ``k`` robust σ of the
+    median, trimmed twice.
 
     The general path, for float images; integer images take :func:`_robust_mean_codes` (same result).
     """
@@ -109,7 +114,13 @@ def _robust_mean(lin: NDArray[np.float64], k: float, min_keep: int) -> NDArray[n
         keep = np.all(np.abs(lin - med) <= k * scale, axis=0)
     if keep.sum() < min_keep:
         return None
-    return lin[:, keep].mean(axis=1)
+    return _mean_se(lin[:, keep])
+
+
+def _mean_se(kept: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Mean and standard error (sample standard deviation over √n) per channel of kept pixels (3 × n)."""
+    n = kept.shape[1]
+    return kept.mean(axis=1), kept.std(axis=1) / math.sqrt(n)
 
 
 def _mad_8bit(codes: NDArray[np.uint8], lut: NDArray[np.float64], med: NDArray[np.float64], half: int) -> NDArray[np.float64]:
@@ -125,7 +136,7 @@ def _mad_8bit(codes: NDArray[np.uint8], lut: NDArray[np.float64], med: NDArray[n
     return np.take_along_axis(dev, np.take_along_axis(order, pos[:, None], axis=1), axis=1)[:, 0]
 
 
-def _robust_mean_codes(codes: NDArray, lut: NDArray[np.float64], k: float, min_keep: int) -> NDArray[np.float64] | None:
+def _robust_mean_codes(codes: NDArray, lut: NDArray[np.float64], k: float, min_keep: int) -> MeanSE | None:
     """:func:`_robust_mean` on integer codes (3 × N, channel-major) of an image linearised by the monotone ``lut``.
 
     Only the ≤ 1024 sampled pixels are linearised for the median and MAD; the interval ``median ± k·scale`` in linear
@@ -161,7 +172,7 @@ def _robust_mean_codes(codes: NDArray, lut: NDArray[np.float64], k: float, min_k
             keep &= (codes[c] >= codes.dtype.type(lo[c])) & (codes[c] <= codes.dtype.type(hi[c]))
     if np.count_nonzero(keep) < min_keep:
         return None
-    return np.take(lut, codes.compress(keep, axis=1)).mean(axis=1)  # compress/take: ~4× faster than [:, mask]
+    return _mean_se(np.take(lut, codes.compress(keep, axis=1)))  # compress/take: ~4× faster than [:, mask]
 
 
 def _sample_stats(
@@ -212,26 +223,35 @@ def _sample_stats(
 def _kept_mean(
     crop: NDArray, mask: NDArray[np.uint8] | None, lut: NDArray[np.float64], weight: NDArray[np.float64] | None,
     min_weight: float,
-) -> NDArray[np.float64] | None:
-    """Mean linear value, per channel of ``crop`` (h × w × 3 codes), of the pixels where ``mask`` is non-zero.
+) -> MeanSE | None:
+    """Mean linear value and its standard error, per channel of ``crop`` (h × w × 3 codes), of the pixels where
+    ``mask`` is non-zero.
 
     The codes are linearised through the lookup table (``cv2.LUT`` for 8-bit, ``np.take`` for 16-bit codes) and
-    averaged by ``cv2.mean`` with double accumulators. With ``weight`` (h × w, each pixel's share of the region, see
-    :func:`_decoded_regions`) the mean is weighted, and ``None`` when the kept pixels weigh less than ``min_weight``.
+    averaged by ``cv2.meanStdDev`` with double accumulators; the standard error is the pixels' standard deviation
+    over √count. With ``weight`` (h × w, each pixel's share of the region, see :func:`_decoded_regions`) mean and
+    variance are weighted (the count becomes the effective ``(Σw)²/Σw²``), and ``None`` when the kept pixels weigh
+    less than ``min_weight``.
     """
     lin = cv2.LUT(crop, lut) if lut.size <= 256 else lut.take(crop)
+    count = crop.shape[0] * crop.shape[1] if mask is None else cv2.countNonZero(mask)
     if weight is None:
-        return np.array(cv2.mean(lin, mask)[:3])
+        mean, sd = cv2.meanStdDev(lin, mask=mask)
+        return mean[:3, 0], sd[:3, 0] / math.sqrt(max(count, 1))
     kept = cv2.mean(weight, mask)[0]  # mean weight of the kept pixels: Σ w / count
-    if kept * (crop.shape[0] * crop.shape[1] if mask is None else cv2.countNonZero(mask)) < min_weight:
+    if kept * count < min_weight:
         return None
-    return np.array(cv2.mean(lin * weight[..., None], mask)[:3]) / kept
+    wl = lin * weight[..., None]
+    mean = np.array(cv2.mean(wl, mask)[:3]) / kept
+    second = np.array(cv2.mean(wl * lin, mask)[:3]) / kept
+    n_eff = kept**2 * count / max(cv2.mean(weight * weight, mask)[0], 1e-300)  # (Σw)² / Σw²
+    return mean, np.sqrt(np.maximum(second - mean**2, 0.0) / max(n_eff, 1.0))
 
 
 def _region_means_cv(
     image: NDArray, regions: list[Region], lut: NDArray[np.float64], clip_code: int, k: float, min_fraction: float,
     weights: list[NDArray[np.float64] | None] | None = None,
-) -> list[NDArray[np.float64] | None]:
+) -> list[MeanSE | None]:
     """:func:`_robust_mean_codes` of every region of an integer image (same values, region for region), fast.
 
     ``image`` (h × w × 3, uint8 or uint16) must have contiguous pixels (channel stride = item size), in any channel
@@ -317,6 +337,13 @@ def _decoded_regions(regions: list[Region], scale: int) -> tuple[list[Region], l
 
 
 def region_means(
+    image: NDArray, regions: Iterable[Region], response: ResponseCurve, **kwargs: Any
+) -> dict[str, list[float] | None]:
+    """Robust mean linear RGB (0…1) of each region (:func:`region_stats` without the standard errors)."""
+    return {k: None if v is None else v[0] for k, v in region_stats(image, regions, response, **kwargs).items()}
+
+
+def region_stats(
     image: NDArray,
     regions: Iterable[Region],
     response: ResponseCurve,
@@ -326,8 +353,12 @@ def region_means(
     k: float = 3.5,
     scale: int = 1,
     size: tuple[int, int] | None = None,
-) -> dict[str, list[float] | None]:
-    """Robust mean linear RGB (0…1) of each region, ``None`` where the region is mostly clipped or occluded.
+) -> dict[str, tuple[list[float], list[float]] | None]:
+    """Robust mean linear RGB (0…1) of each region and its standard error, ``None`` where the region is mostly clipped
+    or occluded.
+
+    The standard error is the kept pixels' standard deviation over √count: the noise of the mean when the pixels'
+    spread is noise, an upper bound when it is partly the surface's own (static) texture.
 
     ``image`` may be decoded at 1/``scale`` of the full resolution (:func:`.decode.jpeg_reduction`); ``regions`` are always
     in full-resolution pixels and ``size`` is the full-resolution (width, height) (default: the image's × scale).
@@ -350,7 +381,7 @@ def region_means(
             raise RegionError(
                 f"region {r.id!r} ({r.x},{r.y} {r.width}×{r.height}) lies outside the {w}×{h} image"
             )
-    out: dict[str, list[float] | None] = {}
+    out: dict[str, tuple[list[float], list[float]] | None] = {}
     weights: list[NDArray[np.float64] | None] | None = None
     if scale > 1:
         regions, weights = _decoded_regions(regions, scale)
@@ -365,9 +396,9 @@ def region_means(
         item = image.dtype.itemsize
         flip = image.strides[2] == -item
         base = image[:, :, ::-1] if flip else image  # any other layout: each crop is copied to contiguous pixels
-        means = _region_means_cv(base, regions, lut, limit, k, min_fraction, weights)
-        return {r.id: None if m is None else [float(v) for v in (m[::-1] if flip else m)]
-                for r, m in zip(regions, means, strict=True)}
+        stats = _region_means_cv(base, regions, lut, limit, k, min_fraction, weights)
+        return {r.id: None if m is None else (_floats(m[0], flip), _floats(m[1], flip))
+                for r, m in zip(regions, stats, strict=True)}
     for r in regions:
         block = image[r.y : r.y + r.height, r.x : r.x + r.width]
         n = r.width * r.height
@@ -393,5 +424,9 @@ def region_means(
                 out[r.id] = None
                 continue
             m = _robust_mean(response.linearise(np.ascontiguousarray(px[ok].T)), k, min_keep)
-        out[r.id] = None if m is None else [float(v) for v in m]
+        out[r.id] = None if m is None else (_floats(m[0]), _floats(m[1]))
     return out
+
+
+def _floats(v: NDArray[np.float64], flip: bool = False) -> list[float]:
+    return [float(x) for x in (v[::-1] if flip else v)]

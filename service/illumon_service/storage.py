@@ -104,6 +104,10 @@ class Frame(Base):
     (``reference`` | ``ok`` | ``view_change``), ``shift`` [dx, dy] in pixels, ``response``."""
     thumb_path: Mapped[str | None] = mapped_column(String(500), nullable=True)
     """The frame's linear thumbnail (:mod:`.proposals`), while kept."""
+    patch_sd: Mapped[dict | None] = mapped_column(JSON, nullable=True)
+    """Standard errors of the region means (region id → [r, g, b] or ``null``, same scale): the pixels' spread over
+    √pixels, measured at ingest (or sent with client-measured means); the estimators add their square to the noise
+    variance they assume. ``None`` when unknown."""
 
 
 class CameraView(Base):

@@ -245,3 +245,31 @@ def test_old_database_gains_columns_added(tmp_path):
         assert r.status_code == 201, r.text
     cols = {row[1] for row in sqlite3.connect(db).execute("PRAGMA table_info(frames)")}
     assert {"applied_gains", "exposure"} <= cols
+
+
+def test_region_standard_errors_stored(tmp_path):
+    """Issue 16: each region's standard error (pixel spread over √pixels, linear light) is measured at ingest and
+    stored with the frame; client-measured means may carry theirs (``sd``), for known regions only."""
+    import sqlite3
+
+    rng = np.random.default_rng(2)
+    regions = grid_regions()
+    with TestClient(create_app(make_settings(tmp_path))) as c:
+        cid, token = register(c, _css(), regions, encoding="linear")
+        flat = np.broadcast_to([0.3, 0.4, 0.5], (SIZE[1], SIZE[0], 3))  # not grey: a grey frame is refused
+        for sigma in (0.0, 0.02):
+            img = np.clip(flat + sigma * rng.standard_normal(flat.shape), 0, 1)
+            assert post_image(c, cid, token, encode_png((img * 255).round().astype(np.uint8))).status_code == 201
+        body = {"patches": {"r0": [0.1, 0.2, 0.3], "r1": None}, "sd": {"r0": [0.001, 0.002, 0.003]}}
+        assert c.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token)).status_code == 201
+        body["sd"] = {"r5": [0.1, 0.1, 0.1]}  # a known region without a value here
+        r = c.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token))
+        assert r.status_code == 422 and "r5" in r.json()["detail"]
+    rows = sqlite3.connect(tmp_path / "illumon.sqlite3").execute("SELECT patch_sd FROM frames ORDER BY id").fetchall()
+    sds = [json.loads(row[0]) for row in rows]
+    assert len(sds) == 3
+    n = regions[0]["width"] * regions[0]["height"]
+    assert max(max(v) for v in sds[0].values()) < 1e-6  # no spread, no error
+    noisy = np.array([v for v in sds[1].values()])
+    np.testing.assert_allclose(noisy, 0.02 / np.sqrt(n), rtol=0.15)  # σ/√n, rounding to 8 bits adds a little
+    assert sds[2] == {"r0": [0.001, 0.002, 0.003]}

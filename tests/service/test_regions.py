@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from illumon.camera import ResponseCurve
 from illumon_service.decode import decode_image
-from illumon_service.regions import Region, region_means, response_for
+from illumon_service.regions import Region, region_means, region_stats, response_for
 from svc_helpers import encode_png
 
 
@@ -65,14 +65,40 @@ def test_vectorised_regions_match_per_region_reference(monkeypatch):
                 regions = [Region(str(i), int(rng.integers(0, 40)), int(rng.integers(0, 40)), 30, 25) for i in range(6)]
             resp = ResponseCurve("srgb" if trial % 2 else "linear", white_level=full)
             monkeypatch.setattr(reg, "_PER_REGION", True)
-            ref = region_means(img, regions, resp)
+            ref = region_stats(img, regions, resp)
             monkeypatch.setattr(reg, "_PER_REGION", False)
-            got = region_means(img, regions, resp)
+            got = region_stats(img, regions, resp)
             assert any(v is not None for v in ref.values())
             for key, value in ref.items():
                 assert (value is None) == (got[key] is None)
                 if value is not None:
-                    np.testing.assert_allclose(got[key], value, rtol=1e-12)
+                    np.testing.assert_allclose(got[key][0], value[0], rtol=1e-12)  # means
+                    np.testing.assert_allclose(got[key][1], value[1], rtol=1e-6, atol=1e-8)  # cv2: √ round-off if flat
+
+
+def test_standard_error_is_pixel_noise_over_root_count():
+    """A uniform region with pixel noise σ: the standard error is σ/√n (16-bit linear, 50 × 40 px), on every path —
+    OpenCV, per-region reference and the coverage-weighted reduced decode; texture-free, so it is the noise itself."""
+    import illumon_service.regions as reg
+
+    rng = np.random.default_rng(3)
+    sigma = np.array([0.004, 0.008, 0.016])
+    img = ((np.array([0.3, 0.4, 0.5]) + sigma * rng.standard_normal((120, 160, 3))) * 65535).round().astype(np.uint16)
+    r = Region("a", 20, 30, 50, 40)
+    resp = ResponseCurve("linear", white_level=65535)
+    expect = sigma / np.sqrt(50 * 40)
+    for per_region in (False, True):
+        reg._PER_REGION = per_region
+        try:
+            mean, se = region_stats(img, [r], resp)["a"]
+        finally:
+            reg._PER_REGION = False
+        np.testing.assert_allclose(mean, [0.3, 0.4, 0.5], atol=3e-3)
+        np.testing.assert_allclose(se, expect, rtol=0.08)  # trimming at 3.5σ removes a sliver of the tails
+    # half-size decode: 2×2 averages (σ/2) over a quarter of the pixels — the same standard error of the mean
+    half = img.reshape(60, 2, 80, 2, 3).mean(axis=(1, 3)).round().astype(np.uint16)
+    _, se_half = region_stats(half, [Region("a", 21, 31, 50, 40)], resp, scale=2, size=(160, 120))["a"]
+    np.testing.assert_allclose(se_half, expect, rtol=0.2)
 
 
 def test_reduced_decode_weights_edges_by_coverage():

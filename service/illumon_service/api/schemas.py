@@ -149,6 +149,9 @@ class ObservationIn(_Strict):
     taken_at: IsoDateTime | None = None
     patches: dict[str, Annotated[list[NonNegative], Field(min_length=3, max_length=3)] | None] = Field(min_length=1)
     """Region id → ``[r, g, b]``, or ``null`` where the region is not usable; at least one must have a value."""
+    sd: dict[str, Annotated[list[NonNegative], Field(min_length=3, max_length=3)] | None] | None = None
+    """Optional standard errors of the means (region id → ``[r, g, b]``, same scale as ``patches``; e.g. the pixels'
+    standard deviation over √pixels): a noisy region then weighs less and widens the frame's intervals."""
     white_level: float = Field(default=1.0, gt=0, allow_inf_nan=False, strict=True)
     applied_gains: Gains | None = None
     """White-balance gains (r, g, b) the camera applied to linear values in this frame; divided out."""

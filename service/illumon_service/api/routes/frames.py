@@ -15,9 +15,9 @@ from starlette.concurrency import run_in_threadpool
 from ...crud import estimate_out
 from ...decode import ImageError, decode_frame, sniff_format
 from ...deps import PrincipalDep, SessionDep, camera_for
-from ...estimation import estimate_frame, undo_camera_gains
+from ...estimation import estimate_frame, undo_camera_gains, undo_camera_gains_sd
 from ...proposals import MIN_FRAMES, Thumbnail, make_thumbnail, save_thumbnail
-from ...regions import Region, RegionError, region_means, response_for
+from ...regions import Region, RegionError, region_stats, response_for
 from ...registration import (
     Registration,
     parse_view,
@@ -150,7 +150,7 @@ def _store(
     request: Request, session: Session, cam: Camera, taken_at: datetime, patches: dict, size: tuple[int, int] | None,
     image: bytes | bytearray | None = None, fmt: str | None = None, applied_gains: list[float] | None = None,
     exposure: float | None = None, region_ids: list[str] | None = None, view: str | None = None,
-    registration: Registration | None = None, thumb: Thumbnail | None = None,
+    registration: Registration | None = None, thumb: Thumbnail | None = None, patch_sd: dict | None = None,
 ) -> dict:
     """Estimate a frame if a model exists (the camera's applied gains and exposure divided out first), store it
     durably with them, and build the 201 answer.
@@ -178,9 +178,11 @@ def _store(
     elif usable < 2:
         warnings.append("only one region was usable: a frame needs two to be estimated")
     t0 = time.perf_counter()
+    matrix = (cam.response or {}).get("matrix")
     est = None if usable < 2 else estimate_frame(
         settings.data_dir, cam.id, "new", taken_at.isoformat(),
-        undo_camera_gains(patches, applied_gains, exposure, (cam.response or {}).get("matrix")), region_ids, view)
+        undo_camera_gains(patches, applied_gains, exposure, matrix), region_ids, view,
+        undo_camera_gains_sd(patch_sd, applied_gains, exposure, matrix))
     t1 = time.perf_counter()
     metrics.observe("illumon_estimate_seconds", t1 - t0)
     metrics.observe("illumon_ingest_stage_seconds", t1 - t0, labels='stage="estimate"')
@@ -191,7 +193,7 @@ def _store(
     def write(session: Session) -> dict:
         frame = Frame(camera_id=cam.id, taken_at=taken_at, patches=patches,
                       width=size[0] if size else None, height=size[1] if size else None,
-                      applied_gains=applied_gains, exposure=exposure, view=view,
+                      applied_gains=applied_gains, exposure=exposure, view=view, patch_sd=patch_sd,
                       registration=None if registration is None else registration.as_dict())
         session.add(frame)
         session.flush()
@@ -285,16 +287,18 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
                 reg = register_frame(settings.data_dir, cam.id, view, thumb, configured, frame.size)
             t2 = time.perf_counter()
             metrics.observe("illumon_ingest_stage_seconds", t2 - t1, labels='stage="register"')
+            patch_sd: dict | None = None
             if reg.state == "view_change":  # stored, not measured: the regions are not where they were drawn
                 patches: dict = {}
             else:
                 moved, outside = shift_regions(configured, reg, frame.size)
-                patches = region_means(
+                stats = region_stats(
                     frame.image, moved, response, scale=frame.scale,
                     size=frame.size, clip_fraction=settings.clip_fraction, min_fraction=settings.min_region_fraction,
                 )
-                patches.update({rid: None for rid in outside})
-                patches = {r["id"]: patches[r["id"]] for r in configured}
+                stats.update({rid: None for rid in outside})
+                patches = {r["id"]: None if stats[r["id"]] is None else stats[r["id"]][0] for r in configured}
+                patch_sd = {r["id"]: None if stats[r["id"]] is None else stats[r["id"]][1] for r in configured}
             t1 = t2
             metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t1, labels='stage="regions"')
         except ImageError as exc:
@@ -302,7 +306,7 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
         except RegionError as exc:
             raise HTTPException(422, str(exc)) from None
         return _store(request, session, cam, taken_at, patches, frame.size, data, sniff_format(data), applied_gains,
-                      exposure, [r["id"] for r in configured], view, reg, thumb)
+                      exposure, [r["id"] for r in configured], view, reg, thumb, patch_sd)
 
     out = await run_in_threadpool(work)
     request.app.state.metrics.observe("illumon_ingest_seconds", time.perf_counter() - t_start)
@@ -322,10 +326,16 @@ def post_observations(camera_id: int, body: ObservationIn, request: Request, ses
     if all(v is None for v in body.patches.values()):
         raise HTTPException(422, "every region is null: the observation holds no value to store; send at least one "
                                  "region's [r, g, b]")
+    unknown_sd = sorted(set(body.sd or {}) - set(body.patches))
+    if unknown_sd:
+        raise HTTPException(422, f"sd given for region id(s) {', '.join(map(repr, unknown_sd))} that have no value in "
+                                 "patches; send sd only for regions in patches")
     patches = {k: (None if v is None else [x / body.white_level for x in v]) for k, v in body.patches.items()}
+    patch_sd = None if body.sd is None else {
+        k: (None if v is None or patches.get(k) is None else [x / body.white_level for x in v]) for k, v in body.sd.items()}
     taken_at = parse_time(body.taken_at.isoformat() if body.taken_at else None)
     return _store(request, session, cam, taken_at, patches, None, applied_gains=body.applied_gains,
-                  exposure=body.exposure)
+                  exposure=body.exposure, patch_sd=patch_sd)
 
 
 @router.get("/{camera_id}/frames")

@@ -46,6 +46,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import rawsim  # noqa: E402
 from illumon.camera import ResponseCurve, angular_error_deg, camera_white, render  # noqa: E402
+from illumon.daylight import cct_duv_from_xy, spectrum_to_xy  # noqa: E402
 from illumon.spectra import WAVELENGTHS  # noqa: E402
 from illumon_service.api.routes.pages import ticked_score  # noqa: E402
 
@@ -175,12 +176,25 @@ def coverage(proposals: list[dict], surfaces: list[tuple[int, int, int, int]], m
     return {"covered": len(covered), "on_moving": on_moving}
 
 
+def common_shift(est: list[dict], spectra: list[np.ndarray]) -> tuple[float, float]:
+    """Mean estimated minus true reciprocal temperature (MK⁻¹) and Duv over a history: the shift common to all its
+    frames, which static patches determine worst (the scene model's priors set it); NaN without estimates."""
+    if not est:
+        return float("nan"), float("nan")
+    cct, duv = cct_duv_from_xy(spectrum_to_xy(np.asarray(spectra)))
+    mired = np.array([1e6 / e["cct_k"] for e in est])
+    return float(np.mean(mired - 1e6 / cct)), float(np.mean(np.array([e["duv"] for e in est]) - duv))
+
+
 def run_case(camera: str, split: str, seed: int, history: int = 40, true_regions: bool = False,
-             keep: str = "all") -> dict:
-    """One camera through proposals, confirmation, shifted frames and a jump (module docstring)."""
+             keep: str = "all", dump: Path | None = None) -> dict:
+    """One camera through proposals, confirmation, shifted frames and a jump (module docstring). With ``dump``, the
+    observations each refit fitted and the frames' true daylight are saved there (``<camera>-<shifted|still>.npz``)
+    for offline study of the scene model."""
     import tempfile
 
     from fastapi.testclient import TestClient
+    from illumon import model as scene_model
     from illumon_service.app import create_app
     from illumon_service.settings import Settings
 
@@ -221,7 +235,7 @@ def run_case(camera: str, split: str, seed: int, history: int = 40, true_regions
         r = c.post("/v1/cameras", json={**body, "regions": regions}, headers=admin)
         r.raise_for_status()
         still = r.json()["id"]
-        truth, truth_still = {}, {}
+        truth, truth_still, spectra = {}, {}, {}
         shifts = []
         t1 = t0 + timedelta(days=1)
         for k in range(history):
@@ -233,6 +247,7 @@ def run_case(camera: str, split: str, seed: int, history: int = 40, true_regions
             r.raise_for_status()
             j = r.json()
             truth[j["frame_id"]] = white
+            spectra[j["frame_id"]] = scene.daylight[f]
             got = (j.get("registration") or {}).get("shift")
             if got is not None:
                 shifts.append(float(np.hypot(got[0] - dx, got[1] - dy)))
@@ -241,17 +256,38 @@ def run_case(camera: str, split: str, seed: int, history: int = 40, true_regions
                        data={"taken_at": (t1 + timedelta(minutes=15 * k)).isoformat()}, headers=admin)
             r.raise_for_status()
             truth_still[r.json()["frame_id"]] = white
+            spectra[r.json()["frame_id"]] = scene.daylight[f]
+        fitted: list = []
+        fit = scene_model.fit_scene_model
 
-        def errors(camera_id: int, truths: dict) -> list[float]:
-            r = c.post(f"/v1/cameras/{camera_id}/refit", headers=admin)
+        def recording_fit(obs, css, **kw):  # noqa: ANN001, ANN202 - records what the refit fits
+            fitted.append((obs, css))
+            return fit(obs, css, **kw)
+
+        def errors(camera_id: int, truths: dict, name: str) -> tuple[list[float], tuple[float, float]]:
+            scene_model.fit_scene_model = recording_fit
+            try:
+                r = c.post(f"/v1/cameras/{camera_id}/refit", headers=admin)
+            finally:
+                scene_model.fit_scene_model = fit
             r.raise_for_status()
             est = c.get(f"/v1/cameras/{camera_id}/estimates?limit=1000", headers=admin).json()
             by_frame = {e["frame_id"]: e for e in est}
-            return [float(angular_error_deg(by_frame[fid]["white_rgb"], w)) for fid, w in truths.items()
-                    if fid in by_frame]
+            if dump is not None and fitted:
+                obs, css_fit = fitted[-1]
+                dump.mkdir(parents=True, exist_ok=True)
+                np.savez(dump / f"{camera}-{name}.npz", values=obs.values, patches=np.array(obs.patches),
+                         frames=np.array([str(f) for f in obs.frames]), css=css_fit,
+                         daylight=np.array([spectra.get(int(f), np.full(len(WAVELENGTHS), np.nan))
+                                            if str(f).isdigit() else np.full(len(WAVELENGTHS), np.nan)
+                                            for f in obs.frames]))
+            seen = [fid for fid in truths if fid in by_frame]
+            return ([float(angular_error_deg(by_frame[fid]["white_rgb"], truths[fid])) for fid in seen],
+                    common_shift([by_frame[fid] for fid in seen], [spectra[fid] for fid in seen]))
 
-        errs = errors(cam, truth)
-        control = errors(still, truth_still)
+        errs, shift = errors(cam, truth, "shifted")
+        control, _ = errors(still, truth_still, "still")
+        out["common_mired"], out["common_duv"] = shift
         out["estimated"] = len(errs)
         out["frames"] = len(truth)
         out["white_median_deg"] = float(np.median(errs)) if errs else None
@@ -278,6 +314,7 @@ def main() -> int:
     ap.add_argument("--true-regions", action="store_true", help="control: confirm the true surfaces, not the proposals")
     ap.add_argument("--keep", choices=("ticked", "all"), default="all",
                     help="confirm all 12 proposals (default) or those the regions page ticks (≥ half the best score)")
+    ap.add_argument("--dump", type=Path, help="save each refit's observations and the true daylight here (.npz)")
     args = ap.parse_args()
     from illumon import datasets
 
@@ -289,10 +326,10 @@ def main() -> int:
     cams = [pool[i] for i in np.random.default_rng(17).choice(len(pool), n, replace=False)]
     rows = []
     print(f"{'camera':<18} {'covered/10':>10} {'on moving':>9} {'white med °':>11} {'max °':>6} {'unshifted °':>11} "
-          f"{'estimated':>9} {'shift err px':>12} {'jump alert':>10} {'proposals s':>11}")
+          f"{'estimated':>9} {'shift err px':>12} {'jump alert':>10} {'proposals s':>11} {'Δmired':>7} {'ΔDuv×1e3':>8}")
     for i, cam in enumerate(cams):
         row = run_case(cam, args.split, 1000 * (args.split == "score") + i, true_regions=args.true_regions,
-                       keep=args.keep)
+                       keep=args.keep, dump=args.dump)
         rows.append(row)
         def fmt(v: float | None, nd: int) -> str:
             return "—" if v is None else f"{v:.{nd}f}"
@@ -300,7 +337,8 @@ def main() -> int:
         print(f"{cam:<18} {row['covered']:>10} {row['on_moving']:>9} {fmt(row['white_median_deg'], 3):>11} "
               f"{fmt(row['white_max_deg'], 2):>6} {fmt(row['unshifted_median_deg'], 3):>11} "
               f"{row['estimated']:>4}/{row['frames']:<4} {fmt(row['shift_error_px_max'], 2):>12} "
-              f"{str(row['jump_alert'] and not row['jump_estimated']):>10} {row['proposal_s']:>11}", flush=True)
+              f"{str(row['jump_alert'] and not row['jump_estimated']):>10} {row['proposal_s']:>11} "
+              f"{row['common_mired']:>7.1f} {1e3 * row['common_duv']:>8.2f}", flush=True)
     meds = [r["white_median_deg"] for r in rows if r["white_median_deg"] is not None]
     summary = {
         "split": args.split,

@@ -337,11 +337,16 @@ class CIEDaylight(DaylightModel):
     name = "cie"
 
     def __init__(
-        self, duv_sigma: float = 0.003, mired_mean: float = 150.0, mired_sigma: float = 45.0
+        self, duv_sigma: float = 0.003, mired_mean: float = 150.0, mired_sigma: float = 45.0,
+        mired_between: float = 0.0, duv_between: float = 0.0,
     ) -> None:
         self.duv_sigma = float(duv_sigma)
         self.mired_mean = float(mired_mean)
         self.mired_sigma = float(mired_sigma)
+        self.mired_between = float(mired_between)
+        self.duv_between = float(duv_between)
+        if not (0 <= self.mired_between < self.mired_sigma and (self.duv_between == 0 or self.duv_between < self.duv_sigma)):
+            raise ValueError("the spread between histories must be non-negative and below the per-frame spread")
         self.n_params = 2 if self.duv_sigma > 0 else 1
         self.basis = CIE_D_BASIS
 
@@ -363,6 +368,14 @@ class CIEDaylight(DaylightModel):
             out.append(p[:, 1:2] / self.duv_sigma)
         return np.concatenate(out, axis=1)
 
+    def history_prior_cost(self, params: NDArray[np.float64]) -> float:
+        """−2 log prior density (up to a constant) of a history's parameters (F × n_params)."""
+        p = np.atleast_2d(params)
+        cost = _hierarchical_cost(p[:, 0], self.mired_mean, self.mired_sigma, self.mired_between)
+        if self.n_params == 2:
+            cost += _hierarchical_cost(p[:, 1], 0.0, self.duv_sigma, self.duv_between)
+        return cost
+
     def bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         if self.n_params == 1:
             return np.array([MIRED_RANGE[0]]), np.array([MIRED_RANGE[1]])
@@ -376,3 +389,14 @@ class CIEDaylight(DaylightModel):
         if self.n_params == 1:
             return m
         return np.concatenate([m, np.zeros_like(m)], axis=1)
+
+
+def _hierarchical_cost(x: NDArray[np.float64], mean: float, sigma: float, between: float) -> float:
+    """−2 log N(x; mean·1, σ_w² I + σ_b² 11ᵀ) up to a constant, σ_w² = sigma² − between², σ_b = ``between``: every
+    frame's marginal is N(mean, sigma²), and the frames of one history share a level that varies between histories
+    with sd ``between`` (``between = 0``: independent frames)."""
+    if between == 0:
+        return float((((x - mean) / sigma) ** 2).sum())
+    within2 = sigma**2 - between**2
+    xbar = float(np.mean(x))
+    return float(((x - xbar) ** 2).sum() / within2 + len(x) * (xbar - mean) ** 2 / (within2 + len(x) * between**2))

@@ -121,7 +121,6 @@ class _JointObjective:
         self.k_ops, self.w_ops = imaging_operators(css, dm.basis, rb)
         self.lam = np.linalg.inv(rb.prior_covariance)
         self.mu = rb.prior_mean
-        self.daylight_prec = np.array([1.0 / dm.mired_sigma**2, 1.0 / dm.duv_sigma**2])
 
     def operators(self, th: NDArray[np.float64]) -> NDArray[np.float64]:
         """Per-frame maps (F × 3 × K) from reflectance coefficients to camera values."""
@@ -140,8 +139,7 @@ class _JointObjective:
         r = self.yz - np.einsum("fcj,pj->fpc", am, s)
         d = s - self.mu
         c = (w2 * r**2).sum() + np.einsum("pi,ij,pj->", d, self.lam, d)
-        p = self.daylight_prec
-        c += (p[0] * (th[:, 0] - self.dm.mired_mean) ** 2 + p[1] * th[:, 1] ** 2).sum()
+        c += self.dm.history_prior_cost(th[:, :2])
         return float(c), s
 
     def start(self, mired0: NDArray[np.float64], y: NDArray[np.float64], present: NDArray[np.bool_]) -> NDArray[np.float64]:

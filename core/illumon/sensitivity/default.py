@@ -24,7 +24,7 @@ from scipy.optimize import lsq_linear, minimize
 from .common import SensitivityResult, chart_operator, check_chart, finish, smooth_kernel
 from .prior import CameraPrior, DaylightPrior, default_camera_prior, default_daylight_prior
 
-__all__ = ["sensitivities_illumon", "camera_prior_covariance", "SMOOTH_FLOOR"]
+__all__ = ["sensitivities_illumon", "camera_prior_covariance", "SMOOTH_FLOOR", "NEAR_CLIP"]
 
 
 SMOOTH_FLOOR = 1.6e-3
@@ -34,6 +34,16 @@ of the linear model and of the raw pipeline under development daylight): mean RM
 issue 16, chosen leave-one-camera-out), 0.042 at 4e-4, 0.038 at 1.6e-3, 0.039 at 6.4e-3, 0.047 at 2.5e-2 (length
 30 nm; 60 nm and 20 nm were worse). A prior that has not seen the manufacturer must let curves leave the span of the
 others' more freely."""
+
+
+NEAR_CLIP = 0.95
+"""Chart values at or above this fraction of the chart's largest value may be clipped (a raw channel saturates at one
+level for every channel, and a patch's mean whose brightest pixels reach it is already biased low): they are treated
+as censored — left out of the fit, and taken back only when the fitted sensitivities predict them below what was
+measured (a clipped value can only be lower than the truth). Found on raw-pipeline charts (``benchmarks/rawsim.py``)
+of a camera whose blue channel saturates on the white patch while the exposure is metered on green (Point Grey
+Grasshopper2); the 5 % margin covers the ~2σ of a patch's pixel spread (texture and noise) of the
+development charts."""
 
 
 def camera_prior_covariance(
@@ -54,6 +64,7 @@ def sensitivities_illumon(
     floor: float = SMOOTH_FLOOR,
     length_nm: float = 30.0,
     n_daylight: int = 3,
+    near_clip: float | None = NEAR_CLIP,
 ) -> SensitivityResult:
     """Estimate sensitivities and daylight from one chart image (illumon's default method).
 
@@ -74,6 +85,9 @@ def sensitivities_illumon(
         Variance and length scale (nm) of the smooth prior floor outside the PCA span (:data:`SMOOTH_FLOOR`).
     n_daylight
         Daylight components used (≤ those in the prior).
+    near_clip
+        Values at or above this fraction of the largest are taken as possibly clipped (:data:`NEAR_CLIP`); ``None``
+        trusts every value.
 
     Returns
     -------
@@ -95,31 +109,43 @@ def sensitivities_illumon(
     def illuminant(y: NDArray[np.float64]) -> NDArray[np.float64]:
         return dp.mean + v @ y
 
-    def neg_log_evidence(p: NDArray[np.float64]) -> float:
-        a = np.exp(p[0])
-        y = p[1:]
-        op = a * chart_operator(r, illuminant(y))
-        k = op @ cov @ op.T + s2 * np.eye(xv.size)
-        try:
-            fac = cho_factor(k)
-        except np.linalg.LinAlgError:
-            return 1e12
-        res = xv - op @ mu
-        d = y - y_mean
-        return float(0.5 * res @ cho_solve(fac, res) + np.log(np.diag(fac[0])).sum() + 0.5 * d @ y_prec @ d)
-
-    op0 = chart_operator(r, illuminant(y_mean))
-    m0 = op0 @ mu
-    p0 = np.concatenate([[np.log(max(xv @ m0, 1e-12) / (m0 @ m0))], y_mean])
-    sol = minimize(neg_log_evidence, p0, method="L-BFGS-B")
-    a = float(np.exp(sol.x[0]))
-    e = illuminant(sol.x[1:])
-    op = a * chart_operator(r, e)
-    # Non-negative MAP: minimise |x − A c|²/σ² + (c − μ)ᵀ Σ⁻¹ (c − μ) subject to c ≥ 0.
     lc = np.linalg.cholesky(np.linalg.inv(cov))  # Σ⁻¹ = L Lᵀ
-    design = np.vstack([op / noise, lc.T])
-    target = np.concatenate([xv / noise, lc.T @ mu])
-    c = lsq_linear(design, target, bounds=(0.0, np.inf), method="bvls").x
+
+    def solve(use: NDArray[np.bool_]) -> tuple[NDArray[np.float64], NDArray[np.float64], float, object]:
+        """Type-II ML daylight and exposure, then the non-negative MAP sensitivities, from the rows ``use``."""
+        xu = xv[use]
+
+        def neg_log_evidence(p: NDArray[np.float64]) -> float:
+            a = np.exp(p[0])
+            y = p[1:]
+            op = a * chart_operator(r, illuminant(y))[use]
+            k = op @ cov @ op.T + s2 * np.eye(xu.size)
+            try:
+                fac = cho_factor(k)
+            except np.linalg.LinAlgError:
+                return 1e12
+            res = xu - op @ mu
+            d = y - y_mean
+            return float(0.5 * res @ cho_solve(fac, res) + np.log(np.diag(fac[0])).sum() + 0.5 * d @ y_prec @ d)
+
+        m0 = chart_operator(r, illuminant(y_mean))[use] @ mu
+        p0 = np.concatenate([[np.log(max(xu @ m0, 1e-12) / (m0 @ m0))], y_mean])
+        sol = minimize(neg_log_evidence, p0, method="L-BFGS-B")
+        a = float(np.exp(sol.x[0]))
+        e = illuminant(sol.x[1:])
+        op = a * chart_operator(r, e)
+        # Non-negative MAP: minimise |x − A c|²/σ² + (c − μ)ᵀ Σ⁻¹ (c − μ) subject to c ≥ 0.
+        design = np.vstack([op[use] / noise, lc.T])
+        target = np.concatenate([xu / noise, lc.T @ mu])
+        c = lsq_linear(design, target, bounds=(0.0, np.inf), method="bvls").x
+        return c, e, a, sol
+
+    near = xv >= near_clip if near_clip is not None else np.zeros(xv.size, dtype=bool)
+    use = np.ones(xv.size, dtype=bool)
+    if near.any():
+        c, e, a, _ = solve(~near)
+        use = ~near | (a * chart_operator(r, e) @ c <= xv)  # clipped values can only be below the truth
+    c, e, a, sol = solve(use)
     return finish(
         c.reshape(3, -1).T,
         e,
@@ -127,4 +153,5 @@ def sensitivities_illumon(
         exposure=a,
         daylight_coefficients=sol.x[1:].tolist(),
         neg_log_evidence=float(sol.fun),
+        censored=int((~use).sum()),
     )

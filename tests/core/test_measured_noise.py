@@ -79,3 +79,30 @@ def test_sd_shape_and_sign_are_checked() -> None:
     kept = Observations(["a", "b"], ["p", "q"], v, sd=0.1 * v)
     assert kept.subset([1]).sd.shape == (1, 2, 3)
     assert kept.select_patches(["q"]).sd.shape == (2, 1, 3)
+
+
+def test_the_scene_fit_weighs_noisy_values_less() -> None:
+    """The history's fit uses the measured standard errors too: a fifth of the values off by ±30 % (passers-by),
+    their spread known → the learned model estimates held-out frames nearly as well as one fitted on clean values
+    (measured: 0.36° clean, 0.70° blind, 0.38° told)."""
+    _, granada = datasets.load_granada_daylight()
+    css = datasets.load_camera("Nikon_D5100")
+    _, refl = colourchecker_reflectances()
+    hist = simulate_history(css, granada[:400:4], refl[:12], rng=6)
+    fit, test, white = hist.observations.subset(slice(0, 60)), hist.observations.subset(slice(60, None)), hist.true_white[60:]
+    rng = np.random.default_rng(1)
+    hit = rng.random(fit.values.shape[:2]) < 0.2
+    bad = fit.values * np.where(hit[..., None], np.clip(1 + 0.3 * rng.standard_normal(fit.values.shape), 0.05, None), 1)
+    sd = np.where(hit[..., None], 0.3 * fit.values, 0.0)
+
+    def error(obs: Observations) -> float:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", IdentifiabilityWarning)
+            model = fit_scene_model(obs, css)
+        return float(np.median(angular_error_deg(model.estimate(test)[0].white, white)))
+
+    clean = error(fit)
+    blind = error(Observations(fit.frames, fit.patches, bad, fit.times))
+    told = error(Observations(fit.frames, fit.patches, bad, fit.times, sd))
+    assert blind > clean + 0.2, (clean, blind, told)
+    assert told < clean + 0.5 * (blind - clean), (clean, blind, told)

@@ -112,10 +112,13 @@ class _JointObjective:
     conditional mean), as a function of every frame's ``θ = (mired, δ, log k)``."""
 
     def __init__(self, y: NDArray[np.float64], present: NDArray[np.bool_], css: NDArray[np.float64], dm: CIEDaylight,
-                 rb: ReflectanceBasis, relative_error: float, absolute_error: float) -> None:
+                 rb: ReflectanceBasis, relative_error: float, absolute_error: float,
+                 extra_var: NDArray[np.float64] | None = None) -> None:
         self.dm = dm
         self.yz = np.where(present[..., None], y, 0.0)
-        w2 = np.where(present[..., None], 1.0 / ((relative_error * self.yz) ** 2 + absolute_error**2), 0.0)
+        self.extra_var = None if extra_var is None else np.where(present[..., None], extra_var, 0.0)
+        var = (relative_error * self.yz) ** 2 + absolute_error**2 + (0.0 if extra_var is None else self.extra_var)
+        w2 = np.where(present[..., None], 1.0 / var, 0.0)
         w2[self.yz < CENSORED * absolute_error] = 0.0  # censored at 0 (dark channels after the black level)
         self.w2 = w2
         self.k_ops, self.w_ops = imaging_operators(css, dm.basis, rb)
@@ -184,7 +187,8 @@ def _alternate(
     lo_b, hi_b = dm.bounds()
     n_iter = 0
     for n_iter in range(1, iterations + 1):  # noqa: B007
-        new, _, _ = FrameSolver(css, coef, None, dm, rb, relative_error=rel, absolute_error=absolute).solve(y, present)
+        new, _, _ = FrameSolver(css, coef, None, dm, rb, relative_error=rel, absolute_error=absolute).solve(
+            y, present, objective.extra_var)
         c_new, s_new = objective(new)
         cands = [theta + alpha * (new - theta) for alpha in (2.0, 4.0, 8.0)]
         cands += [new + np.array([shift, 0.0, 0.0]) for shift in (-16.0, -4.0, -1.0, 1.0, 4.0, 16.0)]
@@ -261,7 +265,8 @@ def _fit_fixed_camera(
     sub = spread_subsample(gw_mired, max_fit_frames)
     y = y_all[sub] / scale
     present = present_all[sub]
-    objective = _JointObjective(y, present, css, dm, rb, relative_error, absolute_error)
+    extra = None if obs.sd is None else obs.extra_variance()[sub] / scale**2  # measured noise (Observations.sd)
+    objective = _JointObjective(y, present, css, dm, rb, relative_error, absolute_error, extra)
     theta = objective.start(gw_mired[sub], y, present)
     theta, coef, n_iter = _alternate(objective, theta, (css, dm, rb, relative_error, absolute_error), y, present,
                                      iterations, tol)

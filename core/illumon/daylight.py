@@ -332,6 +332,12 @@ class CIEDaylight(DaylightModel):
     the locus (one parameter per frame, like the θ curve). A weak Gaussian prior on the reciprocal temperature,
     N(150, 45²) MK⁻¹ (Granada: mean 149, σ 34, 1–99 % 55–186 MK⁻¹, widened for other sites), keeps the common
     colour-temperature shift that static patches cannot determine (see :mod:`illumon.retrieval.joint`) near daylight.
+
+    For a history (:meth:`history_prior_cost`, the scene model's fit) the frames are independent by default. With
+    ``mired_between``/``duv_between`` > 0 they share a level that varies between histories with that sd (every frame's
+    marginal prior unchanged), a hierarchical prior; Granada runs of 40 spectra vary by 8.4 MK⁻¹ and 0.00068 between
+    runs. It is off by default because it measured worse on the development scenes (``tools/common_level_study.py``):
+    the reflectance prior then moves the common level further from the truth.
     """
 
     name = "cie"

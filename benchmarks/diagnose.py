@@ -44,23 +44,33 @@ SIMS = ("illumon", "rawsim")
 CAMERAS = rawsim.SCORE_CAMERAS
 
 
+DEV_SEED0 = 3000
+"""Development protocol (``--split dev``): :data:`rawsim.DEV_CAMERAS` (Nikon, Point Grey), development surfaces and
+daylight for ``rawsim``, seeds 3 000…9 999; the margins are chosen on it."""
+
+
 def history(sim: str, effect: str, i: int, cameras: tuple[str, ...] = CAMERAS, seed0: int = SEED0,
-            split: str = "score"):
+            split: str = "score", variant: str | None = None):
     """The ``i``-th history with ``effect`` of simulator ``sim``: (observations, sensitivities, true white,
-    patch, frame, camera, seed)."""
+    patch, frame, camera, seed). ``variant`` renders ``rawsim`` histories with one of
+    :data:`rawsim.PIPELINE_VARIANTS` (robustness checks the benchmark does not score)."""
     cam = cameras[i % len(cameras)]
     seed = seed0 + 1000 * EFFECTS.index(effect) + i
     if sim == "rawsim":
-        h = rawsim.hide_effect_raw(effect, cam, seed, split=split)
+        h = rawsim.hide_effect_raw(effect, cam, seed, split=split, variant=variant)
         return h.observations, h.sensitivities, h.true_white, h.patch, h.frame, cam, seed
     h = hide_effect(effect, cam, seed)
     return h.observations, h.history.sensitivities, h.history.true_white, h.patch, h.frame, cam, seed
 
 
-def one(sim: str, effect: str, i: int) -> dict:
-    """Diagnose one history; illuminant error before / after."""
+def one(sim: str, effect: str, i: int, split: str = "score", variant: str | None = None) -> dict:
+    """Diagnose one history; illuminant error before / after; every candidate's score (to study margins offline)."""
     warnings.filterwarnings("ignore")
-    obs, css, truth, patch, frame, cam, seed = history(sim, effect, i)
+    if split == "dev":
+        obs, css, truth, patch, frame, cam, seed = history(sim, effect, i, rawsim.DEV_CAMERAS, DEV_SEED0, "dev",
+                                                           variant)
+    else:
+        obs, css, truth, patch, frame, cam, seed = history(sim, effect, i, variant=variant)
     t = time.perf_counter()
     d = diagnose(obs, css, reestimate=False)
     dt = time.perf_counter() - t
@@ -78,6 +88,7 @@ def one(sim: str, effect: str, i: int) -> dict:
         "err_before": float(np.median(angular_error_deg(before.white, truth))),
         "err_after": float(np.median(angular_error_deg(after.white, truth))),
         "noise": d.info.get("noise"), "seconds": dt,
+        "scores": {c.effect: (float(c.score) if np.isfinite(c.score) else None) for c in d.candidates},
     }
 
 
@@ -114,8 +125,15 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=20, help="histories per effect and simulator (20)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (2)")
     ap.add_argument("--sims", default=",".join(SIMS), help="simulators, comma-separated (illumon,rawsim)")
-    ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "diagnose.json"))
+    ap.add_argument("--split", choices=("score", "dev"), default="score",
+                    help="score protocol (default) or the development one the margins are chosen on")
+    ap.add_argument("--variant", choices=tuple(rawsim.PIPELINE_VARIANTS), default=None,
+                    help="render rawsim histories with a pipeline variant (robustness check, not scored)")
+    ap.add_argument("--out", default=None, help="JSON (default benchmarks/results/diagnose[_dev][_VARIANT].json)")
     args = ap.parse_args()
+    if args.out is None:
+        tag = ("_dev" if args.split == "dev" else "") + (f"_{args.variant}" if args.variant else "")
+        args.out = str(Path(__file__).parent / "results" / f"diagnose{tag}.json")
     if datasets.shared_data_dir() is None:
         print("measured data (../shared/data) not found: nothing to benchmark", file=sys.stderr)
         return 1
@@ -124,14 +142,16 @@ def main() -> int:
         print(f"illumon: error: --sims must name {' or '.join(SIMS)}", file=sys.stderr)
         return 2
     n = 5 if args.quick else args.seeds
-    jobs = [(s, e, i) for s in sims for e in EFFECTS for i in range(n)]
+    jobs = [(s, e, i, args.split, args.variant) for s in sims for e in EFFECTS for i in range(n)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as ex:
         rows = list(ex.map(one, *zip(*jobs, strict=True)))
     wall = time.perf_counter() - t0
-    print(f"Diagnosis on score cameras ({', '.join(CAMERAS)}), {n} seeds per effect and simulator, seeds ≥ {SEED0}")
-    out: dict = {"cameras": list(CAMERAS), "seeds_per_effect": n, "seed_start": SEED0, "effects": list(EFFECTS),
-                 "sims": {}}
+    cams, seed0 = (rawsim.DEV_CAMERAS, DEV_SEED0) if args.split == "dev" else (CAMERAS, SEED0)
+    print(f"Diagnosis on {args.split} cameras ({', '.join(cams)}), {n} seeds per effect and simulator, seeds ≥ {seed0}"
+          + (f"; rawsim variant {args.variant!r}: {rawsim.PIPELINE_VARIANTS[args.variant]}" if args.variant else ""))
+    out: dict = {"split": args.split, "variant": args.variant, "cameras": list(cams), "seeds_per_effect": n,
+                 "seed_start": seed0, "effects": list(EFFECTS), "sims": {}}
     for s in sims:
         out["sims"][s] = report(s, [r for r in rows if r["sim"] == s])
     print("\nSide by side (goal: ≥ 95 % named, ≤ 5 % false effects on clean histories)")

@@ -51,6 +51,7 @@ __all__ = [
     "simulate_raw_history",
     "encode_tone",
     "decode_tone",
+    "PIPELINE_VARIANTS",
 ]
 
 # --- data splits ------------------------------------------------------------------------------------------------
@@ -168,10 +169,12 @@ def encode_tone(linear: ArrayLike, tone: str | float | None) -> NDArray[np.float
     if tone is None:
         return x
     if isinstance(tone, str):
-        if tone.lower() != "srgb":
-            raise ValueError(f"tone must be 'srgb', a gamma or None, got {tone!r}")
         import colour
 
+        if tone.lower() == "bt709":
+            return np.asarray(colour.models.oetf_BT709(x), dtype=float)
+        if tone.lower() != "srgb":
+            raise ValueError(f"tone must be 'srgb', 'bt709', a gamma or None, got {tone!r}")
         return np.asarray(colour.models.eotf_inverse_sRGB(x), dtype=float)
     return x ** (1.0 / float(tone))
 
@@ -184,6 +187,8 @@ def decode_tone(encoded: ArrayLike, tone: str | float | None) -> NDArray[np.floa
     if isinstance(tone, str):
         import colour
 
+        if tone.lower() == "bt709":
+            return np.asarray(colour.models.oetf_inverse_BT709(np.clip(v, 0.0, 1.0)), dtype=float)
         return np.asarray(colour.models.eotf_sRGB(np.clip(v, 0.0, 1.0)), dtype=float)
     return np.clip(v, 0.0, None) ** float(tone)
 
@@ -261,6 +266,7 @@ def simulate_raw_history(
     texture: float = 0.0,
     radiance: ArrayLike | None = None,
     missing_fraction: float = 0.0,
+    jpeg_dc_step: float | None = None,
 ) -> RawHistory:
     """Simulate a fixed camera's history of static regions through a raw pipeline (module docstring).
 
@@ -310,6 +316,10 @@ def simulate_raw_history(
         (effects: changed, shaded or fluorescent regions).
     missing_fraction
         Probability that a region is missing (occluded) in a frame; every frame keeps at least two regions.
+    jpeg_dc_step
+        JPEG-like rounding of the output (None: none): the encoded pixels of a region in blocks of 64 (8×8), each
+        block's mean rounded to a multiple of this many codes (the quantised DC coefficient, ITU-T T.81: a
+        quantisation-table entry ``Q`` rounds the block mean to ``Q/8`` codes), then every pixel to a code again.
 
     Returns
     -------
@@ -354,6 +364,8 @@ def simulate_raw_history(
     lin = np.clip(lin, 0.0, 1.0)
     levels = 2**bits - 1
     enc = np.round(encode_tone(lin, tone) * levels) / levels
+    if jpeg_dc_step is not None:
+        enc = _jpeg_like(enc, float(jpeg_dc_step) / levels, levels)
     values = enc.mean(axis=-1)
     sd = enc.std(axis=-1, ddof=1) if pixels > 1 else np.zeros_like(values)
     if missing_fraction > 0:
@@ -370,6 +382,19 @@ def simulate_raw_history(
                 "black_level": black.tolist(), "black_subtracted": np.asarray(sub).tolist(), "full_well_e": full_well_e,
                 "tone": tone, "pixels": pixels, "texture": texture}
     return RawHistory(obs, decode_tone(values, tone), white_out, white_raw, e, r, k, sd, settings)
+
+
+def _jpeg_like(enc: NDArray[np.float64], step: float, levels: int) -> NDArray[np.float64]:
+    """Encoded pixels (… × N) with every block of 64 pixels' mean rounded to ``step`` (the last, partial block
+    too), then every pixel rounded to a code and clipped to 0…1 (see ``jpeg_dc_step``)."""
+    n = enc.shape[-1]
+    blocks = np.arange(n) // 64
+    out = enc.copy()
+    for b in range(int(blocks.max()) + 1):
+        sel = blocks == b
+        m = enc[..., sel].mean(axis=-1, keepdims=True)
+        out[..., sel] += np.round(m / step) * step - m
+    return np.clip(np.round(out * levels) / levels, 0.0, 1.0)
 
 
 # --- hidden effects rendered through the raw pipeline -----------------------------------------------------------
@@ -396,8 +421,20 @@ class RawHiddenEffect:
         return self.history.true_white_raw
 
 
+PIPELINE_VARIANTS: dict[str, str] = {
+    "8bit": "every history delivered as 8-bit codes",
+    "16bit": "every history delivered as 16-bit codes",
+    "iso6400": "high gain: ISO 3200 or 6400 (32…64× fewer electrons per code than at base ISO)",
+    "bt709": "tone curves are the ITU-R BT.709 OETF (a 0.45 power with a linear toe) instead of γ / sRGB",
+    "jpeg": "8-bit output with JPEG-like rounding: 8×8 block means rounded to 1…2 codes (DC quantisation 8…16)",
+    "small": "small regions: 16…64 pixels each, no texture",
+}
+"""Pipeline variants :func:`hide_effect_raw` can render (``variant=``), for robustness checks the benchmarks do not
+score; ``None`` is the standard pipeline (identical histories to before the variants existed)."""
+
+
 def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score", frames: int | None = None,
-                    patches: int | None = None) -> RawHiddenEffect:
+                    patches: int | None = None, variant: str | None = None) -> RawHiddenEffect:
     """A history with one hidden effect (the names and parameter ranges of :mod:`illumon.diagnosis.effects`),
     rendered through the raw pipeline of :func:`simulate_raw_history` with a random body of ``camera``
     (:func:`camera_profile`, ISO 100…1600), output bits 8/10/12, 100…900 pixels per region, 0…5 % texture, and the
@@ -407,6 +444,9 @@ def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score"
     1.5…2.6 or sRGB), the black offset is a black level the converter under-subtracts (1.5…6 % of white), clipping is
     metering the brightest region 1.05…1.4 × beyond the full well, and changed, shaded and fluorescent regions and
     lamp light enter as spectral radiance before the sensor.
+
+    ``variant`` (a key of :data:`PIPELINE_VARIANTS`, or None) changes the pipeline after the standard draws: bit
+    depth, ISO, tone curve, JPEG-like rounding or region size.
     """
     from illumon.diagnosis.effects import EFFECTS, _compilation_fluorophores, lamp_spectra
     from illumon.spectra import WAVELENGTHS
@@ -487,6 +527,31 @@ def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score"
         css, lit, r, rng=rng, bits=bits, conversion_gain=prof["conversion_gain"], read_noise_e=prof["read_noise_e"],
         black_level=prof["black_level"], full_well_e=prof["full_well_e"], adc_bits=prof["adc_bits"],
         pixels=int(rng.integers(100, 901)), texture=float(rng.uniform(0.0, 0.05)), radiance=rad, **kw)
+    if variant is None:
+        return RawHiddenEffect(effect, patch, frame, params, h, css)
+    if variant not in PIPELINE_VARIANTS:
+        raise ValueError(f"unknown variant {variant!r}; choose from {', '.join(PIPELINE_VARIANTS)}")
+    # re-render the same scene and effect with the variant's pipeline (a generator of its own, seeded from seed)
+    vr = np.random.default_rng([seed, zlib.crc32(variant.encode())])
+    sim = {"bits": bits, "conversion_gain": prof["conversion_gain"], "pixels": int(vr.integers(100, 901)),
+           "texture": float(vr.uniform(0.0, 0.05))}
+    if variant == "8bit":
+        sim["bits"] = 8
+    elif variant == "16bit":
+        sim["bits"] = 16
+    elif variant == "iso6400":
+        sim["conversion_gain"] = camera_profile(camera, iso=float(vr.choice([3200, 6400])))["conversion_gain"]
+    elif variant == "bt709" and effect == "nonlinear_response":
+        kw["tone"] = "bt709"
+    elif variant == "jpeg":
+        sim["bits"] = 8
+        kw["jpeg_dc_step"] = float(vr.choice([1.0, 2.0]))
+    elif variant == "small":
+        sim.update(pixels=int(vr.integers(16, 65)), texture=0.0)
+    params.update(variant=variant, bits=sim["bits"], tone=kw.get("tone", params.get("tone")))
+    h = simulate_raw_history(
+        css, lit, r, rng=vr, read_noise_e=prof["read_noise_e"], black_level=prof["black_level"],
+        full_well_e=prof["full_well_e"], adc_bits=prof["adc_bits"], radiance=rad, **sim, **kw)
     return RawHiddenEffect(effect, patch, frame, params, h, css)
 
 

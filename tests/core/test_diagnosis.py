@@ -214,3 +214,29 @@ def test_noise_is_learned_from_the_residuals(shared_data):
     q = np.round(y * 255) / 255  # delivered as 8-bit codes: on the grid, black values censored
     nq = dnoise.estimate_noise(q, 4)
     assert nq.step == pytest.approx(1 / 255) and nq.read >= (1 / 255) / np.sqrt(12) - 1e-12
+
+
+@pytest.mark.parametrize("seed", [10021, 10031])
+def test_raw_pipeline_undithered_dark_values_are_neither_tone_curve_nor_offset(shared_data, seed):
+    """Clean 8-bit raw-pipeline histories at ISO 100: the pixel noise of dark regions is below half a code, so the
+    output rounding biases their means far beyond the learned noise. Before the change the tone test read that bias as
+    a γ (ΔBIC −27 and −31 against a margin of 25) and the offset test as a pedestal of a fraction of a code (−19);
+    the tone test now raises its censoring level while the band above it misfits the learned noise, and the offset
+    test leaves out the values near black."""
+    h = _raw("none", seed)
+    assert h.parameters["bits"] == 8 and h.parameters["iso"] == 100.0
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    scores = {c.effect: c.score for c in d.candidates}
+    assert d.effect == "none", [(c.effect, round(c.score, 1)) for c in d.candidates]
+    assert scores["nonlinear_response"] > -NONE_MARGIN["nonlinear_response"] / 2
+    assert scores["black_offset"] > -NONE_MARGIN["black_offset"]
+    assert d.info["dark_level"] > dnoise.DARK_LEVEL  # the censoring level was raised by the data
+
+
+def test_tone_test_keeps_the_fixed_dark_level_when_dark_values_fit_the_noise(shared_data):
+    """The project's simulator adds the noise the model assumes (no rounding): the tone test's censoring stays at
+    DARK_LEVEL and a hidden γ is still named."""
+    h = _hist("nonlinear_response", 0)
+    d = diagnose(h.observations, h.history.sensitivities, reestimate=False)
+    assert d.effect == "nonlinear_response"
+    assert d.info["dark_level"] == pytest.approx(dnoise.DARK_LEVEL)

@@ -240,3 +240,18 @@ def test_tone_test_keeps_the_fixed_dark_level_when_dark_values_fit_the_noise(sha
     d = diagnose(h.observations, h.history.sensitivities, reestimate=False)
     assert d.effect == "nonlinear_response"
     assert d.info["dark_level"] == pytest.approx(dnoise.DARK_LEVEL)
+
+
+@pytest.mark.parametrize("seed", [10001, 10005])
+def test_raw_pipeline_bt709_output_is_named_nonlinear_response(shared_data, seed):
+    """BT.709-encoded output (a 0.45 power with an offset and a linear toe; the raw pipeline's ``bt709`` variant):
+    with only a pure gamma and sRGB it was reported as ``black_offset`` (ΔBIC −436 and −931 against the tone curve's
+    +6 and −331)."""
+    import rawsim
+
+    h = rawsim.hide_effect_raw("nonlinear_response", rawsim.SCORE_CAMERAS[seed % len(rawsim.SCORE_CAMERAS)], seed,
+                               split="score", frames=24, patches=8, variant="bt709")
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    assert d.effect == "nonlinear_response" and d.parameters["curve"] == "bt709"
+    c = corrected_observations(h.observations, d)
+    np.testing.assert_allclose(c.values, h.history.linear_output, atol=2e-3)

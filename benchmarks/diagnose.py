@@ -1,8 +1,14 @@
 """Diagnosis benchmark on two simulators side by side: confusion matrices, named / false rates, illuminant error before
 and after extending the model.
 
-Run: ``python benchmarks/diagnose.py [--quick] [--seeds N] [--jobs 2] [--sims illumon,rawsim]``. Prints tables and
-writes ``benchmarks/results/diagnose.json``.
+Run: ``python benchmarks/diagnose.py [--quick] [--seeds N] [--jobs 2] [--sims illumon,rawsim] [--split dev]
+[--variant V]``. Prints tables and writes ``benchmarks/results/diagnose[_dev][_V].json`` (with every candidate's
+score per history, so margins can be studied without re-running).
+
+``--split dev`` is the development protocol the margins are chosen on: :data:`rawsim.DEV_CAMERAS` (Nikon, Point Grey),
+``rawsim``'s development surfaces and daylight, seeds 3 000…9 999. ``--variant`` renders the ``rawsim`` histories with
+one of :data:`rawsim.PIPELINE_VARIANTS` (8- or 16-bit output, ISO 3200…6400, BT.709 tone curves, JPEG-like rounding,
+small regions): robustness checks, not scored.
 
 Histories, on the score cameras :data:`rawsim.SCORE_CAMERAS` (Canon, Hasselblad, Pentax, Phase One; the margins are
 chosen on :data:`rawsim.DEV_CAMERAS`, Nikon and Point Grey) with seeds from 1 000 000 on (development used seeds

@@ -29,7 +29,8 @@ IsoDateTime = Annotated[datetime, BeforeValidator(_iso_text)]
 __all__ = [
     "SensitivitiesIn", "RegionIn", "ResponseIn", "CameraIn", "RegionsIn", "ObservationIn", "ErrorOut", "ERROR_RESPONSES",
     "FRAME_UPLOAD", "MAX_LIST", "multipart_body", "CAMERA_APPLIED", "EstimateOut", "SpectrumOut", "IlluminantOut", "JobRef",
-    "HealthOut",
+    "HealthOut", "CameraOut", "CameraCreated", "FrameIngestOut", "FrameOut", "WbGainsOut", "JobOut", "CalibrationOut",
+    "ProposalsOut",
 ]
 
 # strict: JSON numbers only (pydantic's lax mode would read true/false or numeric text as numbers, which the OpenAPI
@@ -200,6 +201,252 @@ class HealthOut(BaseModel):
     """``ok`` when the database answers."""
 
     status: str
+
+
+def _optional_key(description: str) -> Any:
+    """A key that an answer may lack (never ``null``): the schema lists no default; routes answering a model with one
+    set ``response_model_exclude_unset`` so that a missing key stays missing."""
+    return Field(default=None, description=description, json_schema_extra=lambda s: s.pop("default", None))
+
+
+Patch = tuple[float, float, float]
+"""Linear ``[r, g, b]`` (0…1); a tuple: validated three times faster than a list of three, the same JSON."""
+RegionValues = dict[str, Patch | None]
+"""Region id → linear ``[r, g, b]`` means (0…1), ``null`` where the region was not usable."""
+
+
+class ResponseOut(BaseModel):
+    """A camera's output pipeline as registered (see :class:`ResponseIn`); cameras registered by older versions may
+    lack keys, which the answer then lacks too."""
+
+    model_config = ConfigDict(extra="allow")
+
+    encoding: Literal["linear", "srgb", "gamma", "table"] = _optional_key("tone curve")
+    gamma: float = _optional_key("exponent of the ``gamma`` encoding")
+    black_level: float = _optional_key("black level in the image's units")
+    white_level: float | None = _optional_key("white level in the image's units (``null``: the image's full scale)")
+    table: list[float] | None = _optional_key("``table`` encoding: linear values of evenly spaced codes")
+    matrix: list[list[float]] | None = _optional_key("3 × 3 colour matrix the camera applies (output = matrix @ RGB)")
+
+
+class CalibrationRef(BaseModel):
+    """A stored calibration image of a camera."""
+
+    calibration_id: int
+    kind: Literal["colorchecker", "grey"]
+    created_at: str
+
+
+class AlertOut(BaseModel):
+    """An alert of the status page (:mod:`illumon_service.status`): a stable ``kind``, a short ``label``, a sentence
+    and a severity."""
+
+    kind: str
+    label: str
+    message: str
+    severity: Literal["info", "warning"]
+
+
+class CameraOut(BaseModel):
+    """A camera's public view (never its token): regions of its default view and of its other ``views`` (PTZ preset
+    id → regions), pipeline, whether its sensitivities were measured, what calibrates it (``chart`` | ``grey`` |
+    ``measured`` | ``none``), its stored calibrations, the warnings of its latest refit and its alerts."""
+
+    id: int
+    name: str
+    regions: list[RegionIn]
+    response: ResponseOut
+    sensitivities: Literal["measured", "unmeasured"]
+    calibration: Literal["chart", "grey", "measured", "none"]
+    calibrations: list[CalibrationRef]
+    created_at: str
+    warnings: list[str]
+    views: dict[str, list[RegionIn]]
+    alerts: list[AlertOut]
+
+
+class CameraCreated(BaseModel):
+    """A registered camera's id and its bearer token (shown only once: only its hash is stored)."""
+
+    id: int
+    token: str
+
+
+class RegistrationOut(BaseModel):
+    """Where a frame lies relative to its view's reference frame: ``state`` (``reference``, ``ok``, ``featureless``
+    or ``view_change``), the scene's shift ``[dx, dy]`` in pixels and the phase-correlation peak (``null`` for the
+    reference itself)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    state: str
+    shift: list[float]
+    response: float | None
+
+
+class FrameIngestOut(BaseModel):
+    """A stored frame: its region means (linear 0…1, the camera's gains and exposure not yet divided out), what the
+    camera applied, how many regions were usable, its view and registration, its estimate (``null`` when the frame
+    could not be estimated; see ``warnings``)."""
+
+    frame_id: int
+    taken_at: str
+    regions: RegionValues
+    applied_gains: list[float] | None
+    exposure: float | None
+    usable_regions: int
+    view: str | None
+    registration: RegistrationOut | None
+    estimate: EstimateOut | None
+    warnings: list[str]
+
+
+class FrameOut(BaseModel):
+    """A stored frame: region means (linear 0…1), image size (``null`` for client-side observations), what the camera
+    applied, its view and registration."""
+
+    frame_id: int
+    taken_at: str
+    regions: RegionValues
+    width: int | None
+    height: int | None
+    applied_gains: list[float] | None
+    exposure: float | None
+    view: str | None
+    registration: RegistrationOut | None
+
+
+class OnvifGains(BaseModel):
+    """ONVIF ``WhiteBalance``: CrGain/CbGain as unitless gains (no ``onvif_range`` given)."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    Mode: Literal["MANUAL"]
+    CrGain: float
+    CbGain: float
+
+
+class OnvifVendorGains(OnvifGains):
+    """ONVIF ``WhiteBalance``: CrGain/CbGain mapped (log2) onto the vendor ``range`` given as ``onvif_range``."""
+
+    range: list[float] = Field(min_length=2, max_length=2)
+
+
+class LibcameraGains(BaseModel):
+    """libcamera ``ColourGains`` ``[r, b]`` and ``ColourTemperature`` (K)."""
+
+    ColourGains: list[float]
+    ColourTemperature: int
+
+
+class V4l2Gains(BaseModel):
+    """V4L2 controls: ``red_balance``/``blue_balance`` = gain × ``unity``, ``white_balance_temperature`` (K) clamped to
+    ``temperature_range_k`` (``temperature_clamped`` says when)."""
+
+    red_balance: int
+    blue_balance: int
+    white_balance_temperature: int
+    unity: int
+    temperature_range_k: list[int]
+    temperature_clamped: bool
+
+
+class DngGains(BaseModel):
+    """DNG ``AsShotNeutral`` = 1 / gains."""
+
+    AsShotNeutral: list[float]
+
+
+class AndroidGains(BaseModel):
+    """Android Camera2 ``RggbChannelVector`` ``[r, 1, 1, b]``."""
+
+    RggbChannelVector: list[float]
+
+
+class WbGainsOut(BaseModel):
+    """White-balance gains of one estimate in every supported camera-software convention (:mod:`illumon.gains`)."""
+
+    rgb: list[float]
+    onvif: OnvifGains | OnvifVendorGains
+    libcamera: LibcameraGains
+    v4l2: V4l2Gains
+    dng: DngGains
+    android: AndroidGains
+    frame_id: int
+    taken_at: str
+    confidence: float | None
+    cct_k: float
+    notes: list[str]
+
+
+class JobOut(BaseModel):
+    """A refit job: state, progress (0…1), summary (``null`` until it ends; ``{"error": …}`` when it failed; otherwise
+    what the refit measured, open-ended) and times."""
+
+    job_id: str
+    camera_id: int
+    state: Literal["queued", "running", "done", "failed"]
+    progress: float
+    summary: dict[str, Any] | None
+    created_at: str
+    finished_at: str | None
+
+
+class CalibrationPatchOut(BaseModel):
+    """A measured patch: linear means (``null`` when mostly clipped or occluded) and whether pixels clipped."""
+
+    id: str
+    r: float | None
+    g: float | None
+    b: float | None
+    clipped: bool
+
+
+class CalibrationOut(BaseModel):
+    """A stored calibration image: its patches, how many clipped, how many of the camera's own regions the image
+    shows (``scene_regions``: fewer than two and a refit leaves it out) and warnings."""
+
+    calibration_id: int
+    kind: Literal["colorchecker", "grey"]
+    patches: list[CalibrationPatchOut]
+    clipped: int
+    scene_regions: int
+    warnings: list[str]
+
+
+class ProposalReasons(BaseModel):
+    """What a proposal's score rests on (:func:`illumon_service.proposals.propose_regions`)."""
+
+    model_config = ConfigDict(extra="allow")
+
+    change: float
+    drift: float
+    texture: float
+    clipped: float
+    dark: float
+    chroma: list[float]
+    diversity: float
+
+
+class ProposalOut(BaseModel):
+    """A proposed region in the view's reference-frame pixels with its score (0…1)."""
+
+    x: int
+    y: int
+    width: int
+    height: int
+    score: float
+    reasons: ProposalReasons
+
+
+class ProposalsOut(BaseModel):
+    """Region proposals of a view, best first, with the number of frames used and the hours of the day they cover."""
+
+    frames_used: int
+    view: str | None
+    hours_covered: int
+    proposals: list[ProposalOut]
+    warnings: list[str]
 
 
 class ErrorOut(BaseModel):

@@ -22,7 +22,7 @@ from ...decode import ImageError, decode_frame
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...regions import Region, RegionError, region_means, response_for
 from ...storage import Calibration
-from ..schemas import CAMERA_APPLIED, ERROR_RESPONSES, multipart_body
+from ..schemas import CAMERA_APPLIED, ERROR_RESPONSES, CalibrationOut, multipart_body
 from .frames import IMAGE_TYPES, parse_gains, parse_positive, read_multipart
 
 router = APIRouter(prefix="/v1/cameras", tags=["calibration"], responses=ERROR_RESPONSES)
@@ -55,7 +55,8 @@ def _grey_region(value: object) -> Region:
     return Region("grey", **value)
 
 
-@router.post("/{camera_id}/calibration", status_code=status.HTTP_201_CREATED, openapi_extra=CALIBRATION_UPLOAD)
+@router.post("/{camera_id}/calibration", status_code=status.HTTP_201_CREATED, openapi_extra=CALIBRATION_UPLOAD,
+             response_model=CalibrationOut)
 async def post_calibration(camera_id: int, request: Request, session: SessionDep, principal: PrincipalDep) -> dict:
     """Measure a calibration image (a ColorChecker, found automatically or from its ``corners``, or a grey card's
     ``region``) taken by the camera itself, store it, and answer the patches found: linear means (the camera's

@@ -29,7 +29,7 @@ from ...registration import (
     view_regions,
 )
 from ...storage import Camera, Estimate, Frame, as_utc
-from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, IsoDateTime, ObservationIn
+from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, FrameIngestOut, FrameOut, IsoDateTime, ObservationIn
 
 router = APIRouter(prefix="/v1/cameras", tags=["frames"], responses=ERROR_RESPONSES)
 
@@ -232,7 +232,8 @@ def _store(
     return out
 
 
-@router.post("/{camera_id}/frames", status_code=status.HTTP_201_CREATED, openapi_extra=FRAME_UPLOAD)
+@router.post("/{camera_id}/frames", status_code=status.HTTP_201_CREATED, openapi_extra=FRAME_UPLOAD,
+             response_model=FrameIngestOut)
 async def post_frame(camera_id: int, request: Request, session: SessionDep, principal: PrincipalDep) -> dict:
     """Ingest one image (multipart ``image``; optional ``taken_at``, ``applied_gains`` "r,g,b" and ``exposure``, which
     the camera applied and the service divides out): robust region means, then an estimate."""
@@ -313,7 +314,7 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
     return out
 
 
-@router.post("/{camera_id}/observations", status_code=status.HTTP_201_CREATED)
+@router.post("/{camera_id}/observations", status_code=status.HTTP_201_CREATED, response_model=FrameIngestOut)
 def post_observations(camera_id: int, body: ObservationIn, request: Request, session: SessionDep,
                       principal: PrincipalDep) -> dict:
     """Ingest region means measured by the client (linear values; ``null`` for a missing region; 422 when every
@@ -338,7 +339,7 @@ def post_observations(camera_id: int, body: ObservationIn, request: Request, ses
                   exposure=body.exposure, patch_sd=patch_sd)
 
 
-@router.get("/{camera_id}/frames")
+@router.get("/{camera_id}/frames", response_model=list[FrameOut])
 def list_frames(camera_id: int, session: SessionDep, principal: PrincipalDep, since: IsoDateTime | None = None,
                 until: IsoDateTime | None = None,
                 limit: int = Query(1000, ge=1, le=MAX_LIST, description=f"1…{MAX_LIST} frames")) -> list[dict]:

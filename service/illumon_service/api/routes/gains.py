@@ -7,7 +7,7 @@ from illumon.gains import all_conventions, v4l2_controls
 
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...storage import as_utc
-from ..schemas import ERROR_RESPONSES, IsoDateTime
+from ..schemas import ERROR_RESPONSES, IsoDateTime, WbGainsOut
 from .estimates import nearest_estimate
 
 router = APIRouter(prefix="/v1/cameras", tags=["gains"], responses=ERROR_RESPONSES)
@@ -30,7 +30,7 @@ def parse_range(text: str | None) -> tuple[float, float] | None:
     return lo, hi
 
 
-@router.get("/{camera_id}/wb-gains")
+@router.get("/{camera_id}/wb-gains", response_model=WbGainsOut)
 def wb_gains(
     camera_id: int,
     session: SessionDep,

@@ -6,7 +6,7 @@ from fastapi import APIRouter, HTTPException, Request, status
 
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...storage import Job, as_utc
-from ..schemas import ERROR_RESPONSES, JobRef
+from ..schemas import ERROR_RESPONSES, JobOut, JobRef
 
 router = APIRouter(tags=["jobs"], responses=ERROR_RESPONSES)
 
@@ -19,7 +19,7 @@ def refit(camera_id: int, request: Request, session: SessionDep, principal: Prin
     return {"job_id": request.app.state.jobs.submit(camera_id)}
 
 
-@router.get("/v1/jobs/{job_id}")
+@router.get("/v1/jobs/{job_id}", response_model=JobOut)
 def get_job(job_id: str, session: SessionDep, principal: PrincipalDep) -> dict:
     """A job's state (queued, running, done, failed), progress (0…1) and summary."""
     job = session.get(Job, job_id)

@@ -7,7 +7,7 @@ from fastapi import APIRouter, HTTPException, Query, Request
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...proposals import MAX_FRAMES, MIN_FRAMES, propose_regions
 from ...registration import parse_view, view_thumbnails
-from ..schemas import ERROR_RESPONSES, ErrorOut
+from ..schemas import ERROR_RESPONSES, ErrorOut, ProposalsOut
 
 router = APIRouter(prefix="/v1/cameras", tags=["regions"], responses=ERROR_RESPONSES)
 
@@ -30,7 +30,7 @@ def proposals_for(session, cam, view: str | None, count: int) -> dict:  # noqa: 
             "proposals": [p.as_dict() for p in props], "warnings": warnings}
 
 
-@router.get("/{camera_id}/region-proposals",
+@router.get("/{camera_id}/region-proposals", response_model=ProposalsOut,
             responses={409: {"model": ErrorOut, "description": "Too few frames of the view stored"}})
 def region_proposals(camera_id: int, request: Request, session: SessionDep, principal: PrincipalDep,
                      count: int = Query(12, ge=1, le=100, description="proposals wanted (1…100)"),

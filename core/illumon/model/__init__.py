@@ -17,13 +17,14 @@ from .fit import fit_scene_model
 from .identifiability import IdentifiabilityWarning, identifiability
 from .intervals import MODEL_ERROR, interval_columns
 from .scene import MODEL_FORMAT, MODEL_VERSION, SceneModel, estimate_with_model
-from .solver import CENSORED, FrameSolver
+from .solver import CENSORED, NEAR_WHITE, FrameSolver
 
 __all__ = [
     "MODEL_FORMAT",
     "MODEL_VERSION",
     "MODEL_ERROR",
     "CENSORED",
+    "NEAR_WHITE",
     "SceneModel",
     "FrameSolver",
     "IdentifiabilityWarning",

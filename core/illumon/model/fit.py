@@ -25,12 +25,12 @@ from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
 from ..observations import Observations
 from ..reflectance import ReflectanceBasis, reflectance_basis
-from ..retrieval.common import RetrievalResult, gray_world_mired, imaging_operators
+from ..retrieval.common import RetrievalResult, censored, gray_world_mired, imaging_operators, white_level
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
 from .intervals import MODEL_ERROR
 from .scene import SceneModel
-from .solver import CENSORED, FrameSolver
+from .solver import FrameSolver
 
 __all__ = ["fit_scene_model"]
 
@@ -113,13 +113,14 @@ class _JointObjective:
 
     def __init__(self, y: NDArray[np.float64], present: NDArray[np.bool_], css: NDArray[np.float64], dm: CIEDaylight,
                  rb: ReflectanceBasis, relative_error: float, absolute_error: float,
-                 extra_var: NDArray[np.float64] | None = None) -> None:
+                 extra_var: NDArray[np.float64] | None = None, white: float = np.inf) -> None:
         self.dm = dm
         self.yz = np.where(present[..., None], y, 0.0)
         self.extra_var = None if extra_var is None else np.where(present[..., None], extra_var, 0.0)
+        self.white = float(white)
         var = (relative_error * self.yz) ** 2 + absolute_error**2 + (0.0 if extra_var is None else self.extra_var)
         w2 = np.where(present[..., None], 1.0 / var, 0.0)
-        w2[self.yz < CENSORED * absolute_error] = 0.0  # censored at 0 (dark channels after the black level)
+        w2[censored(self.yz, 1.0, absolute_error, white)] = 0.0  # at 0 after the black level, or near white
         self.w2 = w2
         self.k_ops, self.w_ops = imaging_operators(css, dm.basis, rb)
         self.lam = np.linalg.inv(rb.prior_covariance)
@@ -187,8 +188,8 @@ def _alternate(
     lo_b, hi_b = dm.bounds()
     n_iter = 0
     for n_iter in range(1, iterations + 1):  # noqa: B007
-        new, _, _ = FrameSolver(css, coef, None, dm, rb, relative_error=rel, absolute_error=absolute).solve(
-            y, present, objective.extra_var)
+        new, _, _ = FrameSolver(css, coef, None, dm, rb, relative_error=rel, absolute_error=absolute,
+                                white=objective.white).solve(y, present, objective.extra_var)
         c_new, s_new = objective(new)
         cands = [theta + alpha * (new - theta) for alpha in (2.0, 4.0, 8.0)]
         cands += [new + np.array([shift, 0.0, 0.0]) for shift in (-16.0, -4.0, -1.0, 1.0, 4.0, 16.0)]
@@ -266,7 +267,8 @@ def _fit_fixed_camera(
     y = y_all[sub] / scale
     present = present_all[sub]
     extra = None if obs.sd is None else obs.extra_variance()[sub] / scale**2  # measured noise (Observations.sd)
-    objective = _JointObjective(y, present, css, dm, rb, relative_error, absolute_error, extra)
+    white = white_level(y_all)
+    objective = _JointObjective(y, present, css, dm, rb, relative_error, absolute_error, extra, white / scale)
     theta = objective.start(gw_mired[sub], y, present)
     theta, coef, n_iter = _alternate(objective, theta, (css, dm, rb, relative_error, absolute_error), y, present,
                                      iterations, tol)
@@ -284,7 +286,7 @@ def _fit_fixed_camera(
         grid=(float(GRID.start), float(GRID.end), float(GRID.interval)), basis=rb.functions,
         daylight={"name": "cie", "duv_sigma": dm.duv_sigma, "mired_mean": dm.mired_mean, "mired_sigma": dm.mired_sigma},
         noise={"relative_error": relative_error, "absolute_error": absolute_error, "noise_scale": noise_scale,
-               "scale": scale,
+               "scale": scale, "white_level": white if math.isfinite(white) else None,
                "model_error": dict(MODEL_ERROR, common_mired=float(math.hypot(common[0], MODEL_ERROR["common_mired"])),
                                    common_duv=float(max(common[1], MODEL_ERROR["common_duv"])))},
     )

@@ -171,6 +171,7 @@ class SceneModel:
             self.sensitivities, self.coefficients[idx], self.covariance[idx], self.daylight_model(),
             self.reflectance_basis(), relative_error=n["relative_error"], absolute_error=n["absolute_error"],
             noise_scale=n["noise_scale"], scale=n["scale"],
+            white=(n.get("white_level", 1.0) or float("inf")) / n["scale"],  # models before it: 0…1 observations
         )
 
     @single_blas_thread

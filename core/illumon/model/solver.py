@@ -15,15 +15,10 @@ from numpy.typing import NDArray
 
 from ..daylight import CIEDaylight
 from ..reflectance import ReflectanceBasis
-from ..retrieval.common import imaging_operators
+from ..retrieval.common import CENSORED, NEAR_WHITE, censored, imaging_operators
 from .weights import weight_table
 
-__all__ = ["CENSORED", "FrameSolver"]
-
-CENSORED = 2.0
-"""A channel value below this many absolute noise levels (0.4 % of the history's median green) is taken as censored
-at 0 — a dark channel clipped after the black level or a colour matrix — and carries no weight."""
-
+__all__ = ["CENSORED", "NEAR_WHITE", "FrameSolver"]
 
 _DIAG = np.arange(3)
 _MAX_STEP = np.array([40.0, 0.01, np.inf])
@@ -50,6 +45,9 @@ class FrameSolver:
         Noise model of a patch mean on the model's scale: ``σ = noise_scale · sqrt((relative·y)² + absolute²)``.
     scale
         Observation scale of the model (values are divided by it; the training median green).
+    white
+        The white level on the model's scale (``1 / scale`` for observations 0…1 of it); values at or above
+        :data:`NEAR_WHITE` of it may be clipped and carry no weight. ``inf``: none are.
     gn_iterations
         Gauss–Newton iterations.
     """
@@ -66,6 +64,7 @@ class FrameSolver:
         absolute_error: float = 0.002,
         noise_scale: float = 1.0,
         scale: float = 1.0,
+        white: float = float("inf"),
         gn_iterations: int = 3,
     ) -> None:
         self.daylight = daylight
@@ -81,6 +80,7 @@ class FrameSolver:
         self.abs = float(absolute_error)
         self.noise_scale = float(noise_scale)
         self.scale = float(scale)
+        self.white = float(white)  # on the model's scale
         self.iters = int(gn_iterations)
         self.table = weight_table()
         lo, hi = daylight.bounds()
@@ -114,7 +114,7 @@ class FrameSolver:
         var = (self.noise_scale**2) * ((self.rel * yy) ** 2 + self.abs**2)  # F × P × 3
         if extra_var is not None:
             var = var + np.where(present[..., None], extra_var, 0.0)
-        var = np.where(yy < CENSORED * self.abs, 1e12, var)  # censored at 0: no weight
+        var = np.where(censored(yy, 1.0, self.abs, self.white), 1e12, var)  # censored at 0 or near white: no weight
         b = None
         for it in range(2 if self.H is not None else 1):
             if it == 0:

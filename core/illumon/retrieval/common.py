@@ -12,7 +12,33 @@ from ..daylight import cct_duv_from_xy, daylight_locus_duv, daylight_spectrum, s
 from ..observations import Observations
 from ..reflectance import ReflectanceBasis
 
-__all__ = ["RetrievalResult", "imaging_operators", "make_result", "gray_world", "gray_world_mired"]
+__all__ = ["RetrievalResult", "imaging_operators", "make_result", "gray_world", "gray_world_mired", "CENSORED", "NEAR_WHITE",
+           "censored", "white_level"]
+
+CENSORED = 2.0
+"""A channel value below this many absolute noise levels (0.4 % of the history's median green) is taken as censored
+at 0 — a dark channel clipped after the black level or a colour matrix — and carries no weight."""
+
+NEAR_WHITE = 0.95
+"""A channel value at or above this fraction of the white level (observations are 0…1 of it) may be clipped — the
+region's brightest pixels at white, its mean biased low — and carries no weight either. Found on the development
+camera Point Grey Grasshopper2 through the independent raw pipeline (``benchmarks/rawsim.py``): its blue saturates
+on bright patches when the exposure is metered on all channels; the 5 % margin is the same as
+:data:`illumon.sensitivity.default.NEAR_CLIP`'s."""
+
+
+def white_level(values: NDArray[np.float64]) -> float:
+    """The white level of observations: 1 when every value is within it (observations are 0…1 of the white level),
+    ``inf`` when some exceed it (renderings at an arbitrary scale, e.g. the noise-free paper protocol: no clip level
+    is known, nothing is censored at the top)."""
+    top = np.nanmax(values) if np.isfinite(values).any() else 0.0
+    return 1.0 if top <= 1.0 + 1e-9 else float("inf")
+
+
+def censored(values: NDArray[np.float64], scale: float, absolute_error: float, white: float = 1.0) -> NDArray[np.bool_]:
+    """Channel values (divided by ``scale``) that carry no weight: below :data:`CENSORED` absolute noise levels
+    (clipped at 0) or at/above :data:`NEAR_WHITE` of the ``white`` level (possibly clipped)."""
+    return (values < CENSORED * absolute_error) | (values * scale >= NEAR_WHITE * white)
 
 
 @dataclass

@@ -27,7 +27,7 @@ from ..daylight import DaylightModel, xy_from_cct_duv
 from ..daylight_models import daylight_model
 from ..observations import Observations
 from ..reflectance import ReflectanceBasis, reflectance_basis
-from .common import RetrievalResult, gray_world_mired, imaging_operators, make_result
+from .common import RetrievalResult, censored, gray_world_mired, imaging_operators, make_result, white_level
 
 __all__ = ["illuminant_retrieval_joint", "JointProblem"]
 
@@ -80,7 +80,8 @@ class JointProblem:
         if not self.scale > 0:
             self.scale = float(np.nanmax(y)) or 1.0
         self.Y = np.where(present[..., None], y / self.scale, 0.0)  # F × P × 3
-        wt = 1.0 / np.sqrt((relative_error * self.Y) ** 2 + absolute_error**2)
+        var = (relative_error * self.Y) ** 2 + absolute_error**2 + obs.extra_variance() / self.scale**2
+        wt = np.where(censored(self.Y, self.scale, absolute_error, white_level(y)), 0.0, 1.0 / np.sqrt(var))
         self.W = np.where(present[..., None], wt, 0.0)
         self.Lambda = np.linalg.inv(reflectance.prior_covariance)
         self.R = np.linalg.cholesky(self.Lambda).T  # ‖R(σ−μ)‖² = (σ−μ)ᵀΛ(σ−μ)

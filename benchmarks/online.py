@@ -2,7 +2,9 @@
 
 Run: ``python benchmarks/online.py [--long] [--quick]`` (``--long`` adds a 100k-frame history, ``--quick`` runs only
 the shorter morning → afternoon setting). The morning → afternoon accuracy is measured on both simulators (the
-project's and the independent raw pipeline ``rawsim``, issue 16). Writes ``benchmarks/results/online.json``.
+project's and the independent raw pipeline ``rawsim``, issue 16), and as ``illumon-same`` with the project's simulator
+on exactly rawsim's daylight runs and surfaces (the two simulators compared on the same scenes).
+Writes ``benchmarks/results/online.json``.
 """
 
 from __future__ import annotations
@@ -29,16 +31,31 @@ from illumon.simulate import simulate_history  # noqa: E402
 HELD_OUT = ("Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf", "Phase_One")
 
 
-def _raw_run(camera: str, frames: int, seed: int):
-    """A contiguous run of score-split Granada daylight through the independent raw pipeline (``rawsim``: a body of
-    ``camera`` at ISO 100…1600, 8/10/12-bit linear output, score surfaces): (observations, css, illuminants, truth)."""
+def _score_run(camera: str, frames: int, seed: int) -> tuple[np.ndarray, dict, np.ndarray, np.random.Generator]:
+    """A contiguous run of score-split Granada daylight, the camera body's profile and 10 score surfaces of ``rawsim``:
+    (E, profile, R, rng)."""
     rng = np.random.default_rng(seed)
     pool = rawsim.daylight_pool("score")
     start = int(rng.integers(0, pool.shape[0] - frames))
-    e = pool[start : start + frames]
-    css = datasets.load_camera(camera)
     prof = rawsim.camera_profile(camera, rng=rng)
-    h = rawsim.simulate_raw_history(css, e, rawsim.draw_reflectances("score", 10, rng), rng=rng,
+    return pool[start : start + frames], prof, rawsim.draw_reflectances("score", 10, rng), rng
+
+
+def _same_scene_run(camera: str, frames: int, seed: int):
+    """The project's simulator on exactly the daylight and surfaces of :func:`_raw_run` (the two simulators compared
+    on the same scenes): (observations, css, illuminants, truth)."""
+    e, _, refl, _ = _score_run(camera, frames, seed)
+    css = datasets.load_camera(camera)
+    h = simulate_history(css, e, refl, rng=seed)
+    return h.observations, css, e, h.true_white
+
+
+def _raw_run(camera: str, frames: int, seed: int):
+    """A contiguous run of score-split Granada daylight through the independent raw pipeline (``rawsim``: a body of
+    ``camera`` at ISO 100…1600, 8/10/12-bit linear output, score surfaces): (observations, css, illuminants, truth)."""
+    e, prof, refl, rng = _score_run(camera, frames, seed)
+    css = datasets.load_camera(camera)
+    h = rawsim.simulate_raw_history(css, e, refl, rng=rng,
                                     bits=int(rng.choice([8, 10, 12])), conversion_gain=prof["conversion_gain"],
                                     read_noise_e=prof["read_noise_e"], black_level=prof["black_level"],
                                     full_well_e=prof["full_well_e"], adc_bits=prof["adc_bits"], texture=0.02)
@@ -55,6 +72,8 @@ def morning_afternoon(histories: int, frames: int, sim: str = "illumon") -> dict
     for i in range(histories):
         if sim == "rawsim":
             obs, css, illum, truth = _raw_run(HELD_OUT[i % len(HELD_OUT)], frames, 5000 + i)
+        elif sim == "illumon-same":
+            obs, css, illum, truth = _same_scene_run(HELD_OUT[i % len(HELD_OUT)], frames, 5000 + i)
         else:
             h = measured_daylight_history(HELD_OUT[i % len(HELD_OUT)], frames=frames, patches=10, seed=5000 + i,
                                           contiguous=True)
@@ -84,14 +103,14 @@ def main() -> None:
     warnings.simplefilter("ignore")
     out_ma = []
     print("morning → afternoon (fit on the first half, estimate the second; held-out cameras, unseen patches)")
-    print("sim      histories  fit/est frames  median°   p95°   max°  cover CCT   Duv  gain_r gain_b  fit s")
+    print("sim          histories  fit/est frames  median°   p95°   max°  cover CCT   Duv  gain_r gain_b  fit s")
     for n_hist, frames in ((24, 120), (12, 300)):
-        for sim in ("illumon", "rawsim"):
+        for sim in ("illumon", "illumon-same", "rawsim"):
             r = morning_afternoon(n_hist, frames, sim)
             r["sim"] = sim
             out_ma.append(r)
             c = r["coverage"]
-            print(f"{sim:<8} {n_hist:9d} {frames // 2:7d}/{frames // 2:<7d} {r['median_deg']:7.2f} {r['p95_deg']:6.2f} "
+            print(f"{sim:<12} {n_hist:9d} {frames // 2:7d}/{frames // 2:<7d} {r['median_deg']:7.2f} {r['p95_deg']:6.2f} "
                   f"{r['max_deg']:6.2f}  {c['cct']:9.3f} {c['duv']:5.3f} {c['gain_r']:7.3f} {c['gain_b']:6.3f} "
                   f"{r['fit_s_median']:6.2f}")
         if "--quick" in sys.argv:

@@ -1,6 +1,6 @@
 """Multi-frame retrieval benchmark: the paper's protocol (Tables 1–3 layout) and measured-daylight histories.
 
-Run: ``python benchmarks/retrieval.py [--quick] [--skip-paper] [--analysis] [--sims illumon,rawsim]``. Prints tables
+Run: ``python benchmarks/retrieval.py [--quick] [--skip-paper] [--analysis] [--sims illumon,illumon-same,rawsim]``. Prints tables
 and writes ``benchmarks/results/retrieval.json``. Metric: angular error (degrees) between the camera white under the true and the
 estimated illuminant.
 
@@ -31,7 +31,7 @@ from illumon.reflectance import ReflectanceBasis, colourchecker_reflectances, re
 from illumon.retrieval import retrieve_illuminants
 from illumon.retrieval.joint import JointProblem
 from illumon.scenarios import PAPER_PATCH_SETS, PAPER_TABLES, measured_daylight_history, paper_cct, paper_protocol
-from illumon.simulate import CameraNoise
+from illumon.simulate import CameraNoise, simulate_history
 from scipy.optimize import least_squares
 
 METHODS = ("joint", "marguier2007", "gray_world")
@@ -127,13 +127,27 @@ MARGUIER_MAX_FRAMES = 30
 """marguier2007's finite-difference descent costs O(frames²) error evaluations; longer histories skip it."""
 
 
-def raw_history(camera: str, frames: int, patches: int, seed: int):
-    """A history of the independent raw pipeline (``rawsim``): score-split Granada daylight (random draw) and surfaces,
-    a body of ``camera`` at ISO 100…1600, 8/10/12-bit linear output. Returns (observations, sensitivities, truth)."""
+def _score_scene(frames: int, patches: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.random.Generator]:
+    """Score-split Granada daylight (random draw) and surfaces of ``rawsim`` for one seed: (E, R, rng)."""
     rng = np.random.default_rng(10_000 + seed)
     pool = rawsim.daylight_pool("score")
     e = pool[rng.choice(pool.shape[0], frames, replace=False)]
-    r = rawsim.draw_reflectances("score", patches, rng)
+    return e, rawsim.draw_reflectances("score", patches, rng), rng
+
+
+def same_scene_history(camera: str, frames: int, patches: int, seed: int):
+    """The project's simulator (its noise and exposure jitter) on exactly the daylight and surfaces
+    :func:`raw_history` draws: the two simulators compared on the same scenes."""
+    e, r, _ = _score_scene(frames, patches, seed)
+    css = datasets.load_camera(camera)
+    h = simulate_history(css, e, r, rng=seed)
+    return h.observations, css, h.true_white
+
+
+def raw_history(camera: str, frames: int, patches: int, seed: int):
+    """A history of the independent raw pipeline (``rawsim``): score-split Granada daylight (random draw) and surfaces,
+    a body of ``camera`` at ISO 100…1600, 8/10/12-bit linear output. Returns (observations, sensitivities, truth)."""
+    e, r, rng = _score_scene(frames, patches, seed)
     css = datasets.load_camera(camera)
     prof = rawsim.camera_profile(camera, rng=rng)
     h = rawsim.simulate_raw_history(css, e, r, rng=rng, bits=int(rng.choice([8, 10, 12])),
@@ -151,6 +165,8 @@ def measured(cameras: tuple[str, ...], seeds: int, frames: int, patches: int, si
         for seed in range(seeds):
             if sim == "rawsim":
                 obs, css, truth = raw_history(cam, frames, patches, seed)
+            elif sim == "illumon-same":
+                obs, css, truth = same_scene_history(cam, frames, patches, seed)
             else:
                 h = measured_daylight_history(cam, frames=frames, patches=patches, seed=seed)
                 obs, css, truth = h.observations, h.sensitivities, h.true_white
@@ -175,11 +191,13 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="fewer cases")
     ap.add_argument("--skip-paper", action="store_true", help="only the measured-daylight histories")
     ap.add_argument("--analysis", action="store_true", help="what limits the paper protocol (see module docstring)")
-    ap.add_argument("--sims", default="illumon,rawsim", help="simulators of the measured-daylight histories")
+    ap.add_argument("--sims", default="illumon,illumon-same,rawsim",
+                    help="simulators of the measured-daylight histories (illumon-same: the project's simulator on "
+                         "rawsim's scenes)")
     ap.add_argument("--out", default=str(Path(__file__).parent / "results" / "retrieval.json"))
     args = ap.parse_args()
-    if any(x not in ("illumon", "rawsim") for x in args.sims.split(",")):
-        print("illumon: error: --sims takes illumon and/or rawsim", file=sys.stderr)
+    if any(x not in ("illumon", "illumon-same", "rawsim") for x in args.sims.split(",")):
+        print("illumon: error: --sims takes illumon, illumon-same and/or rawsim", file=sys.stderr)
         return 2
     if datasets.shared_data_dir() is None:
         print("measured data (../shared/data) not found: nothing to benchmark", file=sys.stderr)
@@ -212,7 +230,7 @@ def main() -> int:
     seeds = 1 if args.quick else 3
     print("\nMeasured Granada daylight, unseen reflectances: illumon = the project's simulator (noise + exposure jitter),"
           " rawsim = the independent raw pipeline (score daylight and surfaces, per-pixel noise, 8/10/12 bits)")
-    print(f"{'sim':<8} {'frames×patches':<16} " + " ".join(f"{m + ' med/p95/max':>26}" for m in METHODS)
+    print(f"{'sim':<12} {'frames×patches':<16} " + " ".join(f"{m + ' med/p95/max':>26}" for m in METHODS)
           + "   s/history (joint)")
     out["measured"] = []
     for frames, patches in ((10, 6), (30, 10), (100, 16)):
@@ -226,7 +244,7 @@ def main() -> int:
                 f"{s[m]['median']:8.2f}{s[m]['p95']:8.2f}{s[m]['max']:8.2f}  " if m in s else f"{'(skipped)':>26}"
                 for m in METHODS
             )
-            print(f"{sim:<8} {f'{frames}×{patches}':<16} {cells} {r['seconds_per_history']['joint']:8.2f}")
+            print(f"{sim:<12} {f'{frames}×{patches}':<16} {cells} {r['seconds_per_history']['joint']:8.2f}")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(out, indent=1))
     print(f"\nwrote {args.out}")

@@ -73,5 +73,5 @@ def test_no_clip_level_without_a_white_level() -> None:
     assert rc.white_level(np.array([[0.2, 0.99, np.nan]])) == 1.0
     assert rc.white_level(np.array([[0.2, 300.0]])) == np.inf
     y = np.array([0.001, 0.5, 0.96])
-    np.testing.assert_array_equal(rc.censored(y, 1.0, 0.002), [True, False, True])
-    np.testing.assert_array_equal(rc.censored(y, 1.0, 0.002, np.inf), [True, False, False])
+    np.testing.assert_array_equal(rc.censored(y, 0.002, 1.0), [True, False, True])
+    np.testing.assert_array_equal(rc.censored(y, 0.002, np.inf), [True, False, False])

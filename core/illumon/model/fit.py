@@ -120,7 +120,7 @@ class _JointObjective:
         self.white = float(white)
         var = (relative_error * self.yz) ** 2 + absolute_error**2 + (0.0 if extra_var is None else self.extra_var)
         w2 = np.where(present[..., None], 1.0 / var, 0.0)
-        w2[censored(self.yz, 1.0, absolute_error, white)] = 0.0  # at 0 after the black level, or near white
+        w2[censored(self.yz, absolute_error, white)] = 0.0  # at 0 after the black level, or near white
         self.w2 = w2
         self.k_ops, self.w_ops = imaging_operators(css, dm.basis, rb)
         self.lam = np.linalg.inv(rb.prior_covariance)

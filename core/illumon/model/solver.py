@@ -114,7 +114,7 @@ class FrameSolver:
         var = (self.noise_scale**2) * ((self.rel * yy) ** 2 + self.abs**2)  # F × P × 3
         if extra_var is not None:
             var = var + np.where(present[..., None], extra_var, 0.0)
-        var = np.where(censored(yy, 1.0, self.abs, self.white), 1e12, var)  # censored at 0 or near white: no weight
+        var = np.where(censored(yy, self.abs, self.white), 1e12, var)  # censored at 0 or near white: no weight
         b = None
         for it in range(2 if self.H is not None else 1):
             if it == 0:

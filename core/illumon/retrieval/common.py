@@ -35,10 +35,10 @@ def white_level(values: NDArray[np.float64]) -> float:
     return 1.0 if top <= 1.0 + 1e-9 else float("inf")
 
 
-def censored(values: NDArray[np.float64], scale: float, absolute_error: float, white: float = 1.0) -> NDArray[np.bool_]:
-    """Channel values (divided by ``scale``) that carry no weight: below :data:`CENSORED` absolute noise levels
-    (clipped at 0) or at/above :data:`NEAR_WHITE` of the ``white`` level (possibly clipped)."""
-    return (values < CENSORED * absolute_error) | (values * scale >= NEAR_WHITE * white)
+def censored(values: NDArray[np.float64], absolute_error: float, white: float) -> NDArray[np.bool_]:
+    """Channel values that carry no weight: below :data:`CENSORED` absolute noise levels (clipped at 0) or at/above
+    :data:`NEAR_WHITE` of the ``white`` level (possibly clipped; both on the values' scale)."""
+    return (values < CENSORED * absolute_error) | (values >= NEAR_WHITE * white)
 
 
 @dataclass

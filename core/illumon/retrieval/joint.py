@@ -81,7 +81,7 @@ class JointProblem:
             self.scale = float(np.nanmax(y)) or 1.0
         self.Y = np.where(present[..., None], y / self.scale, 0.0)  # F × P × 3
         var = (relative_error * self.Y) ** 2 + absolute_error**2 + obs.extra_variance() / self.scale**2
-        wt = np.where(censored(self.Y, self.scale, absolute_error, white_level(y)), 0.0, 1.0 / np.sqrt(var))
+        wt = np.where(censored(self.Y, absolute_error, white_level(y) / self.scale), 0.0, 1.0 / np.sqrt(var))
         self.W = np.where(present[..., None], wt, 0.0)
         self.Lambda = np.linalg.inv(reflectance.prior_covariance)
         self.R = np.linalg.cholesky(self.Lambda).T  # ‖R(σ−μ)‖² = (σ−μ)ᵀΛ(σ−μ)

@@ -15,6 +15,7 @@ from illumon.diagnosis import bilinear as bl
 from illumon.diagnosis import noise as dnoise
 from illumon.diagnosis.effects import EFFECTS, LOCATED_EFFECTS, TEST_CAMERAS, hide_effect
 from illumon.diagnosis.fit import NONE_MARGIN, corrected_observations, diagnose, estimate_with_effect
+from illumon.diagnosis.stages import MIN_GAMMA, MIN_OFFSET
 from illumon.retrieval import retrieve_illuminants
 
 SEED0 = 10_000
@@ -255,3 +256,57 @@ def test_raw_pipeline_bt709_output_is_named_nonlinear_response(shared_data, seed
     assert d.effect == "nonlinear_response" and d.parameters["curve"] == "bt709"
     c = corrected_observations(h.observations, d)
     np.testing.assert_allclose(c.values, h.history.linear_output, atol=2e-3)
+
+
+def _raw_score(effect: str, camera: str, seed: int):
+    """A history of the raw pipeline's score split as ``benchmarks/diagnose.py`` draws it (the failures this
+    session's fixes came from)."""
+    import rawsim
+
+    return rawsim.hide_effect_raw(effect, camera, seed, split="score")
+
+
+def test_clean_10bit_history_is_not_an_expanding_tone_curve(shared_data):
+    """A clean 10-bit raw-pipeline history (Canon 500D, ISO 100): its bilinear misfit was fitted by an *expanding*
+    γ = 0.71 at ΔBIC −149. No output encoding expands (``MIN_GAMMA``): the tone test searches γ ≥ 1 only."""
+    h = _raw_score("none", "Canon_500D", 1000003)
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    tone = next(c for c in d.candidates if c.effect == "nonlinear_response")
+    assert d.effect == "none", [(c.effect, round(c.score, 1)) for c in d.candidates]
+    assert tone.parameters["gamma"] >= MIN_GAMMA and tone.score > 0
+
+
+def test_pedestal_absorbed_at_full_rank_is_found(shared_data):
+    """A 10-bit history with pedestals of 4.9 / 1.6 / 2.2 % of white: a rank-4 frame factor absorbs the constant and
+    the alternation from the old starts ended at offsets of 2.5 / 12.9 / 1.4 % (reported ``none``); the start from
+    the rank-3 fit's offsets finds them."""
+    h = _raw_score("black_offset", "Canon_500D", 1002003)
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    assert d.effect == "black_offset"
+    np.testing.assert_allclose(d.parameters["offsets"], h.parameters["offsets"], atol=2e-3)
+
+
+@pytest.mark.parametrize(("camera", "seed", "mimic"), [("Phase_One", 1006009, "clipping"),
+                                                        ("Canon_300D", 1006001, "nonlinear_response")])
+def test_lamp_light_that_mimics_a_global_effect_is_named(shared_data, camera, seed, mimic):
+    """A sodium lamp saturates the red channel in its frames (clipping at ΔBIC −320), a fluorescent tube breaks the
+    rank-4 structure (a γ of 1.5 at −198): without the lamp-lit frames no evidence of either is left, so the lamp
+    is named."""
+    h = _raw_score("off_locus_illuminant", camera, seed)
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    scores = {c.effect: c.score for c in d.candidates}
+    assert scores[mimic] < -NONE_MARGIN[mimic]  # the bilinear stage alone would name it
+    assert d.effect == "off_locus_illuminant"
+    assert len(set(d.parameters["frame_indices"]) & set(h.parameters["frames"])) >= 3
+
+
+def test_sub_code_pedestal_is_not_a_black_offset(shared_data):
+    """An 8-bit ISO 100 history with a fluorescent patch: the offset test found pedestals of 0.0003…0.0011 of white
+    (a quarter of an 8-bit code: the rounding bias of dark regions) at ΔBIC −14; below ``MIN_OFFSET`` it is not
+    reported and the fluorescent patch is."""
+    h = _raw_score("fluorescence", "Canon_20D", 1007000)
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    offset = next(c for c in d.candidates if c.effect == "black_offset")
+    assert max(abs(v) for v in offset.parameters["offsets"]) < MIN_OFFSET
+    assert offset.score > 0
+    assert d.effect == "fluorescence" and d.patch_index == h.patch

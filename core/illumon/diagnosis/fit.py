@@ -129,6 +129,47 @@ class Diagnosis:
         }
 
 
+GLOBAL_EFFECTS = ("nonlinear_response", "black_offset", "clipping")
+"""Bilinear effects that act on every value (unlike a patch change or shadow, which name their own patch and frames)
+and so can be mimicked by lamp-lit frames or a fluorescent patch the bilinear model cannot describe."""
+
+
+def _spectral_cause(y: NDArray[np.float64], rank: int, chosen: Candidate, spectral: list[Candidate],
+                    margins: dict[str, float], learn_noise: bool) -> Candidate | None:
+    """The spectral effect that explains a global bilinear one, or None.
+
+    Lamp-lit frames break the daylight's rank-4 structure and a fluorescent patch adds light the reflectances do not
+    (Han et al. 2012): the bilinear stage may then read a tone curve, a pedestal or clipped values into them (a sodium
+    lamp's red saturating while the metering reads green). When a spectral effect passes its own margin too, the
+    bilinear stage is run again without its frames (off-locus) or its patch (fluorescence); if no evidence of the
+    global effect is left there (ΔBIC ≥ 0: not merely weaker, as any effect is on fewer values), the spectral effect
+    is its cause (issue 16: raw-pipeline histories with a lamp read as a tone curve at ΔBIC −198, +5.9 without the
+    lamp-lit frames, or as clipping at −320; a weak tone curve with a patch that looks fluorescent keeps −22 without
+    that patch and stays a tone curve). Clipping is not put down to fluorescence: a patch whose values clip misfits
+    the spectral model by that alone (a development history clipped in one patch passed the fluorescence margin).
+    """
+    if chosen.effect not in GLOBAL_EFFECTS:
+        return None
+    for cand in spectral:  # off-locus light first, as in the selection
+        if not cand.score < -margins[cand.effect]:
+            continue
+        if cand.effect == "fluorescence" and chosen.effect == "clipping":
+            continue  # the clipped patch misfits the spectral model too: no independent evidence of emission
+        masked = y.copy()
+        if cand.effect == "off_locus_illuminant":
+            keep = np.setdiff1d(np.arange(y.shape[0]), cand.parameters["frame_indices"])
+            if keep.size < rank + 2:
+                continue
+            masked = masked[keep]
+        else:
+            masked[:, 3 * cand.patch : 3 * cand.patch + 3] = np.nan
+        _, again, _ = bilinear_stage(masked, rank, margins["clipping"], learn_noise)
+        score = next(c.score for c in again if c.effect == chosen.effect)
+        if not score < 0.0:
+            return cand
+    return None
+
+
 @single_blas_thread
 def diagnose(
     obs: Observations,
@@ -182,6 +223,7 @@ def diagnose(
     ok = [c for c in bil if c.score < -margins[c.effect]]
     if ok:
         chosen = min(ok, key=lambda c: c.score)
+        chosen = _spectral_cause(y, rank, chosen, spectral, margins, learn_noise) or chosen
     else:
         # off-locus frames first: their misfit can make a patch look fluorescent, not the reverse
         ok = [c for c in spectral if c.score < -margins[c.effect]]

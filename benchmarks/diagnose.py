@@ -19,6 +19,9 @@ below 10 000):
 * ``rawsim``: the independent raw pipeline (:func:`rawsim.hide_effect_raw`: per-pixel shot noise with a per-camera
   conversion gain and ISO, read noise, black level subtracted with clipping at 0, 8/10/12-bit output, third-stop
   auto-exposure, texture; the score split's surfaces, ColorChecker and CIE TCS, and Granada daylight 1300…2599).
+* ``imgsim`` (only with ``--sims``; held out, nothing is chosen on it): images rendered and measured as the service
+  does (:func:`imgsim.hide_effect_img`: Bayer mosaic, OpenCV demosaicing, preset white balance, 8-bit PNG or JPEG,
+  :func:`illumon_service.regions.region_stats`); same score split.
 
 A history counts as correct when the effect is named and, where reported, the patch is right and the onset frame
 within ±2 frames. Illuminant error: median angular error (degrees) over frames between the camera white under the
@@ -36,6 +39,7 @@ import warnings
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import imgsim
 import numpy as np
 import rawsim
 from illumon import datasets
@@ -47,6 +51,7 @@ from illumon.retrieval import retrieve_illuminants
 SEED0 = 1_000_000
 FAST = {"start_offsets": (0.0,), "polish_max_frames": 0}
 SIMS = ("illumon", "rawsim")
+ALL_SIMS = (*SIMS, "imgsim")  # imgsim: held out for scoring only (benchmarks/imgsim.py), not run by default
 CAMERAS = rawsim.SCORE_CAMERAS
 
 
@@ -62,6 +67,9 @@ def history(sim: str, effect: str, i: int, cameras: tuple[str, ...] = CAMERAS, s
     :data:`rawsim.PIPELINE_VARIANTS` (robustness checks the benchmark does not score)."""
     cam = cameras[i % len(cameras)]
     seed = seed0 + 1000 * EFFECTS.index(effect) + i
+    if sim == "imgsim":
+        h = imgsim.hide_effect_img(effect, cam, seed, split=split)
+        return h.observations, h.sensitivities, h.true_white, h.patch, h.frame, cam, seed
     if sim == "rawsim":
         h = rawsim.hide_effect_raw(effect, cam, seed, split=split, variant=variant)
         return h.observations, h.sensitivities, h.true_white, h.patch, h.frame, cam, seed
@@ -130,7 +138,7 @@ def main() -> int:
     ap.add_argument("--quick", action="store_true", help="5 seeds per effect")
     ap.add_argument("--seeds", type=int, default=20, help="histories per effect and simulator (20)")
     ap.add_argument("--jobs", type=int, default=2, help="worker processes (2)")
-    ap.add_argument("--sims", default=",".join(SIMS), help="simulators, comma-separated (illumon,rawsim)")
+    ap.add_argument("--sims", default=",".join(SIMS), help="simulators, comma-separated (illumon,rawsim; imgsim too)")
     ap.add_argument("--split", choices=("score", "dev"), default="score",
                     help="score protocol (default) or the development one the margins are chosen on")
     ap.add_argument("--variant", choices=tuple(rawsim.PIPELINE_VARIANTS), default=None,
@@ -144,8 +152,8 @@ def main() -> int:
         print("measured data (../shared/data) not found: nothing to benchmark", file=sys.stderr)
         return 1
     sims = [s for s in args.sims.split(",") if s]
-    if any(s not in SIMS for s in sims):
-        print(f"illumon: error: --sims must name {' or '.join(SIMS)}", file=sys.stderr)
+    if any(s not in ALL_SIMS for s in sims):
+        print(f"illumon: error: --sims must name {' or '.join(ALL_SIMS)}", file=sys.stderr)
         return 2
     n = 5 if args.quick else args.seeds
     jobs = [(s, e, i, args.split, args.variant) for s in sims for e in EFFECTS for i in range(n)]

@@ -97,6 +97,11 @@ class ImageHiddenEffect:
         Output of a perfect white diffuser under each frame's light (F × 3, same space and exposure; may exceed 1).
     noiseless
         Region means of the noiseless, unclipped, linear output image (F × P × 3): what a perfect pipeline would give.
+    illuminants, reflectances
+        The light on each frame (F × 61; lamp-lit where the effect says) and the regions' surfaces before any change
+        (P × 61).
+    images
+        The decoded 8-bit frames (RGB), with ``keep_images``.
     """
 
     effect: str
@@ -107,6 +112,8 @@ class ImageHiddenEffect:
     sensitivities: NDArray[np.float64]
     true_white: NDArray[np.float64]
     noiseless: NDArray[np.float64]
+    illuminants: NDArray[np.float64]
+    reflectances: NDArray[np.float64]
     images: list[NDArray[np.uint8]] = field(default_factory=list)
 
 
@@ -276,7 +283,8 @@ def hide_effect_img(effect: str, camera: str, seed: int, *, split: str = "score"
     if tone is not False:
         declared = tone
     actual = declared
-    use_jpeg = bool(rng.random() < 0.5) if jpeg is None else jpeg
+    drawn_jpeg = bool(rng.random() < 0.5)  # drawn even when forced: the same scene and noise either way
+    use_jpeg = drawn_jpeg if jpeg is None else jpeg
     quality = int(rng.integers(85, 96))
     demosaic = cv2.COLOR_BayerRGGB2RGB_EA if rng.random() < 0.5 else cv2.COLOR_BayerRGGB2RGB
     params: dict = {"iso": prof["iso"], "adc_bits": prof["adc_bits"], "jpeg_quality": quality if use_jpeg else None,
@@ -420,4 +428,4 @@ def hide_effect_img(effect: str, camera: str, seed: int, *, split: str = "score"
     noiseless = np.stack([out_lin[:, y : y + h, x : x + w].mean(axis=(1, 2)) for x, y, w, h in rects], axis=1)
     true_white = exposure[:, None] * (lit @ c_eff)
     params.update(exposure=exposure.tolist(), jpeg=use_jpeg)
-    return ImageHiddenEffect(effect, patch, frame, params, obs, c_eff, true_white, noiseless, images)
+    return ImageHiddenEffect(effect, patch, frame, params, obs, c_eff, true_white, noiseless, lit, r, images)

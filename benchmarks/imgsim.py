@@ -49,9 +49,9 @@ Effects (names of :data:`illumon.diagnosis.effects.EFFECTS`; ranges of :mod:`ill
 soiled (darkened 0.5…0.8 and yellowed) from an onset frame; ``shadow`` one region (and its surroundings) lit by
 skylight only (CIE daylight 10 000…25 000 K at 15…45 % of the daylight level at 560 nm) for a run of frames ending
 inside the history; ``off_locus_illuminant`` 3…F/5 frames lit by a lamp mixed 60…100 % with daylight;
-``fluorescence`` one region emits (Han et al., "Fluorescent immersion range scanning" / "Separating reflective and
-fluorescent components", CVPR 2012, eqs. 1–2) with a compilation fluorophore, 20…60 % of its reflected signal in the
-channel where the emission is strongest. Clean histories declare the curve the camera encodes with.
+``fluorescence`` one region emits (Han et al., "Camera spectral sensitivity estimation from a single image under
+unknown illumination by using fluorescence", CVPR 2012, eqs. 1–2) with a compilation fluorophore, 20…60 % of its
+reflected signal in the channel where the emission is strongest. Clean histories declare the curve the camera encodes with.
 """
 
 from __future__ import annotations

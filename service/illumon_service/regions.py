@@ -117,6 +117,20 @@ def _robust_mean(lin: NDArray[np.float64], k: float, min_keep: int) -> MeanSE | 
     return _mean_se(lin[:, keep])
 
 
+def _code_width(lut: NDArray[np.float64], med: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Linear width of one code at ``med`` (the larger of the gaps to its neighbouring codes in the lookup table).
+
+    The trimming scale is at least this: when the pixels' noise is below a code (a clean 8-bit region), the robust
+    σ from the MAD is 0 or a fraction of a code, and trimming at ``k`` such σ keeps only the median code, so the
+    region's mean becomes its median code, off by up to half a code (issue 16: found on the image-based simulator,
+    ``benchmarks/imgsim.py``, where dark linear 8-bit regions read as a tone curve). ``k`` codes either side are kept.
+    """
+    i = np.clip(np.searchsorted(lut, med, side="left"), 0, lut.size - 1)
+    up = lut[np.minimum(i + 1, lut.size - 1)] - lut[i]
+    down = lut[i] - lut[np.maximum(i - 1, 0)]
+    return np.maximum(up, down)
+
+
 def _mean_se(kept: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Mean and standard error (sample standard deviation over √n) per channel of kept pixels (3 × n)."""
     n = kept.shape[1]
@@ -162,7 +176,7 @@ def _robust_mean_codes(codes: NDArray, lut: NDArray[np.float64], k: float, min_k
             mad = _mad_8bit(ordered, lut, med, half)
         else:
             mad = np.partition(np.abs(np.take(lut, ordered) - med[:, None]), half, axis=1)[:, half]
-        scale = np.maximum(1.4826 * mad, 0.02 * np.abs(med) + 1e-4)
+        scale = np.maximum(np.maximum(1.4826 * mad, 0.02 * np.abs(med) + 1e-4), _code_width(lut, med))
         lo = np.searchsorted(lut, med - k * scale, side="left")  # first code with lut ≥ med − kσ
         hi = np.searchsorted(lut, med + k * scale, side="right") - 1  # last code with lut ≤ med + kσ
         if np.any(lo > hi) or np.any(lo > top) or np.any(hi < 0):
@@ -295,7 +309,7 @@ def _region_means_cv(
             else:  # the kept pixels' flat indices, every step-th of them
                 samples.append(pixels[r].take(mask.reshape(-1).view(bool).nonzero()[0][::step], axis=0))
         med, mad = _sample_stats(samples, lut, top)
-        scale = np.maximum(1.4826 * mad, 0.02 * np.abs(med) + 1e-4)
+        scale = np.maximum(np.maximum(1.4826 * mad, 0.02 * np.abs(med) + 1e-4), _code_width(lut, med))
         lo = np.searchsorted(lut, med - k * scale, side="left").T.tolist()  # R × 3: first code with lut ≥ med − kσ
         hi = np.minimum(np.searchsorted(lut, med + k * scale, side="right") - 1, cap).T.tolist()  # last ≤ med + kσ
         for r in range(nreg):

@@ -102,7 +102,7 @@ def test_measured_camera_day_through_real_server(tmp_path):
             acked.append(r.json()["frame_id"])
         stored = http.get(f"/v1/cameras/{cam}/frames", headers=auth).json()
         seen = np.mean([v is not None for f in stored for v in f["regions"].values()])
-        assert 0.9 <= seen < 1.0  # the passer-by makes some regions missing, most are kept
+        assert seen >= 0.95  # a passer-by covering under half a region is trimmed and the region kept
 
         r = http.post(f"/v1/cameras/{cam}/refit", headers=auth)
         assert r.status_code == 202

@@ -168,3 +168,26 @@ def test_sample_medians_and_mads_are_exact():
                         ref_med = np.sort(v)[len(v) // 2]
                         ref_mad = np.partition(np.abs(v - ref_med), len(v) // 2)[len(v) // 2]
                         assert med[c, r] == ref_med and mad[c, r] == ref_mad
+
+
+@pytest.mark.parametrize("per_region", [False, True])
+def test_sub_code_noise_keeps_the_mean_between_codes(per_region):
+    """A clean, dark, linear 8-bit region whose pixel noise is below a code (σ = 0.35 codes around 10.3 codes): its
+    pixels are codes 10 and 11 (and a few 9 and 12), and their mean is the region's value. Trimming at 3.5 robust σ
+    from the MAD (0 codes: more than half the pixels share the median code) kept only code 10, a bias of 0.3 code —
+    28 σ of the mean of 2 000 pixels; the trimming scale is now at least one code."""
+    import illumon_service.regions as reg
+
+    rng = np.random.default_rng(5)
+    value = np.array([10.3, 20.6, 6.2])  # codes
+    img = np.clip(np.round(value + 0.35 * rng.standard_normal((60, 60, 3))), 0, 255).astype(np.uint8)
+    resp = ResponseCurve("linear", white_level=255)
+    monkey = reg._PER_REGION
+    reg._PER_REGION = per_region
+    try:
+        mean, se = region_stats(img, [Region("a", 5, 5, 50, 40)], resp)["a"]
+    finally:
+        reg._PER_REGION = monkey
+    exact = img[5:45, 5:55].reshape(-1, 3).mean(axis=0) / 255  # the plain mean of the codes: nothing to trim
+    np.testing.assert_allclose(mean, exact, atol=1e-9)
+    np.testing.assert_allclose(mean, value / 255, atol=0.1 / 255)  # rounding that σ = 0.35 does not fully dither

@@ -310,3 +310,23 @@ def test_sub_code_pedestal_is_not_a_black_offset(shared_data):
     assert max(abs(v) for v in offset.parameters["offsets"]) < MIN_OFFSET
     assert offset.score > 0
     assert d.effect == "fluorescence" and d.patch_index == h.patch
+
+
+def test_one_frame_outlier_is_not_a_shadow(shared_data):
+    """One patch darkened to 40 % in a single frame (an occluder or a glitch, not a shadow, which lasts several
+    frames): the shadow scan considers runs of ``MIN_SHADOW_FRAMES`` or more, so the candidate is not that frame;
+    a two-frame run at the same level is found."""
+    h = _hist("none", 0)
+    obs = h.observations
+    one = obs.values.copy()
+    one[10, 3] *= 0.4
+    y = one.reshape(one.shape[0], -1)
+    w = dnoise.noise_weights(y)
+    U = bl.wals(y, w, 4).U
+    sc = bl.scan_patch_effects(y[:, 9:12], w[:, 9:12], U)
+    assert sc["shadow_run"][0, 1] - sc["shadow_run"][0, 0] >= bl.MIN_SHADOW_FRAMES
+    two = obs.values.copy()
+    two[10:12, 3] *= 0.4
+    y2 = two.reshape(two.shape[0], -1)
+    sc2 = bl.scan_patch_effects(y2[:, 9:12], w[:, 9:12], U)
+    assert tuple(sc2["shadow_run"][0]) == (10, 12)

@@ -33,6 +33,7 @@ __all__ = [
     "fit_offset",
     "fit_clipping",
     "scan_patch_effects",
+    "MIN_SHADOW_FRAMES",
     "fit_patch_change",
     "fit_shadow",
     "fit_off_locus",
@@ -263,12 +264,19 @@ def column_prior(V: NDArray[np.float64]) -> NDArray[np.float64]:
     return 1.0 / np.maximum((V**2).mean(1), 1e-300)
 
 
+MIN_SHADOW_FRAMES = 2
+"""Fewest frames of a shadow run. One patch off in one frame is an outlier (an occluder, a reflection, a glitch of
+the measurement), not a shadow, which over a fixed camera lasts several frames at any practical frame interval (the
+simulators hide runs of 3 or more). Issue 16: on the held-out image simulator (``benchmarks/imgsim.py``) a clean
+history whose colour matrix clips a saturated surface at 0 was reported as a one-frame shadow (ΔBIC −138)."""
+
+
 def scan_patch_effects(y: NDArray[np.float64], w: NDArray[np.float64], U: NDArray[np.float64], min_out: int = 3,
-                       prior: NDArray[np.float64] | None = None) -> dict:
+                       prior: NDArray[np.float64] | None = None, min_run: int = MIN_SHADOW_FRAMES) -> dict:
     """For every patch, the best patch change (onset) and the best shadow run, with the frame factors ``U`` fixed.
 
     Closed form through cumulative sums over frames of ``Uᵀ W U``, ``Uᵀ W y`` and ``yᵀ W y`` per column: the residual
-    of a least-squares fit on any run of frames is ``c − bᵀ A⁻¹ b``.
+    of a least-squares fit on any run of frames is ``c − bᵀ A⁻¹ b``. Shadow runs have at least ``min_run`` frames.
 
     Returns
     -------
@@ -307,7 +315,7 @@ def scan_patch_effects(y: NDArray[np.float64], w: NDArray[np.float64], U: NDArra
     t0, t1 = np.triu_indices(f + 1, 1)
     # a shadow begins and ends inside the history: one that covers the first or the last frame cannot be told from a
     # patch change (the surface is seen in only one state at that end), so it is left to the patch-change model
-    keep = (t0 >= 1) & (t1 <= f - 1)
+    keep = (t0 >= 1) & (t1 <= f - 1) & (t1 - t0 >= min_run)
     t0, t1 = t0[keep], t1[keep]
     a_run, b_run, c_run = A[t1] - A[t0], B[t1] - B[t0], C[t1] - C[t0]
     a_out, b_out, c_out = A[-1] - a_run, B[-1] - b_run, C[-1] - c_run

@@ -241,7 +241,14 @@ def hide_effect_img(effect: str, camera: str, seed: int, *, split: str = "score"
     -------
     ImageHiddenEffect
     """
-    from illumon.diagnosis.effects import EFFECTS, _compilation_fluorophores, lamp_spectra
+    from illumon.diagnosis.effects import (
+        EFFECTS,
+        _compilation_fluorophores,
+        draw_patch_change,
+        draw_shadow,
+        lamp_spectra,
+        soiled,
+    )
     from illumon_service.decode import decode_image
     from illumon_service.estimation import build_observations
     from illumon_service.regions import Region, region_stats, response_for
@@ -313,24 +320,19 @@ def hide_effect_img(effect: str, camera: str, seed: int, *, split: str = "score"
         clip_target = float(rng.uniform(1.05, 1.4))
         params["exposure_beyond_white"] = clip_target
     elif effect == "patch_change":
-        patch = int(rng.integers(p))
-        frame = int(rng.integers(max(2, round(0.2 * f)), round(0.8 * f) + 1))
+        patch, frame = draw_patch_change(rng, f, p)
         if rng.random() < 0.5:
             new = spare
             params["kind"] = "replaced"
         else:
             dark = float(rng.uniform(0.5, 0.8))
-            new = r[patch] * dark * (0.6 + 0.4 * (WAVELENGTHS - 400.0) / 300.0)
+            new = soiled(r[patch], dark)
             params.update(kind="soiled", darkening=dark)
         rad[frame:, patch] = e[frame:] * new[None]
     elif effect == "shadow":
         from illumon.daylight import daylight_locus_xy, daylight_spectrum
 
-        patch = int(rng.integers(p))
-        length = int(rng.integers(max(3, f // 6), f // 2 + 1))
-        frame = int(rng.integers(1, f - length - 1))
-        sky_cct = float(rng.uniform(10000, 25000))
-        level = float(rng.uniform(0.15, 0.45))
+        patch, frame, length, sky_cct, level = draw_shadow(rng, f, p)
         sky = daylight_spectrum(daylight_locus_xy(np.array([sky_cct])))[0]
         shade = level * e[:, _I560 : _I560 + 1] * (sky / sky[_I560])[None]  # F × 61
         shade_rad = shade[:, None, :] * materials[None, :, :]

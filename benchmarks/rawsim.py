@@ -448,7 +448,14 @@ def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score"
     ``variant`` (a key of :data:`PIPELINE_VARIANTS`, or None) changes the pipeline after the standard draws: bit
     depth, ISO, tone curve, JPEG-like rounding or region size.
     """
-    from illumon.diagnosis.effects import EFFECTS, _compilation_fluorophores, lamp_spectra
+    from illumon.diagnosis.effects import (
+        EFFECTS,
+        _compilation_fluorophores,
+        draw_patch_change,
+        draw_shadow,
+        lamp_spectra,
+        soiled,
+    )
     from illumon.spectra import WAVELENGTHS
 
     if effect not in EFFECTS:
@@ -480,24 +487,20 @@ def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score"
         kw.update(ae_target=float(rng.uniform(1.05, 1.4)), ae_percentile=100.0)
         params["metering_target"] = kw["ae_target"]
     elif effect == "patch_change":
-        patch = int(rng.integers(p))
-        frame = int(rng.integers(max(2, round(0.2 * f)), round(0.8 * f) + 1))
+        patch, frame = draw_patch_change(rng, f, p)
         if rng.random() < 0.5:
             new = draw_reflectances(split, p + 1, rng)[-1]
             params["kind"] = "replaced"
         else:
             dark = float(rng.uniform(0.5, 0.8))
-            new = r[patch] * dark * (0.6 + 0.4 * (WAVELENGTHS - 400.0) / 300.0)
+            new = soiled(r[patch], dark)
             params.update(kind="soiled", darkening=dark)
         rad[frame:, patch] = e[frame:] * new[None]
     elif effect == "shadow":
         from illumon.daylight import daylight_locus_xy, daylight_spectrum
 
-        patch = int(rng.integers(p))
-        length = int(rng.integers(max(3, f // 6), f // 2 + 1))
-        frame = int(rng.integers(1, f - length - 1))
-        sky = daylight_spectrum(daylight_locus_xy(np.array([float(rng.uniform(10000, 25000))])))[0]
-        level = float(rng.uniform(0.15, 0.45))
+        patch, frame, length, sky_cct, level = draw_shadow(rng, f, p)
+        sky = daylight_spectrum(daylight_locus_xy(np.array([sky_cct])))[0]
         run = np.arange(frame, frame + length)
         rad[run, patch] = level * e[run, i560 : i560 + 1] * (sky / sky[i560])[None] * r[patch][None]
         params.update(shaded_frames=[int(i) for i in run], level=level)

@@ -58,6 +58,9 @@ __all__ = [
     "BENCHMARK_CAMERAS",
     "HiddenEffect",
     "hide_effect",
+    "draw_patch_change",
+    "soiled",
+    "draw_shadow",
     "lamp_spectra",
     "SHORT_WAVE_EXCITATION_NM",
 ]
@@ -179,6 +182,27 @@ def _daylight_run(rng: np.random.Generator, frames: int) -> NDArray[np.float64]:
     return daylight[start : start + stride * frames : stride].copy()
 
 
+def draw_patch_change(rng: np.random.Generator, frames: int, patches: int) -> tuple[int, int]:
+    """The changed patch and its onset frame (within the middle 60 % of the history), as every simulator draws them."""
+    patch = int(rng.integers(patches))
+    frame = int(rng.integers(max(2, round(0.2 * frames)), round(0.8 * frames) + 1))
+    return patch, frame
+
+
+def soiled(reflectance: NDArray[np.float64], darkening: float) -> NDArray[np.float64]:
+    """A soiled surface: darkened by ``darkening`` and yellowed (a ramp from 0.6 at 400 nm to 1 at 700 nm)."""
+    return reflectance * darkening * (0.6 + 0.4 * (WAVELENGTHS - 400.0) / 300.0)
+
+
+def draw_shadow(rng: np.random.Generator, frames: int, patches: int) -> tuple[int, int, int, float, float]:
+    """The shaded patch, first frame and length of the run (``max(3, F/6)``…``F/2`` frames, inside the history), the
+    skylight's correlated colour temperature (10 000…25 000 K) and the shade's level (0.15…0.45 of the daylight)."""
+    patch = int(rng.integers(patches))
+    length = int(rng.integers(max(3, frames // 6), frames // 2 + 1))
+    frame = int(rng.integers(1, frames - length - 1))
+    return patch, frame, length, float(rng.uniform(10000, 25000)), float(rng.uniform(0.15, 0.45))
+
+
 def hide_effect(
     effect: str,
     camera: str,
@@ -224,24 +248,18 @@ def hide_effect(
     params: dict = {}
 
     if effect == "patch_change":
-        patch = int(rng.integers(p))
-        frame = int(rng.integers(max(2, round(0.2 * f)), round(0.8 * f) + 1))
+        patch, frame = draw_patch_change(rng, f, p)
         if rng.random() < 0.5:
             others = np.setdiff1d(np.arange(pool.shape[0]), chosen)
             new = pool[int(rng.choice(others))]
             params["kind"] = "replaced"
         else:
             dark = float(rng.uniform(0.5, 0.8))
-            ramp = 0.6 + 0.4 * (WAVELENGTHS - 400.0) / 300.0
-            new = r[patch] * dark * ramp
+            new = soiled(r[patch], dark)
             params.update(kind="soiled", darkening=dark)
         clean[frame:, patch] = render(c, e[frame:], new[None])[:, 0]
     elif effect == "shadow":
-        patch = int(rng.integers(p))
-        length = int(rng.integers(max(3, f // 6), f // 2 + 1))
-        frame = int(rng.integers(1, f - length - 1))
-        sky_cct = float(rng.uniform(10000, 25000))
-        level = float(rng.uniform(0.15, 0.45))
+        patch, frame, length, sky_cct, level = draw_shadow(rng, f, p)
         sky = daylight_spectrum(daylight_locus_xy(np.array([sky_cct])))[0]
         sky = sky / sky[32]
         run = np.arange(frame, frame + length)

@@ -267,6 +267,7 @@ def simulate_raw_history(
     radiance: ArrayLike | None = None,
     missing_fraction: float = 0.0,
     jpeg_dc_step: float | None = None,
+    mean_bits: int | None = None,
 ) -> RawHistory:
     """Simulate a fixed camera's history of static regions through a raw pipeline (module docstring).
 
@@ -320,6 +321,9 @@ def simulate_raw_history(
         JPEG-like rounding of the output (None: none): the encoded pixels of a region in blocks of 64 (8×8), each
         block's mean rounded to a multiple of this many codes (the quantised DC coefficient, ITU-T T.81: a
         quantisation-table entry ``Q`` rounds the block mean to ``Q/8`` codes), then every pixel to a code again.
+    mean_bits
+        Deliver each region's mean rounded to a code of this many bits (None: the mean of the coded pixels, as the
+        service measures it): software that averages the pixels at full precision and reports integer codes.
 
     Returns
     -------
@@ -367,6 +371,8 @@ def simulate_raw_history(
     if jpeg_dc_step is not None:
         enc = _jpeg_like(enc, float(jpeg_dc_step) / levels, levels)
     values = enc.mean(axis=-1)
+    if mean_bits is not None:
+        values = np.round(values * (2**mean_bits - 1)) / (2**mean_bits - 1)
     sd = enc.std(axis=-1, ddof=1) if pixels > 1 else np.zeros_like(values)
     if missing_fraction > 0:
         drop = rng.random((f, p)) < missing_fraction
@@ -380,7 +386,7 @@ def simulate_raw_history(
     obs = Observations([f"f{i:05d}" for i in range(f)], [f"p{j:02d}" for j in range(p)], values, [""] * f)
     settings = {"bits": bits, "adc_bits": adc, "conversion_gain": gain, "read_noise_e": read_noise_e,
                 "black_level": black.tolist(), "black_subtracted": np.asarray(sub).tolist(), "full_well_e": full_well_e,
-                "tone": tone, "pixels": pixels, "texture": texture}
+                "tone": tone, "pixels": pixels, "texture": texture, "mean_bits": mean_bits}
     return RawHistory(obs, decode_tone(values, tone), white_out, white_raw, e, r, k, sd, settings)
 
 
@@ -428,6 +434,8 @@ PIPELINE_VARIANTS: dict[str, str] = {
     "bt709": "tone curves are the ITU-R BT.709 OETF (a 0.45 power with a linear toe) instead of γ / sRGB",
     "jpeg": "8-bit output with JPEG-like rounding: 8×8 block means rounded to 1…2 codes (DC quantisation 8…16)",
     "small": "small regions: 16…64 pixels each, no texture",
+    "rounded": "region means delivered as codes: pixels averaged at 16 bits, each mean rounded to an 8-bit (3 in 4) or "
+               "10-bit code (a history written by software that reports integer codes)",
 }
 """Pipeline variants :func:`hide_effect_raw` can render (``variant=``), for robustness checks the benchmarks do not
 score; ``None`` is the standard pipeline (identical histories to before the variants existed)."""
@@ -551,6 +559,9 @@ def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score"
         kw["jpeg_dc_step"] = float(vr.choice([1.0, 2.0]))
     elif variant == "small":
         sim.update(pixels=int(vr.integers(16, 65)), texture=0.0)
+    elif variant == "rounded":
+        sim["bits"] = 16
+        kw["mean_bits"] = int(vr.choice([8, 8, 8, 10]))
     params.update(variant=variant, bits=sim["bits"], tone=kw.get("tone", params.get("tone")))
     h = simulate_raw_history(
         css, lit, r, rng=vr, read_noise_e=prof["read_noise_e"], black_level=prof["black_level"],

@@ -40,6 +40,13 @@ def test_variant_keeps_the_scene_and_changes_the_pipeline(variant):
         assert s["tone"] == "bt709"
     if variant == "small":
         assert 16 <= s["pixels"] <= 64 and s["texture"] == 0.0
+    if variant == "rounded":
+        levels = 2 ** s["mean_bits"] - 1
+        assert s["mean_bits"] in (8, 10)
+        codes = v.observations.values * levels
+        np.testing.assert_allclose(codes, np.round(codes), atol=1e-9)
+    else:
+        assert s["mean_bits"] is None
 
 
 def test_bt709_tone_round_trips():

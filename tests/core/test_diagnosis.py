@@ -330,3 +330,47 @@ def test_one_frame_outlier_is_not_a_shadow(shared_data):
     y2 = two.reshape(two.shape[0], -1)
     sc2 = bl.scan_patch_effects(y2[:, 9:12], w[:, 9:12], U)
     assert tuple(sc2["shadow_run"][0]) == (10, 12)
+
+
+def test_quantisation_step_finds_the_grid_of_delivered_codes():
+    """Values delivered as codes: 8- and 10-bit grids, 12-bit codes in a 16-bit container (the common divisor of the
+    codes), and means of coded pixels, which lie on no grid."""
+    rng = np.random.default_rng(0)
+    assert dnoise.quantisation_step(rng.integers(0, 256, 200) / 255) == pytest.approx(1 / 255)
+    assert dnoise.quantisation_step(rng.integers(0, 1024, 200) / 1023) == pytest.approx(1 / 1023)
+    assert dnoise.quantisation_step(16 * rng.integers(0, 4096, 200) / 65535) == pytest.approx(16 / 65535)
+    assert dnoise.quantisation_step(rng.integers(0, 256, (200, 37)).mean(axis=1) / 255) == 0.0
+
+
+@pytest.mark.parametrize("i", [0, 2])
+def test_clean_history_rounded_to_codes_is_not_a_tone_curve(shared_data, i):
+    """Region means rounded to 8-bit codes (software that averages the pixels, then reports integer codes): the
+    rounding's variance step²/12 is constant in the output, which the tone test read as a γ ≈ 2 curve over shot
+    noise (ΔBIC −24 and −16 on these histories; −80…−200 on the raw pipeline's). Carried into each hypothesis's
+    linear light through the curve's slope, it no longer favours a curve."""
+    h = hide_effect("none", TEST_CAMERAS[i % len(TEST_CAMERAS)], SEED0 + i, frames=32, patches=10)
+    o = h.observations
+    codes = np.round(np.clip(o.values, 0, 1) * 255) / 255
+    d = diagnose(type(o)(o.frames, o.patches, codes, o.times), h.history.sensitivities, reestimate=False)
+    tone = next(c for c in d.candidates if c.effect == "nonlinear_response")
+    assert d.info["noise"]["step"] == pytest.approx(1 / 255)
+    assert d.effect == "none" and tone.score > 0, [(c.effect, round(c.score, 1)) for c in d.candidates]
+
+
+@pytest.mark.parametrize(("effect", "camera", "seed"), [("none", "Canon_500D", 1000003),
+                                                        ("fluorescence", "Canon_300D", 1007011),
+                                                        ("off_locus_illuminant", "Canon_40D", 1006012)])
+def test_raw_histories_rounded_to_codes_name_their_effect(shared_data, effect, camera, seed):
+    """The outside check's pattern (issue 16: clean, lamp-lit and fluorescent histories all read as
+    ``nonlinear_response``), reproduced by the raw pipeline's ``rounded`` variant (region means rounded to 8-bit
+    codes): these three scored ΔBIC −114, −34 and −70 for a tone curve before the rounding entered the tone test's
+    noise; now no tone curve is supported and each history's own effect is named."""
+    import rawsim
+
+    h = rawsim.hide_effect_raw(effect, camera, seed, split="score", variant="rounded")
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    tone = next(c for c in d.candidates if c.effect == "nonlinear_response")
+    assert tone.score > -NONE_MARGIN["nonlinear_response"] / 2, tone.score
+    assert d.effect == effect, [(c.effect, round(c.score, 1)) for c in d.candidates]
+    if effect == "fluorescence":
+        assert d.patch_index == h.patch

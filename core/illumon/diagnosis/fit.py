@@ -9,7 +9,9 @@ Two stages, each a penalised-likelihood comparison against its own base model (S
    noise of values delivered on an 8…16-bit grid; values at 0 censored), ``φ`` profiled, ``BIC = 2·NLL + k·ln n``.
    Extensions: tone curve (γ, sRGB or BT.709), black offset (3 pedestals), clipping (censored values at the clip
    level), patch change (patch, onset), shadow (patch, run, per-channel scale). The tone curve is judged with each
-   hypothesis's own learned noise in its linear light (shot noise carrying at least half the variance at the median signal), the
+   hypothesis's own learned noise in its linear light (shot noise carrying at least 90 % of the variance at the median
+   signal; for values delivered as codes, plus the output rounding's variance step²/12 carried into that light through
+   the curve's slope), the
    Jacobian of the curve, Huber's loss and the values within 3 % of black censored (:data:`.noise.DARK_LEVEL`),
    or more while the band above the censoring level misfits the learned noise (:data:`.stages.ADAPTIVE_DARK`: output
    rounding that the pixel noise does not dither). The black offset is judged on the values above

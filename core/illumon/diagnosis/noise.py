@@ -43,15 +43,19 @@ class NoiseLevel:
         return np.where(self.censored, 0.0, noise_weights(y, self.shot, self.read))
 
 
-def quantisation_step(y: NDArray[np.float64], levels: tuple[int, ...] = (255, 1023, 4095, 16383, 65535)) -> float:
-    """The step ``1/L`` of the coarsest grid of ``levels`` that every finite value lies on (within 1e-6 of a code),
-    or 0 when the values are not quantised (e.g. region means of many pixels)."""
+def quantisation_step(y: NDArray[np.float64],
+                      levels: tuple[int, ...] = (255, 256, 1023, 1024, 4095, 4096, 16383, 16384, 65535, 65536)) -> float:
+    """The rounding step of values delivered as codes: on the coarsest grid ``1/L`` of ``levels`` that every finite
+    value lies on (within 1e-6 of a code), the greatest common divisor of the codes over ``L`` (12-bit values in a
+    16-bit container: 16/65535); 0 when the values are not on a grid (e.g. means of many coded pixels)."""
     v = y[np.isfinite(y)]
     if v.size == 0:
         return 0.0
     for lv in levels:
         if np.all(np.abs(v * lv - np.round(v * lv)) < 1e-6 * max(lv, 1)):
-            return 1.0 / lv
+            codes = np.abs(np.round(v * lv)).astype(np.int64)
+            g = int(np.gcd.reduce(codes[codes > 0])) if np.any(codes > 0) else 1
+            return max(g, 1) / lv
     return 0.0
 
 
@@ -63,8 +67,9 @@ clean histories at −16 and above but one raw-pipeline history at −42."""
 
 
 def _noise_step(x: NDArray[np.float64], pred: NDArray[np.float64], present: NDArray[np.bool_], k: int, shot: float,
-                read2: float, floor: float) -> tuple[float, float]:
-    """One reweighted least-squares update of ``σ² = a·x + b`` from the residuals of a fit with ``k`` parameters,
+                read2: float, floor: float, extra: NDArray[np.float64] | float = 0.0) -> tuple[float, float]:
+    """One reweighted least-squares update of ``σ² = a·x + b`` (+ ``extra``, a known variance such as the output's
+    rounding) from the residuals of a fit with ``k`` parameters,
     with the physical constraint of linear light that shot noise carries at least :data:`SHOT_SHARE` of the variance
     at the median signal (in a camera's raw values read noise is a few e⁻ against thousands of photo-electrons,
     EMVA 1288). Without it a tone-encoded history, whose spread hardly grows with the value (σ² ∝ y^(2−γ)), would be
@@ -73,9 +78,10 @@ def _noise_step(x: NDArray[np.float64], pred: NDArray[np.float64], present: NDAr
     if n - k < 10:
         return shot, read2
     xp = np.clip(pred[present], 0.0, None)
+    ex = np.broadcast_to(np.asarray(extra, dtype=float), x.shape)[present]
     res2 = (np.nan_to_num(x)[present] - pred[present]) ** 2 * n / (n - k)
-    var = shot * xp + read2
-    res2 = np.minimum(res2, 9.0 * var)
+    var = shot * xp + read2 + ex
+    res2 = np.minimum(res2, 9.0 * var) - ex
     coef, *_ = np.linalg.lstsq(np.column_stack([xp, np.ones_like(xp)]) / var[:, None], res2 / var, rcond=None)
     x_med = float(np.median(xp)) * (1.0 - SHOT_SHARE) / SHOT_SHARE
     if coef[0] <= 0 or coef[1] > coef[0] * x_med:
@@ -90,27 +96,32 @@ def _noise_step(x: NDArray[np.float64], pred: NDArray[np.float64], present: NDAr
 
 def fit_learned_noise(x: NDArray[np.float64], present: NDArray[np.bool_], rank: int, U: NDArray[np.float64] | None,
                       *, shot: float = DEFAULT_NOISE.shot, read: float = DEFAULT_NOISE.read, floor: float = 1e-14,
-                      updates: int = 3, iters: int = 40, huber: float | None = None) -> tuple[LowRankFit, float, float, float]:
+                      updates: int = 3, iters: int = 40, huber: float | None = None,
+                      extra: NDArray[np.float64] | float = 0.0) -> tuple[LowRankFit, float, float, float]:
     """Rank-``rank`` fit of ``x`` with its noise ``σ² = a·x + b`` learned from its own residuals (alternating the fit
     and :func:`_noise_step`; Foi et al. 2008). Returns the fit, ``a``, ``b`` and the negative log-likelihood
     ``Σ ρ(r/σ) + ½ Σ ln σ²`` of the present values (the noise is a fitted part of the model), ``ρ(z) = z²/2`` or, with
     ``huber`` = c, Huber's loss (Huber, "Robust estimation of a location parameter", Ann. Math. Stat. 35, 1964;
     fitted by iteratively reweighted least squares): a few values off the noise model (rounding of dark pixels that
-    the pixel noise does not dither, black clipping) then count linearly, not quadratically."""
+    the pixel noise does not dither, black clipping) then count linearly, not quadratically. ``extra`` is a known
+    variance added to every value's (scalar or per value): the output's rounding, carried into ``x``'s light."""
     read2 = read**2
+
+    def weights() -> NDArray[np.float64]:
+        return np.where(present, 1.0 / (shot * np.clip(np.nan_to_num(x), 0, None) + read2 + extra), 0.0)
+
     fit = None
     rw = np.ones(x.shape)
     for _ in range(updates):
-        w = np.where(present, noise_weights(x, shot, np.sqrt(read2)), 0.0)
+        w = weights()
         fit = wals(x, w * rw, rank, U=U, iters=iters)
         U = fit.U
-        shot, read2 = _noise_step(x, fit.pred, present, fit.k, shot, read2, floor)
+        shot, read2 = _noise_step(x, fit.pred, present, fit.k, shot, read2, floor, extra)
         if huber is not None:
-            z = np.abs(np.where(present, np.nan_to_num(x) - fit.pred, 0.0)) * np.sqrt(
-                np.where(present, noise_weights(x, shot, np.sqrt(read2)), 0.0))
+            z = np.abs(np.where(present, np.nan_to_num(x) - fit.pred, 0.0)) * np.sqrt(weights())
             rw = np.minimum(1.0, huber / np.maximum(z, 1e-12))
     assert fit is not None
-    w = np.where(present, noise_weights(x, shot, np.sqrt(read2)), 0.0)
+    w = weights()
     fit = wals(x, w * rw, rank, U=U, iters=iters)
     z = np.abs(np.where(present, np.nan_to_num(x) - fit.pred, 0.0)) * np.sqrt(w)
     rho = 0.5 * z**2 if huber is None else np.where(z < huber, 0.5 * z**2, huber * z - 0.5 * huber**2)

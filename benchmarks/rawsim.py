@@ -454,7 +454,7 @@ def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score"
     lamp light enter as spectral radiance before the sensor.
 
     ``variant`` (a key of :data:`PIPELINE_VARIANTS`, or None) changes the pipeline after the standard draws: bit
-    depth, ISO, tone curve, JPEG-like rounding or region size.
+    depth, ISO, tone curve, JPEG-like rounding, region size or region means rounded to codes.
     """
     from illumon.diagnosis.effects import (
         EFFECTS,

@@ -21,10 +21,12 @@ __all__ = ["noise_weights", "NoiseLevel", "quantisation_step", "estimate_noise",
 
 
 def noise_weights(
-    y: NDArray[np.float64], shot: float = DEFAULT_NOISE.shot, read: float = DEFAULT_NOISE.read
+    y: NDArray[np.float64], shot: float = DEFAULT_NOISE.shot, read: float = DEFAULT_NOISE.read,
+    extra: NDArray[np.float64] | float = 0.0,
 ) -> NDArray[np.float64]:
-    """Inverse noise variance ``1 / (shot · y + read²)`` of values on a 0…1 scale; 0 where missing."""
-    w = 1.0 / (shot * np.clip(np.nan_to_num(y), 0, None) + read**2)
+    """Inverse noise variance ``1 / (shot · y + read² + extra)`` of values on a 0…1 scale (``extra``: a known
+    variance, scalar or per value, such as the output's rounding); 0 where missing."""
+    w = 1.0 / (shot * np.clip(np.nan_to_num(y), 0, None) + read**2 + extra)
     return np.where(np.isfinite(y), w, 0.0)
 
 
@@ -108,7 +110,7 @@ def fit_learned_noise(x: NDArray[np.float64], present: NDArray[np.bool_], rank: 
     read2 = read**2
 
     def weights() -> NDArray[np.float64]:
-        return np.where(present, 1.0 / (shot * np.clip(np.nan_to_num(x), 0, None) + read2 + extra), 0.0)
+        return np.where(present, noise_weights(x, shot, np.sqrt(read2), extra), 0.0)
 
     fit = None
     rw = np.ones(x.shape)

@@ -136,8 +136,8 @@ GLOBAL_EFFECTS = ("nonlinear_response", "black_offset", "clipping")
 and so can be mimicked by lamp-lit frames or a fluorescent patch the bilinear model cannot describe."""
 
 
-def _spectral_cause(y: NDArray[np.float64], rank: int, chosen: Candidate, spectral: list[Candidate],
-                    margins: dict[str, float], learn_noise: bool) -> Candidate | None:
+def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank: int, chosen: Candidate,
+                    spectral: list[Candidate], margins: dict[str, float], learn_noise: bool) -> Candidate | None:
     """The spectral effect that explains a global bilinear one, or None.
 
     Lamp-lit frames break the daylight's rank-4 structure and a fluorescent patch adds light the reflectances do not
@@ -149,9 +149,15 @@ def _spectral_cause(y: NDArray[np.float64], rank: int, chosen: Candidate, spectr
     lamp-lit frames, or as clipping at −320; a weak tone curve with a patch that looks fluorescent keeps −22 without
     that patch and stays a tone curve). Clipping is not put down to fluorescence: a patch whose values clip misfits
     the spectral model by that alone (a development history clipped in one patch passed the fluorescence margin).
+    The converse is checked too: when the spectral effect no longer passes its margin once the global effect is
+    modelled (values linearised, offsets subtracted, clipped values dropped), the global effect explains it and
+    stays (a tone curve on values rounded to codes: its misfit of the spectral model read as lamp light, −57, which
+    linearising removes).
     """
     if chosen.effect not in GLOBAL_EFFECTS:
         return None
+    y = obs.values.reshape(obs.values.shape[0], -1)
+    modelled: list[Candidate] | None = None
     for cand in spectral:  # off-locus light first, as in the selection
         if not cand.score < -margins[cand.effect]:
             continue
@@ -167,7 +173,13 @@ def _spectral_cause(y: NDArray[np.float64], rank: int, chosen: Candidate, spectr
             masked[:, 3 * cand.patch : 3 * cand.patch + 3] = np.nan
         _, again, _ = bilinear_stage(masked, rank, margins["clipping"], learn_noise)
         score = next(c.score for c in again if c.effect == chosen.effect)
-        if not score < 0.0:
+        if score < 0.0:
+            continue
+        if modelled is None:
+            as_chosen = Diagnosis(chosen.effect, None, None, dict(chosen.parameters), [], 0.0, 0.0, None)
+            modelled, _ = spectral_stage(corrected_observations(obs, as_chosen), sensitivities,
+                                         margins["fluorescence"])
+        if next(c.score for c in modelled if c.effect == cand.effect) < -margins[cand.effect]:
             return cand
     return None
 
@@ -225,7 +237,8 @@ def diagnose(
     ok = [c for c in bil if c.score < -margins[c.effect]]
     if ok:
         chosen = min(ok, key=lambda c: c.score)
-        chosen = _spectral_cause(y, rank, chosen, spectral, margins, learn_noise) or chosen
+        chosen = _spectral_cause(obs, np.asarray(sensitivities, dtype=float), rank, chosen, spectral, margins,
+                                 learn_noise) or chosen
     else:
         # off-locus frames first: their misfit can make a patch look fluorescent, not the reverse
         ok = [c for c in spectral if c.score < -margins[c.effect]]

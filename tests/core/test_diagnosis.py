@@ -129,7 +129,7 @@ def test_extending_the_model_reduces_the_illuminant_error(shared_data):
         css = h.history.sensitivities
         d = diagnose(h.observations, css, reestimate=False)
         assert d.effect == "nonlinear_response"
-        assert d.parameters["gamma"] == pytest.approx(h.parameters["gamma"], rel=0.15)
+        assert d.parameters["gamma"] == pytest.approx(h.parameters["tone"], rel=0.15)
         before = retrieve_illuminants(h.observations, css, **fast)
         after = estimate_with_effect(h.observations, css, d, base_result=before, **fast)
         e0.append(np.median(angular_error_deg(before.white, h.history.true_white)))
@@ -374,3 +374,18 @@ def test_raw_histories_rounded_to_codes_name_their_effect(shared_data, effect, c
     assert d.effect == effect, [(c.effect, round(c.score, 1)) for c in d.candidates]
     if effect == "fluorescence":
         assert d.patch_index == h.patch
+
+
+def test_tone_curve_whose_misfit_looks_like_lamp_light_stays_a_tone_curve(shared_data):
+    """A γ ≈ 2 curve on region means rounded to codes (raw pipeline, ``rounded`` variant): the tone test supports
+    it, and its misfit of the spectral model passes the off-locus margin too. Without the top off-locus frames the
+    curve's weak evidence is gone, which alone named lamp light; linearised with the fitted curve the frames are
+    daylight again, so the curve explains them and is named."""
+    import rawsim
+
+    h = rawsim.hide_effect_raw("nonlinear_response", "Canon_5DMarkII", 1001005, split="score", variant="rounded")
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    scores = {c.effect: c.score for c in d.candidates}
+    assert scores["off_locus_illuminant"] < -NONE_MARGIN["off_locus_illuminant"]
+    assert d.effect == "nonlinear_response", [(c.effect, round(c.score, 1)) for c in d.candidates]
+    assert d.parameters["gamma"] == pytest.approx(h.parameters["tone"], rel=0.15)

@@ -129,7 +129,7 @@ def test_extending_the_model_reduces_the_illuminant_error(shared_data):
         css = h.history.sensitivities
         d = diagnose(h.observations, css, reestimate=False)
         assert d.effect == "nonlinear_response"
-        assert d.parameters["gamma"] == pytest.approx(h.parameters["tone"], rel=0.15)
+        assert d.parameters["gamma"] == pytest.approx(h.parameters["gamma"], rel=0.15)
         before = retrieve_illuminants(h.observations, css, **fast)
         after = estimate_with_effect(h.observations, css, d, base_result=before, **fast)
         e0.append(np.median(angular_error_deg(before.white, h.history.true_white)))

@@ -224,7 +224,8 @@ def diagnose(
         raise ValueError(f"diagnosis needs at least 3 patches, got {p}")
     y = obs.values.reshape(f, 3 * p)
     base, cands, info = bilinear_stage(y, rank, margins["clipping"], learn_noise)
-    spectral, sinfo = spectral_stage(obs, np.asarray(sensitivities, dtype=float), margins["fluorescence"])
+    css = np.asarray(sensitivities, dtype=float)
+    spectral, sinfo = spectral_stage(obs, css, margins["fluorescence"])
     info.update(sinfo)
     cands += spectral
     for c in cands:
@@ -237,8 +238,7 @@ def diagnose(
     ok = [c for c in bil if c.score < -margins[c.effect]]
     if ok:
         chosen = min(ok, key=lambda c: c.score)
-        chosen = _spectral_cause(obs, np.asarray(sensitivities, dtype=float), rank, chosen, spectral, margins,
-                                 learn_noise) or chosen
+        chosen = _spectral_cause(obs, css, rank, chosen, spectral, margins, learn_noise) or chosen
     else:
         # off-locus frames first: their misfit can make a patch look fluorescent, not the reverse
         ok = [c for c in spectral if c.score < -margins[c.effect]]

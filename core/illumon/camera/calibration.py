@@ -35,7 +35,7 @@ from ..bayes import GaussianPrior, gaussian_posterior
 from ..daylight import CIEDaylight
 from ..observations import Observations
 from .formation import angular_error_deg
-from .references import references_kind
+from .references import neutral_references, references_kind
 
 __all__ = [
     "CAMERA_WHITE_SD",
@@ -119,6 +119,8 @@ def camera_transform_Kinoshita2023(
     relative_error: float = 0.02,
     prior_sd: float = 1.0,
     iterations: int = 20,
+    neutral: NDArray[np.bool_] | None = None,
+    robust: float = 3.0,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Gaussian posterior of the transform ``T`` in ``C_eff = base @ T`` from references of known reflectance.
 
@@ -144,6 +146,15 @@ def camera_transform_Kinoshita2023(
         Prior standard deviation of ``T``'s entries around the identity (in units of the identity's entries).
     iterations
         Alternations between ``T`` and the exposures.
+    neutral
+        Which references are neutral (P,): after the fit, ``T``'s output channels are scaled so that the neutral
+        references' predicted values have the colour they were measured with — the reference frame's white is the
+        reference's, exactly (white-point preserving, Finlayson & Drew 1997). A processed camera's pipeline (gamut
+        clipping, a tone curve that is not exactly the declared one, local tone mapping) bends chromatic patches more
+        than greys; a 3 × 3 fitted to all patches alike would move the greys with them.
+    robust
+        With a full ``T``: chromatic references whose residual exceeds this many standard errors are down-weighted
+        (Cauchy weights, iteratively re-weighted), so a few gamut-clipped patches do not bend the fit.
 
     Returns
     -------
@@ -166,11 +177,12 @@ def camera_transform_Kinoshita2023(
     good = ok[..., None] & (values > 1e-3 * np.nanmax(values)) & (values < CLIPPED)
     t = np.eye(3)
     sd = np.zeros((3, 3))
+    robust_w = [np.ones_like(x) for x in xs]
     for _ in range(iterations):
         t_new = np.zeros((3, 3))
         d = (s[:, None, None] * u)[ok]  # n × 3
         for c in range(3):
-            w = weights[c]
+            w = weights[c] * robust_w[c]
             dw, xw = d * w[:, None], xs[c] * w
             if diagonal:
                 prior = GaussianPrior(np.array([1.0]) * t[c, c], np.array([[1.0 / prior_sd**2]]))
@@ -184,12 +196,36 @@ def camera_transform_Kinoshita2023(
                 sd[:, c] = np.sqrt(np.diag(post.covariance))
         t = t_new
         pred = np.einsum("fpj,jc->fpc", u, t)
+        if not diagonal and robust > 0:
+            for c in range(3):
+                r = (xs[c] - (s[:, None] * pred[..., c])[ok]) * weights[c]
+                robust_w[c] = 1.0 / (1.0 + (r / robust) ** 2)
         s = np.array([
             np.sum((pred[f] * values[f])[good[f]]) / max(np.sum((pred[f] ** 2)[good[f]]), 1e-300) if good[f].any() else 1.0
             for f in range(u.shape[0])
         ])
+    if neutral is not None and np.any(neutral):
+        t = t @ np.diag(_neutral_scales(values, np.einsum("fpj,jc->fpc", u, t), ok & np.asarray(neutral)[None, :]))
     norm = _d65_white(base)[1] / _d65_white(base @ t)[1]
     return t * norm, sd * abs(norm)
+
+
+def _neutral_scales(values: NDArray[np.float64], pred: NDArray[np.float64], mask: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Per-channel scales (3,) that give the neutral references (``mask``, F × P) the colour they were measured with:
+    the ratio of measured to predicted sums over their unclipped values, each frame's own exposure left out."""
+    num, den = np.zeros(3), np.zeros(3)
+    for f in range(values.shape[0]):
+        m = mask[f] & np.all(values[f] < CLIPPED, axis=-1) & np.all(values[f] > 0, axis=-1)
+        if not m.any():
+            continue
+        v, p = values[f, m], pred[f, m]
+        k = np.sum(v[:, 1]) / max(np.sum(p[:, 1]), 1e-300)  # the frame's exposure, from green
+        num += v.sum(axis=0)
+        den += k * p.sum(axis=0)
+    if not np.all(den > 0):
+        return np.ones(3)
+    scale = num / den
+    return scale / scale[1]
 
 
 def _log_chroma(white: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -245,6 +281,7 @@ def calibrate_scene_model(
     fit: Callable[[Observations, NDArray[np.float64]], tuple],
     *,
     prior_mean: NDArray[np.float64] | None = None,
+    primaries: str = "camera",
     max_iterations: int = 6,
     tol_deg: float = 0.02,
 ):
@@ -293,6 +330,7 @@ def calibrate_scene_model(
                 "(their daylight is estimated from the scene)"
             )
         spectra = np.stack([known[p] for p in ids])
+        neutral = np.array([p in set(neutral_references({q: known[q] for q in ids})) for p in ids])
         dm = model.daylight_model()
         for it in range(1, max_iterations + 1):  # noqa: B007
             # The references are left out of the scene fit: a reference seen in one frame cannot tell a shift
@@ -300,17 +338,55 @@ def calibrate_scene_model(
             # (as without references) and T absorbs the rest, pinning the camera white of the reference frames.
             t_new, sd = camera_transform_Kinoshita2023(
                 base, spectra, dm.spectra(theta[frames, :2]), values[frames], diagonal=(kind == "grey"),
+                neutral=neutral,
             )
             change = float(angular_error_deg(_d65_white(base @ t), _d65_white(base @ t_new)))
             t = t_new
             model, theta = fit(scene, base @ t)
             if change < tol_deg:
                 break
-    if kind == "none":
+    if kind == "none" and primaries == "camera":
+        # A rendered camera's own white balance already set its channel scales; its prior is in the daylight model.
         t = _scene_average_transform(scene, base, model, theta)
         model, theta = fit(scene, base @ t)
         it = 1
     model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()
     model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=CAMERA_WHITE_SD[kind])
     model.history_estimate = model.estimate(scene)  # with the camera's uncertainty in its intervals
+    if ids:
+        _reference_frames_white(model.history_estimate, values, spectra, neutral, base @ t)
     return model
+
+
+REFERENCE_WHITE_SD_DEG = 0.25
+"""Angular standard deviation (degrees) of a camera white read off neutral references in its own frame: the spread of
+a ColorChecker's greys 20–22 about their mean on the development photographs (``benchmarks/real.py``) is 0.1–0.3°."""
+
+
+def _reference_frames_white(estimate: tuple, values: NDArray[np.float64], spectra: NDArray[np.float64],
+                            neutral: NDArray[np.bool_], sensitivities: NDArray[np.float64]) -> None:
+    """A frame that shows neutral references gets its white from them (in place): each unclipped neutral's measured
+    value divided by its predicted value relative to the white under the frame's estimated light (which corrects a
+    chart grey's slight colour), summed over the neutrals; its gains follow, with intervals and ``confidence`` from
+    :data:`REFERENCE_WHITE_SD_DEG`. Other frames are untouched."""
+    result, extra = estimate
+    if not np.any(neutral):
+        return
+    for f in range(values.shape[0]):
+        v = values[f][neutral]
+        ok = np.all(np.isfinite(v), axis=-1) & np.all(v < CLIPPED, axis=-1) & np.all(v > 0, axis=-1)
+        e = np.asarray(result.spectra[f], dtype=float)
+        if not ok.any() or not np.all(np.isfinite(e)):
+            continue
+        rel = ((spectra[neutral][ok] * e) @ sensitivities) / (e @ sensitivities)  # each neutral relative to white
+        white = v[ok].sum(axis=0) / rel.sum(axis=0)
+        if not np.all(white > 0):
+            continue
+        white = white / white[1]
+        result.white[f] = white
+        result.gains[f] = 1.0 / white
+        sd = math.radians(REFERENCE_WHITE_SD_DEG)
+        extra["confidence"][f] = 1.0 - math.exp(-(math.radians(1.0) ** 2) / (2 * sd**2))
+        half = 1.959963984540054 * sd * np.sqrt(2.0) * result.gains[f]
+        result.info["gain_lo"][f] = result.gains[f] - half
+        result.info["gain_hi"][f] = result.gains[f] + half

@@ -8,6 +8,7 @@ channels by a colour matrix.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from pathlib import Path
 
@@ -23,6 +24,8 @@ __all__ = [
     "read_known_reflectances",
     "check_known_reflectances",
     "references_kind",
+    "neutral_references",
+    "reference_chroma",
 ]
 
 
@@ -88,13 +91,44 @@ def read_known_reflectances(path: str | Path) -> dict[str, NDArray[np.float64]]:
     return check_known_reflectances({n: grid[:, j] for j, n in enumerate(names)}, source)
 
 
+NEUTRAL_CHROMA = 0.04
+"""Largest distance (log X/Y and Z/Y under CIE D65, the CIE 1931 observer) from a flat spectrum's chromaticity at which a
+reference counts as neutral: the ColorChecker's greys 19–24 lie within 0.02, its least saturated colour patch beyond 0.1."""
+
+CHART_SPREAD = 0.05
+"""Second singular value (per reference, log-chromaticity units) the references' chromaticities must reach to pin a
+3 × 3 colour matrix: they must span both chromatic directions, not one line through grey."""
+
+
+def reference_chroma(spectra: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Log chromaticity ``(log X/Y, log Z/Y)`` of reflectances (P × 61) under CIE D65 for the CIE 1931 2° observer,
+    relative to a flat spectrum's (P × 2): a camera-independent measure of how coloured a reference is."""
+    import colour
+
+    cmfs = np.asarray(colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(GRID).values, dtype=float)
+    d65 = np.asarray(colour.SDS_ILLUMINANTS["D65"].copy().align(GRID).values, dtype=float)
+    xyz = (np.atleast_2d(spectra) * d65) @ cmfs
+    flat = d65 @ cmfs
+    xyz = np.clip(xyz, 1e-9, None) / flat
+    return np.log(xyz[:, [0, 2]] / xyz[:, 1:2])
+
+
+def neutral_references(known: Mapping[str, NDArray[np.float64]]) -> list[str]:
+    """Ids of the references that are neutral (grey card, a chart's greys; :data:`NEUTRAL_CHROMA`)."""
+    ids = list(known)
+    if not ids:
+        return []
+    chroma = reference_chroma(np.stack([np.asarray(known[p], dtype=float) for p in ids]))
+    return [p for p, c in zip(ids, chroma, strict=True) if np.abs(c).max() < NEUTRAL_CHROMA]
+
+
 def references_kind(known: Mapping[str, NDArray[np.float64]]) -> str:
-    """``"grey"`` when the references span no more than one chromatic direction (flat cards: only channel scales can
-    be pinned), ``"chart"`` when they are chromatically rich enough to pin a 3 × 3 colour matrix."""
+    """``"grey"`` when the references' chromaticities span less than both chromatic directions (greys, or greys and
+    one colour: only channel scales can be pinned), ``"chart"`` when they are rich enough to pin a 3 × 3 colour matrix
+    (:data:`CHART_SPREAD`). The six greys of a ColorChecker are ``"grey"``."""
     r = np.stack([np.asarray(v, dtype=float) for v in known.values()])
-    shapes = r / np.maximum(r.mean(axis=1, keepdims=True), 1e-9)
-    flat = np.all(np.abs(shapes - 1.0).max(axis=1) < 0.1)
-    if flat or r.shape[0] < 4:
+    if r.shape[0] < 4:
         return "grey"
-    sv = np.linalg.svd(shapes - shapes.mean(0), compute_uv=False)
-    return "chart" if sv.size >= 2 and sv[1] > 0.05 * max(sv[0], 1e-12) else "grey"
+    chroma = reference_chroma(r)
+    sv = np.linalg.svd(chroma - chroma.mean(axis=0), compute_uv=False)
+    return "chart" if sv.size >= 2 and sv[1] / math.sqrt(r.shape[0]) > CHART_SPREAD else "grey"

@@ -94,6 +94,16 @@ def fit_camera_and_scene(args: argparse.Namespace, obs, known: dict[str, np.ndar
     if len(obs.frames) < 2:
         raise UsageError(f"{args.observations}: only one frame; a history needs at least two")
     try:
-        return fit_scene_model(obs, css, known_reflectances=known or None, **kwargs)
-    except ValueError as exc:
+        return fit_scene_model(obs, css, known_reflectances=known or None,
+                               primaries=getattr(args, "primaries", "camera"), **kwargs)
+    except (ValueError, np.linalg.LinAlgError) as exc:
         raise ValueError(f"{args.observations}: {exc}") from None
+
+
+def add_primaries(parser: argparse.ArgumentParser) -> None:
+    """``--primaries camera|srgb``: the camera's output space (:data:`illumon.camera.primaries.PRIMARIES`)."""
+    from ..camera.primaries import PRIMARIES
+
+    parser.add_argument("--primaries", default="camera", choices=list(PRIMARIES),
+                        help="output space: camera (sensor RGB, raw) or srgb (rendered output: white balance and a colour "
+                             "matrix to sRGB primaries; IP, surveillance and phone cameras)")

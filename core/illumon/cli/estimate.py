@@ -9,7 +9,15 @@ from typing import Any
 
 import numpy as np
 
-from .common import UsageError, add_white_level, fit_camera_and_scene, read_known, write_estimates, write_reflectances
+from .common import (
+    UsageError,
+    add_primaries,
+    add_white_level,
+    fit_camera_and_scene,
+    read_known,
+    write_estimates,
+    write_reflectances,
+)
 
 __all__ = ["add_estimate_command"]
 
@@ -32,6 +40,10 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
         from ..spectra import read_sensitivities
 
         css = read_sensitivities(args.sensitivities)
+        if args.primaries == "srgb":
+            from ..camera.primaries import to_srgb_primaries
+
+            css = to_srgb_primaries(css)
         if len(obs.frames) < 2:
             raise UsageError(
                 f"{args.observations}: only one frame; multi-frame retrieval needs at least two (or use --model)"
@@ -84,6 +96,7 @@ def add_estimate_command(sub: Any) -> None:
     est.add_argument("--method", default="joint", choices=["joint", "marguier2007", "gray_world"])
     est.add_argument("--daylight-model", default="cie", choices=["cie", "measured"])
     add_white_level(est)
+    add_primaries(est)
     est.add_argument("--reflectances", help="also write the recovered patch reflectances to this CSV")
     est.add_argument("--model-effects", default="none", choices=["none", "auto"],
                      help="auto: diagnose the history (`illumon diagnose`) and estimate with the effect modelled")

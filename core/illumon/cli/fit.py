@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from .common import add_white_level, fit_camera_and_scene, read_known
+from .common import add_primaries, add_white_level, fit_camera_and_scene, read_known
 
 __all__ = ["add_fit_command", "CAMERA_WORDS"]
 
@@ -54,5 +54,6 @@ def add_fit_command(subparsers: Any) -> None:
     p.add_argument("--known-reflectances", help="KNOWN.csv wavelength_nm,<patch id>,…: references of known reflectance")
     p.add_argument("--model", required=True, help="MODEL.json to write")
     add_white_level(p)
+    add_primaries(p)
     p.add_argument("--max-fit-frames", type=int, default=300, help="frames used for the reflectance fit (300)")
     p.set_defaults(func=_cmd_fit)

@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from .._blas import single_blas_thread
 from ..camera.calibration import calibrate_scene_model
+from ..camera.primaries import SRGB_BALANCE_SD, check_primaries, daylight_prior_for, srgb_sensitivities, to_srgb_primaries
 from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
 from ..observations import Observations
@@ -55,6 +56,7 @@ def fit_scene_model(
     *,
     known_reflectances: Mapping[str, NDArray[np.float64]] | None = None,
     camera_prior_mean: NDArray[np.float64] | None = None,
+    primaries: str = "camera",
     daylight: CIEDaylight | None = None,
     relative_error: float = 0.02,
     absolute_error: float = 0.002,
@@ -78,7 +80,12 @@ def fit_scene_model(
         not part of the learned scene.
     camera_prior_mean
         With ``sensitivities=None``: the unmeasured camera's prior sensitivities (default: the mean of the measured
-        cameras shipped with illumon).
+        cameras shipped with illumon, or for ``primaries="srgb"`` the linear-sRGB colour-matching functions).
+    primaries
+        The camera's output space (:data:`illumon.camera.primaries.PRIMARIES`): ``"camera"`` (sensor RGB) or
+        ``"srgb"`` (rendered output: white balance and a colour matrix to sRGB primaries). With ``"srgb"`` measured
+        sensitivities are first carried to sRGB primaries by a white-preserving matrix
+        (:func:`illumon.camera.primaries.to_srgb_primaries`).
     daylight
         CIE daylight model with its prior; the default :class:`~illumon.daylight.CIEDaylight`.
     relative_error, absolute_error
@@ -93,17 +100,28 @@ def fit_scene_model(
     SceneModel
         Its ``camera`` says how the camera was calibrated; estimates and gains are in the observations' RGB space.
     """
+    check_primaries(primaries)
+    if daylight is None and primaries == "srgb":
+        daylight = daylight_prior_for(primaries)
+    balance_sd = SRGB_BALANCE_SD if primaries == "srgb" else None
     kwargs = dict(daylight=daylight, relative_error=relative_error, absolute_error=absolute_error,
-                  max_fit_frames=max_fit_frames, iterations=iterations, tol=tol)
+                  max_fit_frames=max_fit_frames, iterations=iterations, tol=tol,
+                  balance_sd=balance_sd)
     known = check_known_reflectances(known_reflectances, "known reflectances") if known_reflectances else {}
     missing = [p for p in known if p not in obs.patches]
     if missing:
         raise ValueError(f"known patch(es) never observed: {', '.join(missing)}")
+    if sensitivities is not None and primaries == "srgb":
+        sensitivities = to_srgb_primaries(np.asarray(sensitivities, dtype=float))
+    if sensitivities is None and camera_prior_mean is None and primaries == "srgb":
+        camera_prior_mean = srgb_sensitivities()
     if sensitivities is None or known:
-        return calibrate_scene_model(obs, sensitivities, known, lambda o, c: _fit_fixed_camera(o, c, **kwargs),
-                                     prior_mean=camera_prior_mean)
-    model, _ = _fit_fixed_camera(obs, np.asarray(sensitivities, dtype=float), **kwargs)
-    model.camera = {"calibration": "measured"}
+        model = calibrate_scene_model(obs, sensitivities, known, lambda o, c: _fit_fixed_camera(o, c, **kwargs),
+                                      prior_mean=camera_prior_mean, primaries=primaries)
+    else:
+        model, _ = _fit_fixed_camera(obs, np.asarray(sensitivities, dtype=float), **kwargs)
+        model.camera = {"calibration": "measured"}
+    model.camera["primaries"] = primaries
     return model
 
 
@@ -209,6 +227,66 @@ def _alternate(
     return theta, coef, n_iter
 
 
+def _mean_log_chroma(dm: CIEDaylight, css: NDArray[np.float64], theta: NDArray[np.float64]) -> NDArray[np.float64]:
+    white = dm.spectra(theta[:, :2]) @ css
+    return np.mean(np.log(np.clip(white[:, [0, 2]], 1e-12, None) / np.clip(white[:, 1:2], 1e-12, None)), axis=0)
+
+
+def _anchor_common_level(
+    objective: _JointObjective, theta: NDArray[np.float64], css: NDArray[np.float64], balance_sd: float,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Set the level common to every frame from two pieces of evidence, for output the camera white-balanced itself.
+
+    Static patches cannot see a shift common to every frame's light (a tilt of every reflectance undoes it), so the
+    fit's common level is what the reflectance prior makes of the scene's average colour — reliable to
+    :data:`~illumon.camera.calibration.SCENE_AVERAGE_SD` (log r/g, b/g) at best, and far worse on a scene unlike
+    the measured surfaces (a chart's colour patches: gray-world 13° off). A camera that balanced its output says
+    where that level is too: its history's mean white is grey within ``balance_sd``
+    (:data:`~illumon.camera.primaries.SRGB_BALANCE_SD`). The two Gaussian pieces are combined (the mean white's
+    posterior is the fit's times ``balance_sd² / (balance_sd² + SCENE_AVERAGE_SD²)``), every frame's ``(mired, δ)``
+    is moved by the one common shift that puts the mean white there, and the reflectances are re-solved at the
+    shifted light (the data fit is unchanged to first order: that is the direction they cannot see).
+
+    Returns the shifted ``θ``, the re-solved coefficients, and the posterior standard deviation of the common shift
+    ``(mired, δ)``.
+    """
+    from ..camera.calibration import SCENE_AVERAGE_SD
+
+    dm = objective.dm
+    gain = balance_sd**2 / (balance_sd**2 + SCENE_AVERAGE_SD**2)
+    lo_b, hi_b = dm.bounds()
+    target = gain * _mean_log_chroma(dm, css, theta)
+    shift = np.zeros(2)
+    steps = np.array([1.0, 1e-4])
+
+    def shifted(d: NDArray[np.float64]) -> NDArray[np.float64]:
+        th = theta.copy()
+        th[:, 0] = np.clip(th[:, 0] + d[0], lo_b[0], hi_b[0])
+        th[:, 1] = np.clip(th[:, 1] + d[1], lo_b[1], hi_b[1])
+        return th
+
+    jac = np.eye(2)
+    for _ in range(8):  # Gauss–Newton on two unknowns
+        f0 = _mean_log_chroma(dm, css, shifted(shift)) - target
+        if np.max(np.abs(f0)) < 1e-5:
+            break
+        jac = np.stack([(_mean_log_chroma(dm, css, shifted(shift + steps * e)) - target - f0) / steps[i]
+                        for i, e in enumerate(np.eye(2))], axis=1)
+        try:
+            shift = shift - np.linalg.solve(jac, f0)
+        except np.linalg.LinAlgError:
+            break
+    theta = shifted(shift)
+    coef, _ = objective.reflectances(theta)
+    # Posterior sd of the mean white (log units) → of the common (mired, δ) through the same Jacobian.
+    post = math.sqrt(1.0 / (1.0 / balance_sd**2 + 1.0 / SCENE_AVERAGE_SD**2))
+    try:
+        sd = np.sqrt(np.clip(np.diag(post**2 * np.linalg.inv(jac.T @ jac)), 0, None))
+    except np.linalg.LinAlgError:
+        sd = np.array([dm.mired_sigma, dm.duv_sigma])
+    return theta, coef, sd
+
+
 def _training_summary(obs: Observations, present_all: NDArray[np.bool_], n_sub: int, res: RetrievalResult,
                       n_iter: int, seconds: float) -> dict:
     mired_all = 1e6 / res.cct
@@ -242,9 +320,11 @@ def _fit_fixed_camera(
     max_fit_frames: int = 300,
     iterations: int = 40,
     tol: float = 0.01,
+    balance_sd: float | None = None,
 ) -> tuple[SceneModel, NDArray[np.float64]]:
     """:func:`fit_scene_model` for given (effective) sensitivities. Returns the model and every frame's
-    ``(mired, δ, log k)`` (F × 3) from the learned reflectances."""
+    ``(mired, δ, log k)`` (F × 3) from the learned reflectances. ``balance_sd``: the output is white-balanced by the
+    camera, the history's mean white lies within that spread (log r/g, b/g) of grey (:func:`_anchor_common_level`)."""
     t0 = time.perf_counter()
     dm = daylight or CIEDaylight()
     rb = reflectance_basis()
@@ -272,6 +352,9 @@ def _fit_fixed_camera(
     theta = objective.start(gw_mired[sub], y, present)
     theta, coef, n_iter = _alternate(objective, theta, (css, dm, rb, relative_error, absolute_error), y, present,
                                      iterations, tol)
+    anchored_sd = None
+    if balance_sd is not None:
+        theta, coef, anchored_sd = _anchor_common_level(objective, theta, css, balance_sd)
     am = objective.operators(theta)
     resid2 = objective.w2 * (objective.yz - np.einsum("fcj,pj->fpc", am, coef)) ** 2
     dof = max(int(present.sum()) * 3 - 3 * len(sub) - rb.size * len(obs.patches), 1)
@@ -281,6 +364,8 @@ def _fit_fixed_camera(
     cov = np.linalg.inv(prec)
     cov = 0.5 * (cov + cov.transpose(0, 2, 1))
     common = objective.common_shift_sd(theta, noise_scale)
+    if anchored_sd is not None:  # the common level is the anchored posterior's, not the reflectance prior's
+        common = np.minimum(common, anchored_sd)
     model = SceneModel(
         patches=list(obs.patches), coefficients=coef, covariance=cov, sensitivities=css,
         grid=(float(GRID.start), float(GRID.end), float(GRID.interval)), basis=rb.functions,

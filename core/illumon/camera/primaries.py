@@ -1,0 +1,102 @@
+"""The output space is part of the camera: sensor primaries (raw) or sRGB / BT.709 primaries (rendered output).
+
+A raw or machine-vision camera without a colour matrix delivers its sensor's RGB: its effective sensitivities are the
+sensor's, and a camera nobody measured starts from the mean of the measured cameras
+(:func:`illumon.camera.calibration.prior_sensitivities`). An IP, surveillance or phone camera delivers *rendered*
+output: its pipeline multiplies the sensor's RGB by white-balance gains and a colour matrix towards the sRGB / BT.709
+primaries, so its effective sensitivities are close to the linear-sRGB colour-matching functions (the CIE 1931 2°
+CMFs through the XYZ → linear sRGB matrix, negative lobes included) times a diagonal: the white-balance preset, which
+makes the light the camera was balanced for grey. A priori that light is CIE D65 (``srgb`` output of a daylight preset
+or of an auto white balance that neutralised the scene's light). The spread of real cameras around that prior is
+measured, not assumed: :func:`srgb_prior_white_spread`.
+
+References
+----------
+.. [1] IEC 61966-2-1:1999, Multimedia systems and equipment — Colour measurement and management — Default RGB colour
+   space — sRGB.
+.. [2] G. D. Finlayson and M. S. Drew, "White-point preserving color correction", Proc. IS&T/SID 5th Color Imaging
+   Conference, 1997, pp. 258–261.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import colour
+import numpy as np
+from numpy.typing import NDArray
+
+from ..spectra import GRID
+
+__all__ = ["PRIMARIES", "SRGB_BALANCE_SD", "srgb_sensitivities", "check_primaries", "to_srgb_primaries",
+           "daylight_prior_for"]
+
+PRIMARIES = {
+    "camera": "sensor RGB: raw output, machine-vision cameras without a colour matrix",
+    "srgb": "rendered output: the camera applied white-balance gains and a colour matrix to sRGB / BT.709 primaries",
+}
+"""The output spaces a camera may deliver, by name (CLI ``--primaries``, the service's ``response.primaries``)."""
+
+
+SRGB_BALANCE_SD = 0.056
+"""Standard deviation (log r/g and b/g, pooled) of a history's mean white around grey for a camera balanced for
+daylight (a D65 preset, or an auto white balance): the geometric-mean white of 33 development runs of 40 Granada
+spectra through the D65-balanced linear-sRGB colour-matching functions (``python tools/srgb_balance_spread.py``:
+0.052 r/g, 0.059 b/g; within a run 0.18). Along the daylight locus that is ≈ 11 MK⁻¹
+(d log(r/g, b/g) / d mired = (0.0040, −0.0064) at D65)."""
+
+SRGB_MIRED_BETWEEN = 11.0
+""":data:`SRGB_BALANCE_SD` along the daylight locus (MK⁻¹): the spread of a rendered camera's history-mean light
+around the D65 it is balanced for, the ``mired_between`` of its hierarchical daylight prior."""
+
+
+def daylight_prior_for(primaries: str):
+    """The daylight prior of a camera's output space: for ``camera`` the default (Granada: N(150, 45²) MK⁻¹ per frame,
+    frames independent); for ``srgb`` the light *as the balanced output shows it*: centred on D65 (the light the
+    camera makes grey), each frame N(153.8, 45²), and the frames of one history sharing a level that departs from D65
+    by :data:`SRGB_MIRED_BETWEEN` — the camera's own white balance is information the raw prior does not have."""
+    from ..daylight import CIEDaylight
+
+    if check_primaries(primaries) == "srgb":
+        return CIEDaylight(mired_mean=1e6 / 6504.0, mired_between=SRGB_MIRED_BETWEEN)
+    return CIEDaylight()
+
+
+def check_primaries(name: str) -> str:
+    """``name`` if it is one of :data:`PRIMARIES`, else ``ValueError`` naming the choices."""
+    if name not in PRIMARIES:
+        raise ValueError(f"unknown primaries {name!r}; use {' or '.join(PRIMARIES)}")
+    return name
+
+
+@lru_cache(maxsize=1)
+def srgb_sensitivities() -> NDArray[np.float64]:
+    """Linear-sRGB colour-matching functions on the grid (61 × 3), balanced for CIE D65: the camera white under D65 is
+    (1, 1, 1) up to a common scale, and the largest value is 1.
+
+    The CIE 1931 2° CMFs (colour-science) through the IEC 61966-2-1 XYZ → linear sRGB matrix; they have negative lobes
+    (a colour matrix produces them from a real sensor too), so values below 0 are kept.
+    """
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(GRID)
+    xyz = np.asarray(cmfs.values, dtype=float)
+    m = np.asarray(colour.models.RGB_COLOURSPACE_sRGB.matrix_XYZ_to_RGB, dtype=float)
+    rgb = xyz @ m.T
+    d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(GRID)
+    white = np.asarray(d65.values, dtype=float) @ rgb
+    rgb = rgb / white  # the daylight preset: D65 is grey
+    return rgb / rgb.max()
+
+
+def to_srgb_primaries(sensitivities: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Measured sensor sensitivities (61 × 3) carried to sRGB primaries the way a camera's pipeline does it: a 3 × 3
+    colour matrix fitted to the linear-sRGB colour-matching functions under D65 light, white-preserving (D65 stays
+    grey, Finlayson & Drew [2]_); returns ``sensitivities @ M`` scaled to a largest value of 1."""
+    c = np.asarray(sensitivities, dtype=float)
+    target = srgb_sensitivities()
+    d65 = np.asarray(colour.SDS_ILLUMINANTS["D65"].copy().align(GRID).values, dtype=float)
+    w = np.sqrt(d65 / d65.mean())[:, None]
+    m = np.linalg.lstsq(c * w, target * w, rcond=None)[0]
+    # White preservation: scale each output channel so that D65 maps to the target's (equal) white.
+    m = m * ((d65 @ target) / np.maximum(d65 @ (c @ m), 1e-12))[None, :]
+    out = c @ m
+    return out / np.abs(out).max()

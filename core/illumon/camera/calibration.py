@@ -52,6 +52,15 @@ daylight whites around the mean camera's (see :func:`prior_white_spread`); ``gre
 leaves, measured on development cameras (``python benchmarks/unmeasured.py``)."""
 
 
+SRGB_CAMERA_WHITE_SD = 0.018
+"""For rendered (``srgb``) output with no reference or a grey card (which pins only channel scales): how far a real
+camera's white, carried to sRGB primaries by its
+white-preserving matrix (:func:`illumon.camera.primaries.to_srgb_primaries`), departs from the sRGB colour-matching
+functions' under daylight away from D65 — 0.0074–0.044 for the 24 measured cameras, pooled RMS 0.018 (log r/g, b/g;
+every 7th Granada spectrum). The history's common level adds its own, larger uncertainty
+(:func:`illumon.model.fit._anchor_common_level`)."""
+
+
 CLIPPED = 0.995
 """Reference values at or above this (observations are 0…1 of the white level) are taken as clipped."""
 
@@ -351,7 +360,11 @@ def calibrate_scene_model(
         model, theta = fit(scene, base @ t)
         it = 1
     model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()
-    model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=CAMERA_WHITE_SD[kind])
+    # Rendered output: a grey card pins channel scales, but not how a real camera's matrix departs from the sRGB
+    # functions away from the card's light (a chart's 3 × 3 does).
+    white_sd = SRGB_CAMERA_WHITE_SD if (kind in ("none", "grey") and primaries == "srgb") else CAMERA_WHITE_SD[kind]
+    model.camera["white_sd_log"] = white_sd
+    model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=white_sd)
     model.history_estimate = model.estimate(scene)  # with the camera's uncertainty in its intervals
     if ids:
         _reference_frames_white(model.history_estimate, values, spectra, neutral, base @ t)

@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from ..spectra import GRID
 
 __all__ = ["PRIMARIES", "SRGB_BALANCE_SD", "srgb_sensitivities", "check_primaries", "to_srgb_primaries",
-           "daylight_prior_for"]
+           "srgb_matrix_for", "daylight_prior_for"]
 
 PRIMARIES = {
     "camera": "sensor RGB: raw output, machine-vision cameras without a colour matrix",
@@ -87,16 +87,21 @@ def srgb_sensitivities() -> NDArray[np.float64]:
     return rgb / rgb.max()
 
 
-def to_srgb_primaries(sensitivities: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Measured sensor sensitivities (61 × 3) carried to sRGB primaries the way a camera's pipeline does it: a 3 × 3
-    colour matrix fitted to the linear-sRGB colour-matching functions under D65 light, white-preserving (D65 stays
-    grey, Finlayson & Drew [2]_); returns ``sensitivities @ M`` scaled to a largest value of 1."""
+def srgb_matrix_for(sensitivities: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The 3 × 3 ``M`` (``output = sensor @ M``, row vectors) a camera's pipeline would use to carry these sensor
+    sensitivities (61 × 3) to sRGB primaries with a D65 daylight preset: least squares to the linear-sRGB
+    colour-matching functions under D65 light, then each output channel scaled so D65 stays grey — white-preserving
+    (Finlayson & Drew [2]_). The white-balance preset is folded into ``M``."""
     c = np.asarray(sensitivities, dtype=float)
     target = srgb_sensitivities()
     d65 = np.asarray(colour.SDS_ILLUMINANTS["D65"].copy().align(GRID).values, dtype=float)
     w = np.sqrt(d65 / d65.mean())[:, None]
     m = np.linalg.lstsq(c * w, target * w, rcond=None)[0]
-    # White preservation: scale each output channel so that D65 maps to the target's (equal) white.
-    m = m * ((d65 @ target) / np.maximum(d65 @ (c @ m), 1e-12))[None, :]
-    out = c @ m
+    return m * ((d65 @ target) / np.maximum(d65 @ (c @ m), 1e-12))[None, :]
+
+
+def to_srgb_primaries(sensitivities: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Measured sensor sensitivities (61 × 3) carried to sRGB primaries the way a camera's pipeline does it
+    (:func:`srgb_matrix_for`); returns ``sensitivities @ M`` scaled to a largest absolute value of 1."""
+    out = np.asarray(sensitivities, dtype=float) @ srgb_matrix_for(sensitivities)
     return out / np.abs(out).max()

@@ -108,3 +108,22 @@ def test_real_photographs_development_set(shared_data):
         assert none < base["nothing"] and none < base["gray-world"], (name, none, base)
         for mode in ("grey", "chart"):
             assert real.angular(real.run_illumon(s, mode)[0], s.truth)[0] < 0.5, (name, mode)
+
+
+def test_self_balancing_camera_is_named(shared_data):
+    """A day (30 frames over 10 hours) from a camera that rebalances every frame: its light looks steady and the fit
+    warns; the same day through a fixed daylight preset does not (``benchmarks/unmeasured.py`` cases)."""
+    import unmeasured
+
+    times = [f"2025-06-01T{7 + i // 3:02d}:{(i % 3) * 20:02d}:00Z" for i in range(30)]
+    for case, expect in (("none+awb", True), ("none+rendered", False)):
+        obs, _, _ = unmeasured.render("rawsim", "Nikon_D80", case, 5)
+        obs = Observations(obs.frames, obs.patches, obs.values, times)
+        model = _fit(obs, "srgb")
+        said = any("white balance is automatic" in w for w in model.identifiability["warnings"])
+        assert said == expect, (case, model.identifiability["warnings"])
+    short = Observations(obs.frames, obs.patches, obs.values, times[:9] + [""] * 21)  # under six hours: no verdict
+    from illumon.camera.balance import self_balance_warning
+
+    assert self_balance_warning(short.times, np.full(30, 150.0)) is None
+    assert self_balance_warning(times, np.full(30, 150.0)) is not None

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._blas import single_blas_thread
+from ..camera.balance import self_balance_warning
 from ..camera.calibration import calibrate_scene_model
 from ..camera.primaries import SRGB_BALANCE_SD, check_primaries, daylight_prior_for, srgb_sensitivities, to_srgb_primaries
 from ..camera.references import check_known_reflectances
@@ -122,6 +123,11 @@ def fit_scene_model(
         model, _ = _fit_fixed_camera(obs, np.asarray(sensitivities, dtype=float), **kwargs)
         model.camera = {"calibration": "measured"}
     model.camera["primaries"] = primaries
+    res = model.history_estimate[0] if model.history_estimate else None
+    msg = self_balance_warning(obs.times, 1e6 / np.asarray(res.cct, dtype=float)) if res is not None else None
+    if msg:
+        model.identifiability.setdefault("warnings", []).append(msg)
+        warnings.warn(msg, IdentifiabilityWarning, stacklevel=2)
     return model
 
 

@@ -32,6 +32,7 @@ from illumon.spectra import WAVELENGTHS
 from numpy.typing import NDArray
 
 __all__ = [
+    "camera_primaries",
     "RefitInputError",
     "RESPONSE_CHECK_FRAMES",
     "check_response",
@@ -63,6 +64,15 @@ def model_path(data_dir: Path | str, camera_id: int, view: str | None = None) ->
 def model_available(data_dir: Path | str, camera_id: int, view: str | None = None) -> bool:
     """Whether per-frame estimation is possible for the camera (a scene model has been fitted)."""
     return model_path(data_dir, camera_id, view).is_file()
+
+
+def camera_primaries(response: dict | None, measured: bool) -> str:
+    """The camera's output space (``response.primaries``); cameras registered before it existed get the default of
+    :class:`~.api.schemas.ResponseIn`: ``srgb`` for an unmeasured camera with an ``srgb`` or ``table`` encoding."""
+    r = response or {}
+    if r.get("primaries") in ("camera", "srgb"):
+        return r["primaries"]
+    return "srgb" if (not measured and r.get("encoding", "srgb") in ("srgb", "table")) else "camera"
 
 
 def sensitivities_array(stored: Sequence[Sequence[float]]) -> NDArray[np.float64] | None:
@@ -265,12 +275,12 @@ def _known_seen(obs: Observations, known: dict[str, NDArray[np.float64]] | None)
 
 
 def _fit_model(obs: Observations, css: NDArray[np.float64] | None, path: Path, max_fit_frames: int = 300,
-               known: dict[str, NDArray[np.float64]] | None = None) -> str:
+               known: dict[str, NDArray[np.float64]] | None = None, primaries: str = "camera") -> str:
     """Fit and save a scene model with :mod:`illumon.model`; returns a status string."""
     try:
         seen = _seen_patches(obs)
         fitted = scene_model.fit_scene_model(seen, css, known_reflectances=_known_seen(seen, known),
-                                             max_fit_frames=max_fit_frames)
+                                             max_fit_frames=max_fit_frames, primaries=primaries)
         _save_model(fitted, path)
     except Exception as exc:  # noqa: BLE001 - the retrieval's estimates still stand
         log.warning("scene model fit failed: %s", exc)
@@ -303,13 +313,13 @@ def _history_estimates(fitted: scene_model.SceneModel, obs: Observations) -> Ite
 
 def _refit_with_model(
     obs: Observations, css: NDArray[np.float64] | None, model_file: Path | None, max_fit_frames: int,
-    known: dict[str, NDArray[np.float64]] | None = None,
+    known: dict[str, NDArray[np.float64]] | None = None, primaries: str = "camera",
 ) -> tuple[dict[str, dict], dict]:
     """Fit the scene model on the history (reflectances on ≤ ``max_fit_frames`` frames spread over the illuminant
     range), save it, and estimate every frame with it: ``illumon fit`` then ``illumon estimate --model``."""
     seen = _seen_patches(obs)
     fitted = scene_model.fit_scene_model(seen, css, known_reflectances=_known_seen(seen, known),
-                                         max_fit_frames=max_fit_frames)
+                                         max_fit_frames=max_fit_frames, primaries=primaries)
     if model_file is not None:
         _save_model(fitted, model_file)
         _MODEL_CACHE.pop(str(model_file), None)
@@ -347,6 +357,7 @@ def refit_estimates(
     max_fit_frames: int = 300,
     calibrations: Sequence[tuple[str, str, dict[str, Any]]] = (),
     known_reflectances: dict[str, NDArray[np.float64]] | None = None,
+    primaries: str = "camera",
 ) -> tuple[dict[str, dict], dict]:
     """Estimates of the given frames: ``({frame id: estimate}, summary)``.
 
@@ -381,7 +392,7 @@ def refit_estimates(
         if calibrations:
             ids = list(region_ids) + sorted({k for _, _, p in calibrations for k in p} - set(region_ids))
             obs = build_observations([frames[i] for i in usable] + list(calibrations), ids)
-        out, summary = _refit_with_model(obs, sensitivities, model_file, max_fit_frames, known_reflectances)
+        out, summary = _refit_with_model(obs, sensitivities, model_file, max_fit_frames, known_reflectances, primaries)
         summary["calibration_frames"] = len(calibrations)
         summary["skipped_frames"] = len(frames) - len(out)
         return out, summary
@@ -397,7 +408,7 @@ def refit_estimates(
         "cct_k_median": float(np.median(result.cct)),
     }
     if model_file is not None:
-        summary["model"] = _fit_model(obs, sensitivities, model_file, max_fit_frames)
+        summary["model"] = _fit_model(obs, sensitivities, model_file, max_fit_frames, primaries=primaries)
     return out, summary
 
 

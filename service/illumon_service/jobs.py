@@ -24,6 +24,7 @@ from sqlalchemy.orm import Session, sessionmaker
 from .estimation import (
     CALIBRATION_PREFIX,
     RefitInputError,
+    camera_primaries,
     check_response,
     model_path,
     refit_estimates,
@@ -109,6 +110,7 @@ def refit_camera(
         css = sensitivities_array(cam.sensitivities)
         encoding = (cam.response or {}).get("encoding", "linear")
         matrix = (cam.response or {}).get("matrix")
+        primaries = camera_primaries(cam.response, css is not None)
         cals = s.scalars(select(Calibration).where(Calibration.camera_id == camera_id).order_by(Calibration.id)).all()
         calibrations, known, cal_warnings = calibration_frames(cals, matrix)
     rows.reverse()
@@ -122,7 +124,7 @@ def refit_camera(
         vf = [_history_row(r, matrix) for r in rows if r.view == v]
         try:
             est_v, _ = refit_estimates(vf, view_ids[v], css, method=method, model_file=model_path(data_dir, camera_id, v),
-                                       max_fit_frames=max_fit_frames)
+                                       max_fit_frames=max_fit_frames, primaries=primaries)
             estimates.update(est_v)
         except RefitInputError as exc:
             view_warnings.append(f"view {v!r} not refitted: {exc}")
@@ -131,7 +133,7 @@ def refit_camera(
     else:
         est_d, summary = refit_estimates(
             frames, region_ids, css, method=method, model_file=model_path(data_dir, camera_id),
-            max_fit_frames=max_fit_frames, calibrations=calibrations, known_reflectances=known,
+            max_fit_frames=max_fit_frames, calibrations=calibrations, known_reflectances=known, primaries=primaries,
         )
         estimates.update(est_d)
     check = check_response(frames, region_ids, css, encoding) if frames else {"warnings": []}

@@ -206,3 +206,23 @@ def test_bad_pipelines_refused(client):
             **admin_headers(), "content-type": "application/json"})
         assert r.status_code == 422, (response, r.text)
         assert word in json.dumps(r.json()["detail"]), (response, r.json())
+
+
+def test_response_primaries_default_and_choice(client):
+    """``response.primaries``: rendered sRGB by default for an unmeasured camera with sRGB-encoded frames, sensor RGB
+    for a measured one or linear output; an explicit choice is kept; anything else is a 422."""
+    unmeasured = {k: v for k, v in camera_body(_css(), grid_regions()).items() if k != "sensitivities"}
+    cases = (
+        (unmeasured, "srgb"),
+        (camera_body(_css(), grid_regions()), "camera"),
+        ({**unmeasured, "response": {"encoding": "linear"}}, "camera"),
+        ({**camera_body(_css(), grid_regions()), "response": {"encoding": "srgb", "primaries": "srgb"}}, "srgb"),
+    )
+    for body, expect in cases:
+        cam = client.post("/v1/cameras", json=body, headers=admin_headers())
+        assert cam.status_code == 201, cam.json()
+        got = client.get(f"/v1/cameras/{cam.json()['id']}", headers=admin_headers()).json()
+        assert got["response"]["primaries"] == expect, (body.get("response"), got["response"])
+    bad = {**camera_body(_css(), grid_regions()), "response": {"primaries": "adobe"}}
+    r = client.post("/v1/cameras", json=bad, headers=admin_headers())
+    assert r.status_code == 422 and "detail" in r.json()

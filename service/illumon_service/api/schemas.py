@@ -107,6 +107,19 @@ class ResponseIn(_Strict):
         default=None, min_length=2, max_length=65536)
     matrix: list[Annotated[list[Finite], Field(min_length=3, max_length=3)]] | None = Field(
         default=None, min_length=3, max_length=3)
+    primaries: Literal["camera", "srgb"] | None = None
+    """The output space: ``srgb`` (rendered output — the camera white-balanced its sensor and applied a colour matrix
+    to sRGB / BT.709 primaries: IP, surveillance, phone cameras) or ``camera`` (sensor RGB: raw, machine-vision cameras
+    without a colour matrix). Default: ``srgb`` for a camera registered without sensitivities whose encoding is
+    ``srgb`` or ``table``, ``camera`` otherwise (measured sensitivities are taken as the output's own unless
+    ``srgb`` is given)."""
+
+    def resolved(self, measured: bool) -> dict:
+        """The response as stored: ``primaries`` filled in with its default."""
+        out = self.model_dump()
+        if out["primaries"] is None:
+            out["primaries"] = "srgb" if (not measured and self.encoding in ("srgb", "table")) else "camera"
+        return out
 
     @model_validator(mode="after")
     def _levels(self) -> ResponseIn:
@@ -227,6 +240,7 @@ class ResponseOut(BaseModel):
     white_level: float | None = _optional_key("white level in the image's units (``null``: the image's full scale)")
     table: list[float] | None = _optional_key("``table`` encoding: linear values of evenly spaced codes")
     matrix: list[list[float]] | None = _optional_key("3 × 3 colour matrix the camera applies (output = matrix @ RGB)")
+    primaries: Literal["camera", "srgb"] = _optional_key("output space: sensor RGB or rendered sRGB primaries")
 
 
 class CalibrationRef(BaseModel):

@@ -74,7 +74,7 @@ def register_camera(body: CameraIn, session: SessionDep, _admin: AdminDep) -> di
         token_hash=hash_token(token),
         sensitivities=css,
         regions=[r.model_dump() for r in body.regions],
-        response=body.response.model_dump(),
+        response=body.response.resolved(measured=body.sensitivities is not None),
     )
     session.add(cam)
     session.commit()

@@ -29,6 +29,7 @@ from starlette.concurrency import run_in_threadpool
 
 from ...charts import Series, time_chart
 from ...deps import Principal, SessionDep, principal_from_token
+from ...estimation import camera_primaries
 from ...proposals import MAX_FRAMES, preview_jpeg
 from ...registration import parse_view, view_regions, view_thumbnails
 from ...status import NON_DAYLIGHT_DUV, camera_history, camera_status, fleet_status
@@ -198,8 +199,13 @@ def camera_page(camera_id: int, request: Request, session: SessionDep, limit: in
     status = camera_status(session, cam, request.app.state.settings)
     history = camera_history(session, camera_id, limit=max(1, min(limit, 20000)))
     recent = list(reversed(history[-24:]))
+    primaries = camera_primaries(cam.response, cam.sensitivities is not None)
     return _render(request, "camera.html", {"row": status, "charts": _charts(history), "recent": recent,
-                                            "count": len(history), "principal": principal})
+                                            "count": len(history), "principal": principal,
+                                            "output": PRIMARIES_WORDS[primaries]})
+
+
+PRIMARIES_WORDS = {"camera": "sensor RGB (primaries: camera)", "srgb": "rendered, sRGB primaries (primaries: srgb)"}
 
 
 KEEP_FRACTION = 0.5

@@ -156,7 +156,7 @@ def isp_sets(raw: RealSet) -> list[RealSet]:
         means = np.empty((len(raw.frames), 3))
         for f in range(len(raw.frames)):
             gains = preset if mode == "preset" else 1.0 / (raw.image_means[f] / raw.image_means[f, 1])
-            vals[f] = (raw.values[f] * gains) @ m
+            vals[f] = np.clip((raw.values[f] * gains) @ m, 0.0, None)  # a pipeline clips out-of-gamut values at 0
             means[f] = (raw.image_means[f] * gains) @ m
         scale = 0.9 / np.nanmax(vals)
         out.append(RealSet(f"sony-isp-{mode}", raw.frames, vals * scale, "srgb",
@@ -201,6 +201,27 @@ def run_illumon(s: RealSet, mode: str, primaries: str | None = None) -> tuple[ND
     return whites, conf, f"{result.cct[0]:.0f}"
 
 
+def dump_sets(sets: list[RealSet], folder: Path) -> None:
+    """Each set as ``illumon estimate`` reads it: ``<set>/OBSERVATIONS-none.csv`` (the 18 scene patches, linear 0…1:
+    ``--white-level 1``), ``OBSERVATIONS-grey.csv`` / ``OBSERVATIONS-chart.csv`` with the references (ids ``ref:NN``)
+    in frame 0 and their ``KNOWN-grey.csv`` / ``KNOWN-chart.csv``, and ``TRUTH.csv`` (each frame's greys 20–22)."""
+    from illumon.camera.references import colorchecker_references
+    from illumon.observations import write_observations
+    from illumon.spectra import WAVELENGTHS, write_spectral_csv
+
+    refs = colorchecker_references()
+    for s in sets:
+        d = folder / s.name
+        d.mkdir(parents=True, exist_ok=True)
+        write_observations(d / "OBSERVATIONS-none.csv", _observations(s, []), white_level=1.0)
+        for mode, ids in (("grey", GREYS), ("chart", ALL)):
+            write_observations(d / f"OBSERVATIONS-{mode}.csv", _observations(s, ids), white_level=1.0)
+            write_spectral_csv(d / f"KNOWN-{mode}.csv", WAVELENGTHS, {p.replace("chart:", "ref:"): refs[p] for p in ids},
+                               comments=[f"ColorChecker patches (BabelColor Average), {s.name}: references in frame 0"])
+        rows = ["frame,r,g,b"] + [f"{f},{t[0]:.6g},{t[1]:.6g},{t[2]:.6g}" for f, t in zip(s.frames, s.truth, strict=True)]
+        (d / "TRUTH.csv").write_text("\n".join(rows) + "\n")
+
+
 def baselines(s: RealSet) -> dict[str, NDArray[np.float64]]:
     """Doing nothing, gray-world and max-RGB over the 18 scene patches, and gray-world over the whole image."""
     idx = [ALL.index(p) for p in SCENE]
@@ -218,6 +239,7 @@ def baselines(s: RealSet) -> dict[str, NDArray[np.float64]]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "real.json"))
+    ap.add_argument("--dump", help="also write each set as the CLI's files (OBSERVATIONS.csv, KNOWN.csv) under this folder")
     ap.add_argument("--primaries", choices=["camera", "srgb"],
                     help="run every set with these primaries instead of its own (what the option buys)")
     args = ap.parse_args(argv)
@@ -229,6 +251,8 @@ def main(argv: list[str] | None = None) -> int:
     sets = [raw, *isp_sets(raw)]
     rows, report = [], {"split": "development (../shared/data/real: sony-dolp); scoring photographs are held by outside checks",
                         "sets": {}}
+    if args.dump:
+        dump_sets(sets, Path(args.dump))
     for s in sets:
         truth = s.truth
         entry = {"frames": s.frames, "primaries": s.primaries, "note": s.note, "methods": {}}

@@ -125,3 +125,18 @@ def test_paper_protocol_table1_methods_side_by_side(shared_data):
     assert med["joint"] < med["gray_world"], med
     assert med["joint"] < 3.5, med
     assert max(errors["joint"]) < 8.4, med
+
+
+def test_joint_shared_exposure_reads_brightness_on_the_paper_protocol(shared_data):
+    # Locked exposure under illuminants of equal power (Marguier & Süsstrunk's assumption, model scale): the
+    # frames' brightness pins the shift common to all frames that per-frame exposures leave to the priors.
+    h = paper_protocol("Canon_300D", (40, 50), (0, 1, 2, 3, 4, 5), noise=None, illuminant_scale="model")
+    shared = retrieve_illuminants(h.observations, h.sensitivities, exposure="shared")
+    per_frame = retrieve_illuminants(h.observations, h.sensitivities)
+    err_shared = angular_error_deg(shared.white, h.true_white)
+    err_per_frame = angular_error_deg(per_frame.white, h.true_white)
+    assert np.max(err_shared) < 1.5, err_shared
+    assert np.min(err_per_frame) > 3.0, err_per_frame  # the same case without the brightness cue
+    assert shared.info["exposure"] == "shared"
+    with pytest.raises(ValueError, match="exposure"):
+        retrieve_illuminants(h.observations, h.sensitivities, exposure="per-frame")

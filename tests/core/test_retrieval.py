@@ -140,3 +140,36 @@ def test_joint_shared_exposure_reads_brightness_on_the_paper_protocol(shared_dat
     assert shared.info["exposure"] == "shared"
     with pytest.raises(ValueError, match="exposure"):
         retrieve_illuminants(h.observations, h.sensitivities, exposure="per-frame")
+
+
+def test_joint_problem_whitens_by_the_noise_model_and_penalises_reflectances_outside_0_1(shared_data):
+    from illumon.daylight_models import daylight_model
+    from illumon.reflectance import reflectance_basis
+    from illumon.retrieval.common import gray_world_mired
+    from illumon.retrieval.joint import JointProblem
+
+    h = measured_daylight_history("Canon_600D", frames=4, patches=6, seed=7, noise=None)
+    rb = reflectance_basis()
+    prob = JointProblem(h.observations, h.sensitivities, daylight_model("cie"), rb, relative_error=0.02,
+                        absolute_error=0.002, bound_weight=20.0)
+    # whitening: σ = sqrt((0.02 y)² + 0.002²) on the median-normalised values; a dark channel weighs more
+    y = h.observations.values / np.median(h.observations.values[..., 1])
+    expected = 1.0 / np.sqrt((0.02 * y) ** 2 + 0.002**2)
+    used = prob.W > 0
+    assert used.mean() > 0.9
+    np.testing.assert_allclose(prob.W[used], expected[used], rtol=1e-9)
+    # physical bounds: push one patch's reflectance above 1 and below 0 and read the hinge residuals
+    x = prob.start(gray_world_mired(h.observations, h.sensitivities))
+    nfr = prob.F * prob.nf
+    sigma = x[nfr:].reshape(prob.P, prob.nk).copy()
+    sigma[0] *= 3.0
+    sigma[1] *= -1.0
+    x2 = np.concatenate([x[:nfr], sigma.ravel()])
+    refl = sigma @ rb.functions.T
+    assert refl[0].max() > 1.2 and refl[1].min() < -0.2
+    hinge = 20.0 * (np.clip(-refl, 0, None) + np.clip(refl - 1.0, 0, None))
+    r = prob.residuals(x2)
+    n_day = prob.model.prior_residuals(prob.split(x2)[0]).size
+    start = prob.F * prob.P * 3 + prob.P * prob.nk + n_day
+    np.testing.assert_allclose(r[start : start + hinge.size], hinge.ravel(), rtol=1e-9, atol=1e-12)
+    assert np.sum(r**2) > np.sum(hinge**2) > 10.0

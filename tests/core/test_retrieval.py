@@ -173,3 +173,18 @@ def test_joint_problem_whitens_by_the_noise_model_and_penalises_reflectances_out
     start = prob.F * prob.P * 3 + prob.P * prob.nk + n_day
     np.testing.assert_allclose(r[start : start + hinge.size], hinge.ravel(), rtol=1e-9, atol=1e-12)
     assert np.sum(r**2) > np.sum(hinge**2) > 10.0
+
+
+def test_gray_world_baseline_reports_the_daylight_of_a_grey_scene(shared_data):
+    # Every patch a flat grey: the patches' mean is the camera white, so the daylight reported is the true one.
+    from illumon import datasets
+    from illumon.daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum
+    from illumon.simulate import simulate_history
+
+    cct = cie_d_cct(np.array([4000.0, 5500.0, 6500.0, 9000.0]))
+    e = daylight_spectrum(daylight_locus_xy(cct))
+    grey = np.outer([0.2, 0.4, 0.6], np.ones(61))
+    h = simulate_history(datasets.load_camera("Nikon_D5100"), e, grey, noise=None)
+    res = retrieve_illuminants(h.observations, h.sensitivities, method="gray_world")
+    np.testing.assert_allclose(1e6 / res.cct, 1e6 / cct, atol=1.0)  # MK⁻¹ (the search grid's step is 0.5)
+    assert np.max(angular_error_deg(res.white, h.true_white)) < 1e-6

@@ -26,8 +26,17 @@ def test_estimate_contract(shared_data, tmp_path):
                 "gain_b"):
         assert col in rows[0]
     white = np.array([[float(r[f"white_{c}"]) for c in "rgb"] for r in rows])
-    assert np.median(angular_error_deg(white, h.true_white)) < 1.5
-    assert all(float(r["gain_g"]) == 1.0 for r in rows)
+    assert np.median(angular_error_deg(white, h.true_white)) < 1.5  # measured 1.12
+    # gray-world 4.32°, a constant D65 white 2.96° median on this history: both fail the limit
+    from illumon.daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum
+    from illumon.retrieval import retrieve_illuminants
+
+    gw = retrieve_illuminants(h.observations, h.sensitivities, method="gray_world").white
+    d65 = h.sensitivities.T @ daylight_spectrum(daylight_locus_xy(cie_d_cct(6500)))
+    for trivial in (gw, np.tile(d65, (len(gw), 1))):
+        assert np.median(angular_error_deg(trivial, h.true_white)) >= 1.5
+    gains = np.array([[float(r[f"gain_{c}"]) for c in "rgb"] for r in rows])
+    np.testing.assert_allclose(gains, h.true_white[:, 1:2] / h.true_white, rtol=0.08)  # the true white's gains
     assert refl.read_text().count("\n") > 60
 
 

@@ -6,8 +6,9 @@ Run: ``python benchmarks/peers.py [--quick] [--seeds N]``. Prints a table per sc
 Splits (printed with every table): the score cameras are :data:`SCORE_CAMERAS` (Canon, Hasselblad, Pentax, Phase One:
 :data:`rawsim.SCORE_CAMERAS`, no manufacturer of the development cameras); the static patches are the score surfaces
 (ColorChecker and CIE 1995 TCS, which the reflectance basis never saw: :data:`SCORE_SURFACES`); daylight is measured
-Granada spectra. The unmeasured-camera rows start from a camera prior built from the development cameras only
-(:data:`rawsim.DEV_CAMERAS`), never from the camera under test. Nothing here was tuned on these frames.
+Granada spectra of :data:`rawsim.SCORE_DAYLIGHT`. The unmeasured-camera rows start from a camera prior built from the
+development cameras only (:data:`rawsim.DEV_CAMERAS`), never from the camera under test. Nothing here was tuned on
+these frames.
 
 Each frame of a fixed-camera history is rendered as an image: the static patches as rectangles on a textured
 background of clutter (random rectangles of measured reflectances, redrawn every frame), a fixed per-pixel texture and
@@ -61,7 +62,7 @@ from illumon.retrieval import retrieve_illuminants  # noqa: E402
 from illumon.sensitivity.prior import build_camera_prior  # noqa: E402
 from illumon.simulate import simulate_history  # noqa: E402
 from illumon_service.regions import Region, region_means  # noqa: E402
-from rawsim import DEV_CAMERAS  # noqa: E402
+from rawsim import DEV_CAMERAS, SCORE_DAYLIGHT  # noqa: E402
 from rawsim import SCORE_CAMERAS as RAWSIM_SCORE_CAMERAS  # noqa: E402
 from retrieval import _stats  # noqa: E402  (benchmarks/retrieval.py: median, p95, max, n)
 
@@ -182,6 +183,7 @@ def score_history(camera: str, seed: int, frames: int, patches: int):
     """A fixed camera under measured Granada daylight with static patches from the score surfaces."""
     rng = np.random.default_rng(seed)
     _, day = datasets.load_granada_daylight()
+    day = day[SCORE_DAYLIGHT]
     e = day[rng.choice(day.shape[0], frames, replace=False)]
     _, refl = unseen_reflectances()
     r = refl[:SCORE_SURFACES][rng.choice(SCORE_SURFACES, patches, replace=False)]
@@ -324,7 +326,9 @@ def main() -> int:
     seeds = list(range(args.seeds))
     split = {"score cameras": list(cams), "camera prior of the unmeasured rows": list(DEV_CAMERAS),
              "static patches": f"score surfaces: first {SCORE_SURFACES} of unseen_reflectances (ColorChecker, CIE TCS)",
-             "daylight": "Granada measured spectra (random draws)"}
+             "daylight": f"Granada spectra {SCORE_DAYLIGHT.start}…{SCORE_DAYLIGHT.stop - 1} (rawsim.SCORE_DAYLIGHT, "
+                         "held out of the measured-daylight model; the CIE prior's N(150, 45²) MK⁻¹ summarises all "
+                         "of Granada)"}
     out: dict = {"split": split, "seeds": seeds, "frames": frames, "patches": patches, "image": [H, W], "scenes": {}}
     for scene in CLUTTER:
         per_seed: dict[int, dict[str, list[float]]] = {}

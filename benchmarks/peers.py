@@ -7,8 +7,8 @@ Splits (printed with every table): the score cameras are :data:`SCORE_CAMERAS` (
 :data:`rawsim.SCORE_CAMERAS`, no manufacturer of the development cameras); the static patches are the score surfaces
 (ColorChecker and CIE 1995 TCS, which the reflectance basis never saw: :data:`SCORE_SURFACES`); daylight is measured
 Granada spectra of :data:`rawsim.SCORE_DAYLIGHT`. The unmeasured-camera rows start from a camera prior built from the
-development cameras only (:data:`rawsim.DEV_CAMERAS`), never from the camera under test. Nothing here was tuned on
-these frames.
+development cameras only (:data:`rawsim.DEV_CAMERAS`), never from the camera under test. No constant was chosen on
+these frames (``NEAR_WHITE``, the censoring level, was set on the Point Grey, a development camera).
 
 Each frame of a fixed-camera history is rendered as an image: the static patches as rectangles on a textured
 background of clutter (random rectangles of measured reflectances, redrawn every frame), a fixed per-pixel texture and

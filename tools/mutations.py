@@ -52,7 +52,7 @@ MUTATIONS: tuple[Mutation, ...] = (
     Mutation("diagnosis: bilinear margins halved", "core/illumon/diagnosis/fit.py",
              "    ok = [c for c in bil if c.score < -margins[c.effect]]\n",
              "    ok = [c for c in bil if c.score < -0.5 * margins[c.effect]]\n",
-             ("tests/core/test_diagnosis.py", "-k", "margin"), "audit"),
+             ("tests/core/test_diagnosis.py", "-k", "below_the_margin"), "audit"),
     # --- ours: core ---
     Mutation("gains inverted (white / white_g)", "core/illumon/camera/formation.py",
              "    return w[..., 1:2] / w\n", "    return w / w[..., 1:2]\n",

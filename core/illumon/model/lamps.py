@@ -243,7 +243,8 @@ def _frame_means(model, obs, theta: NDArray[np.float64]) -> NDArray[np.float64]:
     present = np.all(np.isfinite(y), axis=-1)
     filled = np.where(present[..., None], y, pred)
     out = filled.mean(axis=1)
-    out[present.sum(axis=1) < 2] = np.nan
+    # a scene average needs most of the scene: frames showing fewer than half the model's patches have none
+    out[(present.sum(axis=1) < 2) | (present.sum(axis=1) < 0.5 * len(model.patches))] = np.nan
     return out
 
 
@@ -270,7 +271,7 @@ def apply_lamps(model, obs, result, extra: dict) -> None:
     lp = lamp_posterior(means, model.sensitivities, model.daylight_model(),
                         prior=float(lamps.get("prior", LAMP_PRIOR)),
                         offset_prior=(np.asarray(lamps["offset"]), np.maximum(np.asarray(lamps["offset_sd"]), 0.01)))
-    nd = np.where(np.isfinite(lp.non_daylight), lp.non_daylight, 0.0)
+    nd = np.where(np.isfinite(lp.non_daylight), lp.non_daylight, float(lamps.get("prior", LAMP_PRIOR)))
     extra["non_daylight"] = nd
     lamp = (nd > 0.5) & np.all(np.isfinite(lp.white), axis=1)
     if not lamp.any():

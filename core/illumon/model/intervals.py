@@ -132,9 +132,12 @@ def assemble_estimates(
 
 def interval_columns(result: RetrievalResult, extra: dict[str, NDArray[np.float64]]) -> dict[str, NDArray[np.float64]]:
     """The ESTIMATES.csv interval columns of :meth:`SceneModel.estimate`'s output: ``cct_lo, cct_hi, duv_lo, duv_hi,
-    confidence`` then ``gain_r_lo, gain_r_hi, gain_b_lo, gain_b_hi`` (95 % intervals; the green gain is 1)."""
-    out = dict(extra)
+    confidence`` then ``gain_r_lo, gain_r_hi, gain_b_lo, gain_b_hi`` (95 % intervals; the green gain is 1), then
+    ``non_daylight`` when the model judged its frames (:mod:`illumon.model.lamps`)."""
+    out = {k: v for k, v in extra.items() if k != "non_daylight"}
     for c, name in ((0, "r"), (2, "b")):
         out[f"gain_{name}_lo"] = result.info["gain_lo"][:, c]
         out[f"gain_{name}_hi"] = result.info["gain_hi"][:, c]
+    if "non_daylight" in extra:  # last: the column issue 28 added (:mod:`illumon.model.lamps`)
+        out["non_daylight"] = extra["non_daylight"]
     return out

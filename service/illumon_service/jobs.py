@@ -337,17 +337,27 @@ class JobRunner:
         self._stop = threading.Event()
         self._scheduler: threading.Thread | None = None
         self._lock_fd: int | None = None
+        self._alive_fd: int | None = None
+        self._sweeper: threading.Thread | None = None
+        self._running: set[str] = set()
+        self._running_lock = threading.Lock()
+        self._started: set[str] = set()
+        """Jobs this process has handed to its pool (recovery does not start them twice)."""
 
-    def submit(self, camera_id: int) -> str:
+    def submit(self, camera_id: int, attempt: int = 1) -> str:
         """Record a queued job for the camera and start it; returns the job id."""
         job_id = uuid.uuid4().hex
         with self.sessions() as s, s.begin():
-            s.add(Job(id=job_id, camera_id=camera_id, state="queued", progress=0.0))
+            s.add(Job(id=job_id, camera_id=camera_id, state="queued", progress=0.0, attempt=attempt))
+        self._started.add(job_id)
+        self._start(job_id, camera_id)
+        return job_id
+
+    def _start(self, job_id: str, camera_id: int) -> None:
         if self.settings.jobs_inline:
             self._run(job_id, camera_id)
         else:
             self._pool.submit(self._run, job_id, camera_id)
-        return job_id
 
     def _set(self, job_id: str, **fields) -> None:
         with self.sessions() as s, s.begin():
@@ -356,9 +366,19 @@ class JobRunner:
                 for k, v in fields.items():
                     setattr(job, k, v)
 
+    def _claim(self, job_id: str) -> bool:
+        """Take a queued job (``queued`` → ``running``, heartbeat now) unless another process took it first."""
+        with self.sessions() as s, s.begin():
+            done = s.execute(update(Job).where(Job.id == job_id, Job.state == "queued")
+                             .values(state="running", progress=0.0, heartbeat_at=utcnow()))
+        return done.rowcount == 1
+
     def _run(self, job_id: str, camera_id: int) -> None:
+        if not self._claim(job_id):
+            return
         t0 = time.perf_counter()
-        self._set(job_id, state="running", progress=0.0)
+        with self._running_lock:
+            self._running.add(job_id)
         try:
             summary = refit_camera(
                 self.sessions,
@@ -367,7 +387,7 @@ class JobRunner:
                 max_frames=self.settings.refit_max_frames,
                 method=self.settings.refit_method,
                 max_fit_frames=self.settings.refit_fit_frames,
-                progress=lambda p: self._set(job_id, progress=p),
+                progress=lambda p: self._set(job_id, progress=p, heartbeat_at=utcnow()),
             )
         except Exception as exc:  # noqa: BLE001 - a failed job is reported in its summary, never raised
             if isinstance(exc, RefitInputError):  # the user's history, not a fault: one line
@@ -377,9 +397,99 @@ class JobRunner:
             self.metrics.inc("illumon_refit_total", labels='outcome="failed"')
             self._set(job_id, state="failed", summary={"error": str(exc)}, finished_at=utcnow())
             return
+        finally:
+            with self._running_lock:
+                self._running.discard(job_id)
         self.metrics.observe("illumon_refit_seconds", time.perf_counter() - t0)
         self.metrics.inc("illumon_refit_total", labels='outcome="done"')
         self._set(job_id, state="done", progress=1.0, summary=summary, finished_at=utcnow())
+
+    def _alone(self) -> bool:
+        """Hold ``<data dir>/service.lock`` shared for this process's life; ``True`` when no other service process
+        held it at start-up (every ``running`` job is then an orphan of a crash, whatever its heartbeat)."""
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not on POSIX: rely on heartbeats alone
+            return False
+        if self._alive_fd is None:
+            self._alive_fd = os.open(Path(self.settings.data_dir) / "service.lock", os.O_RDWR | os.O_CREAT, 0o600)
+        try:
+            fcntl.flock(self._alive_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            alone = True
+        except OSError:
+            alone = False
+        fcntl.flock(self._alive_fd, fcntl.LOCK_SH)
+        return alone
+
+    def recover(self, alone: bool = False) -> dict[str, list[str]]:
+        """Pick up jobs a crash left behind: a ``running`` job whose heartbeat is older than
+        ``job_stale_seconds`` (or any ``running`` job when ``alone``: no other service process is alive) is marked
+        ``failed`` (its summary says it was interrupted) and, on its first attempt, run again as a new job (a refit
+        is idempotent: it recomputes everything from the stored frames); ``queued`` jobs not yet started are
+        started (a claim makes sure one process runs each). Returns the ids: ``{"failed", "requeued", "resumed"}``.
+        """
+        now = utcnow()
+        stale = self.settings.job_stale_seconds
+        out: dict[str, list[str]] = {"failed": [], "requeued": [], "resumed": []}
+        with self._running_lock:
+            mine = set(self._running)
+        with self.sessions() as s, s.begin():
+            jobs = s.scalars(select(Job).where(Job.state.in_(("running", "queued")))).all()
+            retry = []
+            for job in jobs:
+                beat = as_utc(job.heartbeat_at or job.created_at)
+                if job.state != "running" or job.id in mine:
+                    continue
+                if not alone and beat is not None and (now - beat).total_seconds() < stale:
+                    continue
+                attempt = job.attempt or 1
+                again = attempt < 2
+                new_id = uuid.uuid4().hex if again else None
+                job.state, job.finished_at = "failed", now
+                job.summary = {"error": "interrupted: the service stopped while this refit ran"
+                                        + (f"; run again as job {new_id}" if again else "; not run again (second "
+                                           "attempt)"), "interrupted": True, "requeued_as": new_id}
+                out["failed"].append(job.id)
+                if again:
+                    s.add(Job(id=new_id, camera_id=job.camera_id, state="queued", progress=0.0, attempt=attempt + 1))
+                    retry.append((new_id, job.camera_id))
+                    out["requeued"].append(new_id)
+            queued = [(j.id, j.camera_id) for j in jobs if j.state == "queued" and j.id not in self._started]
+        for job_id, _camera in queued + retry:
+            self._started.add(job_id)
+            if job_id not in out["requeued"]:
+                out["resumed"].append(job_id)
+        if any(out.values()):
+            log.warning("jobs left by a crash: %d marked failed, %d run again, %d queued resumed",
+                        len(out["failed"]), len(out["requeued"]), len(out["resumed"]))
+        for job_id, camera_id in queued + retry:
+            self._start(job_id, camera_id)
+        return out
+
+    def start_recovery(self) -> dict[str, list[str]]:
+        """At start-up: :meth:`recover` (every ``running`` job when no other service process shares the data
+        dir), then a daemon thread that keeps the heartbeat of this process's running job and recovers stale jobs of
+        crashed processes every few seconds."""
+        out = self.recover(alone=self._alone())
+        if self._sweeper is None:
+            period = max(0.5, min(5.0, self.settings.job_stale_seconds / 4))
+
+            def loop() -> None:
+                while not self._stop.wait(period):
+                    try:
+                        with self._running_lock:
+                            running = list(self._running)
+                        if running:
+                            with self.sessions() as s, s.begin():
+                                s.execute(update(Job).where(Job.id.in_(running), Job.state == "running")
+                                          .values(heartbeat_at=utcnow()))
+                        self.recover()
+                    except Exception:  # noqa: BLE001 - a database hiccup must not end the sweeper
+                        log.exception("job heartbeat / recovery failed")
+
+            self._sweeper = threading.Thread(target=loop, name="illumon-jobs-sweeper", daemon=True)
+            self._sweeper.start()
+        return out
 
     def _take_schedule_lock(self) -> bool:
         """Hold ``<data dir>/refit-schedule.lock`` (an exclusive ``flock``, released when this process ends): of the
@@ -424,6 +534,9 @@ class JobRunner:
         if self._lock_fd is not None:
             os.close(self._lock_fd)  # releases the schedule lock
             self._lock_fd = None
+        if self._alive_fd is not None:
+            os.close(self._alive_fd)
+            self._alive_fd = None
 
 
 def _refit_worker(

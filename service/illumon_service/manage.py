@@ -83,20 +83,21 @@ def _frame_files(data_dir: Path | str, frame: Frame) -> list[Path]:
     return out
 
 
-def delete_frame(session: Session, data_dir: Path | str, cam: Camera, frame_id: int) -> None:
+def delete_frame(session: Session, data_dir: Path | str, cam: Camera, frame_id: int) -> dict[str, int]:
     """Delete one stored frame of ``cam`` with its estimate and files (committed); 404 for a frame of another
-    camera or none."""
+    camera or none. Returns the rows deleted by kind."""
     frame = session.get(Frame, frame_id) if 0 < frame_id < 2**63 else None
     if frame is None or frame.camera_id != cam.id:
         raise HTTPException(404, f"unknown frame {frame_id} of camera {cam.id}")
     files = _frame_files(data_dir, frame)
     from .storage import Estimate
 
-    session.execute(delete(Estimate).where(Estimate.frame_id == frame_id))
+    estimates = session.execute(delete(Estimate).where(Estimate.frame_id == frame_id)).rowcount
     session.delete(frame)
     session.commit()
     for f in files:  # after the commit: a failed commit leaves the frame whole
         f.unlink(missing_ok=True)
+    return {"frames": 1, "estimates": int(estimates or 0)}
 
 
 def camera_files(data_dir: Path | str, camera_id: int) -> list[Path]:

@@ -16,6 +16,7 @@ re-anchors a view on its latest frame after the camera was moved for good.
 
 from __future__ import annotations
 
+import os
 import re
 import threading
 from dataclasses import dataclass
@@ -191,6 +192,10 @@ def register_frame(data_dir: Path | str, camera_id: int, view: str | None, thumb
     """Register ``thumb`` to its view's reference frame (the frame becomes the reference when there is none)."""
     path = reference_path(data_dir, camera_id, view)
     ref = _reference(path, size[0])
+    if ref is None:
+        if _claim_reference(path, thumb):
+            return Registration("reference", (0.0, 0.0), None)
+        ref = _reference(path, size[0])  # a concurrent first frame became the reference: register to it
     if ref is None or ref.unclipped.shape != thumb.unclipped.shape:
         save_thumbnail(path, thumb)
         return Registration("reference", (0.0, 0.0), None)
@@ -209,15 +214,30 @@ def register_frame(data_dir: Path | str, camera_id: int, view: str | None, thumb
     return Registration("ok" if ok else "view_change", (dx, dy), response)
 
 
+def _claim_reference(path: Path, thumb: Thumbnail) -> bool:
+    """Make ``thumb`` the view's first reference frame unless another frame got there first: written to a private
+    temporary file, then hard-linked into place (the link fails when the reference exists), so concurrent first
+    frames of a camera agree on one reference and never share a temporary file."""
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.{threading.get_ident()}.claim.png")
+    save_thumbnail(tmp, thumb)
+    try:
+        os.link(tmp, path)
+        return True
+    except FileExistsError:
+        return False
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def set_reference(data_dir: Path | str, camera_id: int, view: str | None, thumb_file: str | None) -> bool:
     """Make a stored frame's thumbnail the view's reference frame (after the camera was moved for good)."""
     if not thumb_file or not Path(thumb_file).is_file():
         return False
     path = reference_path(data_dir, camera_id, view)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.png")
-    tmp.write_bytes(Path(thumb_file).read_bytes())
-    tmp.replace(path)
+    from .pending import atomic_write
+
+    atomic_write(path, Path(thumb_file).read_bytes())
     return True
 
 

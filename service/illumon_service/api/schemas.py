@@ -43,7 +43,7 @@ __all__ = [
     "SensitivitiesIn", "RegionIn", "ResponseIn", "CameraIn", "RegionsIn", "ObservationIn", "ErrorOut", "ERROR_RESPONSES",
     "FRAME_UPLOAD", "MAX_LIST", "multipart_body", "CAMERA_APPLIED", "EstimateOut", "SpectrumOut", "IlluminantOut", "JobRef",
     "HealthOut", "CameraOut", "CameraCreated", "FrameIngestOut", "FrameOut", "WbGainsOut", "JobOut", "CalibrationOut",
-    "ProposalsOut",
+    "ProposalsOut", "DeletedOut",
 ]
 
 # strict: JSON numbers only (pydantic's lax mode would read true/false or numeric text as numbers, which the OpenAPI
@@ -513,6 +513,14 @@ class ProposalsOut(BaseModel):
     hours_covered: int
     proposals: list[ProposalOut]
     warnings: list[str]
+
+
+class DeletedOut(BaseModel):
+    """What an admin ``DELETE`` removed: the camera (and frame) and the number of stored rows of each kind."""
+
+    camera_id: int
+    frame_id: int | None
+    deleted: dict[str, int]
 
 
 class ErrorOut(BaseModel):

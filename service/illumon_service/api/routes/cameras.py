@@ -16,7 +16,7 @@ from ...registration import parse_view
 from ...settings import Settings
 from ...status import camera_status, not_estimated_counts, visible_cameras
 from ...storage import Calibration, Camera, CameraView, as_utc, hash_token, new_token, refit_warnings
-from ..schemas import ERROR_RESPONSES, CameraCreated, CameraIn, CameraOut, ErrorOut, RegionsIn
+from ..schemas import ERROR_RESPONSES, CameraCreated, CameraIn, CameraOut, DeletedOut, ErrorOut, RegionsIn
 
 router = APIRouter(prefix="/v1/cameras", tags=["cameras"], responses=ERROR_RESPONSES)
 
@@ -109,9 +109,10 @@ def put_regions(camera_id: int, body: RegionsIn, request: Request, session: Sess
     return camera_out(cam, session, request.app.state.settings)
 
 
-@router.delete("/{camera_id}", status_code=status.HTTP_204_NO_CONTENT)
-def remove_camera(camera_id: int, request: Request, session: SessionDep, principal: AdminDep) -> None:
+@router.delete("/{camera_id}", response_model=DeletedOut)
+def remove_camera(camera_id: int, request: Request, session: SessionDep, principal: AdminDep) -> dict:
     """Delete a camera and everything stored for it (admin): frames, estimates, jobs, calibrations, views, models,
     thumbnails and kept images. Its token stops working at once."""
     cam = camera_for(session, principal, camera_id)
-    delete_camera(session, request.app.state.settings.data_dir, cam)
+    deleted = delete_camera(session, request.app.state.settings.data_dir, cam)
+    return {"camera_id": camera_id, "frame_id": None, "deleted": deleted}

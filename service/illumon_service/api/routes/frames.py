@@ -32,7 +32,7 @@ from ...registration import (
 )
 from ...storage import Camera, Estimate, Frame, as_utc
 from ...uploads import IMAGE_TYPES, parse_gains, parse_positive, parse_time, read_multipart
-from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, FrameIngestOut, FrameOut, IsoDateTime, ObservationIn
+from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, DeletedOut, FrameIngestOut, FrameOut, IsoDateTime, ObservationIn
 
 router = APIRouter(prefix="/v1/cameras", tags=["frames"], responses=ERROR_RESPONSES)
 
@@ -278,8 +278,9 @@ def list_frames(camera_id: int, session: SessionDep, principal: PrincipalDep, si
             for f in rows]
 
 
-@router.delete("/{camera_id}/frames/{frame_id}", status_code=status.HTTP_204_NO_CONTENT)
-def remove_frame(camera_id: int, frame_id: int, request: Request, session: SessionDep, principal: AdminDep) -> None:
+@router.delete("/{camera_id}/frames/{frame_id}", response_model=DeletedOut)
+def remove_frame(camera_id: int, frame_id: int, request: Request, session: SessionDep, principal: AdminDep) -> dict:
     """Delete one stored frame with its estimate and files (admin): e.g. a frame whose values are wrong."""
     cam = camera_for(session, principal, camera_id)
-    delete_frame(session, request.app.state.settings.data_dir, cam, frame_id)
+    deleted = delete_frame(session, request.app.state.settings.data_dir, cam, frame_id)
+    return {"camera_id": camera_id, "frame_id": frame_id, "deleted": deleted}

@@ -71,6 +71,10 @@ def _store(
                         "adds nothing to the estimates")
     elif usable < 2:
         warnings.append("only one region was usable: a frame needs two to be estimated")
+    if registration is not None and registration.state == "uncertain":
+        warnings.append(f"registration uncertain: weak correlation peak ({registration.response:.2f}), but the frame "
+                        f"still matches its reference (score {registration.match:.2f}): measured with the regions at "
+                        f"shift {registration.shift[0]:+.0f}, {registration.shift[1]:+.0f} px")
     warnings += extra_warnings or []
     t0 = time.perf_counter()
     matrix = (cam.response or {}).get("matrix")

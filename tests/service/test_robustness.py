@@ -429,3 +429,37 @@ def test_concurrent_first_frames(client):
     leftovers = [p.name for p in Path(client.app.state.settings.data_dir).rglob("*") if "tmp" in p.name
                  or "claim" in p.name]
     assert leftovers == []
+
+
+def test_frames_before_regions_are_measured_when_confirmed(tmp_path, scene):
+    """Issue 26 item 6: frames posted while a camera has no regions keep their originals (at most
+    ``pending_max_frames`` per view) and are measured when the regions are confirmed; the refit then estimates
+    them. Frames whose original was dropped stay stored with their reason."""
+    from svc_helpers import post_image
+
+    with TestClient(create_app(make_settings(tmp_path, pending_max_frames=8))) as c:
+        body = camera_body(scene.css, [])
+        r = c.post("/v1/cameras", json=body, headers=admin_headers())
+        cid, token = r.json()["id"], r.json()["token"]
+        ids = []
+        for img, t in zip(scene.images, scene.times, strict=True):
+            r = post_image(c, cid, token, img, t)
+            assert r.status_code == 201 and r.json()["regions"] == {}, r.text
+            ids.append(r.json()["frame_id"])
+        kept = sorted(int(p.stem) for p in (tmp_path / "pending" / f"camera-{cid}").iterdir())
+        assert kept == ids[-8:]
+        assert c.get(f"/v1/cameras/{cid}", headers=bearer(token)).json()["not_estimated"] == {"no_regions": len(ids)}
+        r = c.put(f"/v1/cameras/{cid}/regions", json={"regions": scene.regions}, headers=bearer(token))
+        assert r.status_code == 200, r.text
+        assert not list((tmp_path / "pending" / f"camera-{cid}").iterdir())  # measured, then deleted
+        frames = {f["frame_id"]: f for f in c.get(f"/v1/cameras/{cid}/frames", headers=bearer(token)).json()}
+        measured = [fid for fid in ids if frames[fid]["regions"]]
+        assert measured == ids[-8:]
+        assert all(sum(v is not None for v in frames[fid]["regions"].values()) >= 6 for fid in measured)
+        job = _refit(c, cid, token)
+        assert job["state"] == "done" and job["summary"]["frames"] == 8, job
+        cam = c.get(f"/v1/cameras/{cid}", headers=bearer(token)).json()
+        assert cam["not_estimated"] == {"no_regions": len(ids) - 8}
+        assert cam["warnings"] == job["summary"]["warnings"]
+        if cam["warnings"]:
+            assert 'id="refit-warnings"' in c.get(f"/cameras/{cid}", headers=admin_headers()).text

@@ -86,6 +86,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        runner.start_recovery()  # jobs a crash left running or queued
         runner.start_schedule()
         yield
         runner.shutdown()

@@ -16,8 +16,10 @@ from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from .api.routes import calibration, cameras, estimates, frames, gains, health, jobs, pages, proposals
+from .datafiles import relativize_paths
 from .jobs import JobRunner
 from .metrics import Metrics
+from .retention import Housekeeper
 from .settings import Settings
 from .storage import GroupCommit, hash_token, make_engine, make_session_factory, new_token
 
@@ -80,14 +82,18 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
     Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
     engine = make_engine(settings.resolved_database_url)
+    relativize_paths(engine, settings.data_dir)  # databases of older versions stored absolute file paths
     sessions = make_session_factory(engine)
     metrics = Metrics(settings.metrics_dir)
     runner = JobRunner(sessions, settings, metrics)
+    housekeeper = Housekeeper(sessions, settings)  # retention, expired idempotency keys and login sessions
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
         runner.start_schedule()
+        housekeeper.start()
         yield
+        housekeeper.stop()
         runner.shutdown()
         engine.dispose()
 
@@ -100,6 +106,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.commits = GroupCommit(sessions, lambda n: metrics.observe("illumon_ingest_commit_frames", n))
     app.state.metrics = metrics
     app.state.jobs = runner
+    app.state.housekeeper = housekeeper
     app.state.admin_token_hash = hash_token(admin_token(settings))
 
     @app.exception_handler(RequestValidationError)

@@ -13,6 +13,7 @@ from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from ...crud import estimate_out
+from ...datafiles import stored_path
 from ...decode import ImageError, decode_frame, sniff_format
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import estimate_frame, undo_camera_gains, undo_camera_gains_sd
@@ -200,14 +201,14 @@ def _store(
         if thumb is not None and thumbnail_due(session, cam.id, view, taken_at, registration):
             path = thumbs_dir(settings.data_dir, cam.id) / f"{frame.id}.png"
             save_thumbnail(path, thumb)
-            frame.thumb_path = str(path)
-            prune_thumbnails(session, cam.id, view)
+            frame.thumb_path = stored_path(settings.data_dir, path)
+            prune_thumbnails(session, cam.id, view, settings.data_dir)
         if image is not None and settings.keep_images:
             folder = Path(settings.data_dir) / "images" / f"camera-{cam.id}"
             folder.mkdir(parents=True, exist_ok=True)
             path = folder / f"{frame.id}.{fmt}"
             path.write_bytes(image)
-            frame.image_path = str(path)
+            frame.image_path = stored_path(settings.data_dir, path)
         row = None
         if est is not None:
             row = Estimate(frame_id=frame.id, camera_id=cam.id, taken_at=taken_at, **est)

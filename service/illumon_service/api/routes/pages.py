@@ -226,9 +226,9 @@ def _view_arg(view: str | None) -> str | None:
         return None
 
 
-def _regions_context(session: Session, cam: Camera, view: str | None) -> dict:
+def _regions_context(session: Session, cam: Camera, view: str | None, data_dir: Path) -> dict:
     """What the regions page shows: the view's regions, the latest frame's size and time, and proposals."""
-    thumbs, frames = view_thumbnails(session, cam, view, MAX_FRAMES)
+    thumbs, frames = view_thumbnails(session, cam, view, data_dir, MAX_FRAMES)
     ctx: dict = {"cam": cam, "view": view, "regions": view_regions(session, cam, view), "proposals": [],
                  "frames_used": 0, "proposal_error": None, "size": None, "latest_at": None, "view_changed": False,
                  "error": None, "saved": False, "keep_score": 0.0}
@@ -240,7 +240,7 @@ def _regions_context(session: Session, cam: Camera, view: str | None) -> dict:
                              .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(1)).first()
     ctx["view_changed"] = bool(latest is not None and (latest.registration or {}).get("state") == "view_change")
     try:
-        out = proposals_for(session, cam, view, 12)
+        out = proposals_for(session, cam, view, 12, data_dir)
         ctx["proposals"], ctx["frames_used"] = out["proposals"], out["frames_used"]
         ctx["keep_score"] = round(ticked_score(out["proposals"]), 2)
     except HTTPException as exc:
@@ -266,7 +266,7 @@ def regions_page(camera_id: int, request: Request, session: SessionDep, view: st
         return _to_login(request)
     if cam is None:
         return _render(request, "not_found.html", {"camera_id": camera_id, "principal": principal}, status_code=404)
-    ctx = _regions_context(session, cam, _view_arg(view))
+    ctx = _regions_context(session, cam, _view_arg(view), request.app.state.settings.data_dir)
     ctx.update({"principal": principal, "saved": bool(saved)})
     return _render(request, "regions.html", ctx)
 
@@ -277,7 +277,7 @@ def latest_frame_jpeg(camera_id: int, request: Request, session: SessionDep, vie
     principal, cam = _page_camera(request, session, camera_id)
     if cam is None:
         return Response(status_code=401 if principal is None else 404, headers=HEADERS)
-    thumbs, _ = view_thumbnails(session, cam, _view_arg(view), 1)
+    thumbs, _ = view_thumbnails(session, cam, _view_arg(view), request.app.state.settings.data_dir, 1)
     if not thumbs:
         return Response(status_code=404, headers=HEADERS)
     return Response(preview_jpeg(thumbs[0]), media_type="image/jpeg", headers=HEADERS)
@@ -324,7 +324,7 @@ async def save_regions_form(camera_id: int, request: Request, session: SessionDe
         except HTTPException as exc:
             error = str(exc.detail)
         if error is not None:
-            ctx = _regions_context(session, cam, v)
+            ctx = _regions_context(session, cam, v, request.app.state.settings.data_dir)
             ctx.update({"principal": principal, "error": f"Not saved: {error}"})
             return _render(request, "regions.html", ctx, status_code=422)
         q = f"?view={quote(v)}&saved=1" if v else "?saved=1"

@@ -80,7 +80,7 @@ def allowed_methods(app: FastAPI, scope: dict) -> str:
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the service: database (tables created), admin token, job runner, routes and error handlers."""
     settings = settings or Settings()
-    Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
+    Path(settings.data_dir).mkdir(parents=True, exist_ok=True, mode=0o700)  # a new data dir: its owner's only
     engine = make_engine(settings.resolved_database_url)
     relativize_paths(engine, settings.data_dir)  # databases of older versions stored absolute file paths
     sessions = make_session_factory(engine)

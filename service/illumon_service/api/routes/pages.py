@@ -5,11 +5,11 @@ Server-rendered HTML (Jinja2 templates in ``illumon_service/templates``), one lo
 build step, nothing fetched from elsewhere.
 
 Authentication is that of the JSON API. ``Authorization: Bearer <token>`` works as there; a browser logs in at
-``/login`` with the admin token or a camera token, which is kept in an HTTP-only, ``SameSite=Strict`` cookie (``Secure``
-when the page is served over HTTPS) and checked on every request like a bearer token, by its SHA-256 against the stored
-hashes. The admin sees every camera; a camera token sees only its own camera, and another camera's page answers 404 as
-an unknown one would. Without a valid token a page redirects to the login form. Login and logout forms sent from
-another site (by their ``Origin``) are refused.
+``/login`` with the admin token or a camera token and gets an HTTP-only, ``SameSite=Strict`` cookie (``Secure`` when the
+page is served over HTTPS) holding a random session id, not the token (:mod:`illumon_service.logins`: the server keeps
+the id's SHA-256, the token's hash and an expiry; logout deletes it). The admin sees every camera; a camera token sees
+only its own camera, and another camera's page answers 404 as an unknown one would. Without a valid token a page
+redirects to the login form. Login and logout forms sent from another site (by their ``Origin``) are refused.
 """
 
 from __future__ import annotations
@@ -30,6 +30,8 @@ from starlette.concurrency import run_in_threadpool
 from ...charts import Series, time_chart
 from ...deps import Principal, SessionDep, principal_from_token
 from ...estimation import camera_primaries
+from ...logins import MAX_AGE as LOGIN_MAX_AGE
+from ...logins import create_login, end_login, principal_from_login
 from ...proposals import MAX_FRAMES, preview_jpeg
 from ...registration import parse_view, view_regions, view_thumbnails
 from ...status import NON_DAYLIGHT_DUV, camera_history, camera_status, fleet_status
@@ -43,9 +45,9 @@ __all__ = ["router", "install", "COOKIE"]
 PACKAGE = Path(__file__).resolve().parents[2]
 TEMPLATES = Jinja2Templates(directory=str(PACKAGE / "templates"))
 STATIC = PACKAGE / "static"
-COOKIE = "illumon_token"
-"""Name of the login cookie (it carries the token; the server only ever compares its hash)."""
-COOKIE_MAX_AGE = 7 * 24 * 3600
+COOKIE = "illumon_session"
+"""Name of the login cookie (a random session id, :mod:`illumon_service.logins`; never the token)."""
+COOKIE_MAX_AGE = int(LOGIN_MAX_AGE.total_seconds())
 HEADERS = {
     "Cache-Control": "no-store",
     "Content-Security-Policy": "default-src 'none'; style-src 'self'; img-src 'self' data:; form-action 'self'; "
@@ -75,7 +77,7 @@ def _principal(request: Request, session: Session) -> Principal | None:
     scheme, _, token = request.headers.get("authorization", "").partition(" ")
     if scheme.lower() == "bearer" and token.strip():
         return principal_from_token(request, session, token)
-    return principal_from_token(request, session, request.cookies.get(COOKIE, ""))
+    return principal_from_login(request, session, request.cookies.get(COOKIE, ""))
 
 
 def _safe_next(target: str | None) -> str:
@@ -127,16 +129,17 @@ def login(request: Request, session: SessionDep, token: str = Form(""),
         return _render(request, "login.html", {"next": _safe_next(next_), "error": "Unknown token.", "principal": None},
                        status_code=401)
     resp = RedirectResponse(_safe_next(next_), status_code=303)
-    resp.set_cookie(COOKIE, token.strip(), max_age=COOKIE_MAX_AGE, path="/", httponly=True, samesite="strict",
+    resp.set_cookie(COOKIE, create_login(session, token), max_age=COOKIE_MAX_AGE, path="/", httponly=True, samesite="strict",
                     secure=request.url.scheme == "https")
     return resp
 
 
 @router.post("/logout")
-def logout(request: Request) -> Response:
-    """Forget the login cookie (forms from other sites: 403)."""
+def logout(request: Request, session: SessionDep) -> Response:
+    """End the login session and forget its cookie (forms from other sites: 403)."""
     if not _same_origin(request):
         return Response("cross-site logout refused", status_code=403, headers=HEADERS)
+    end_login(session, request.cookies.get(COOKIE, ""))
     resp = RedirectResponse("/login", status_code=303)
     resp.delete_cookie(COOKIE, path="/")
     return resp

@@ -177,7 +177,7 @@ def backup(settings: Settings, dest: Path | str) -> dict:
     if db_file is not None:
         target = partial / SQLITE_NAME
         os.close(os.open(target, os.O_RDWR | os.O_CREAT, 0o600))
-        src = sqlite3.connect(f"file:{db_file}?mode=ro", uri=True, timeout=60)
+        src = sqlite3.connect(f"{db_file.as_uri()}?mode=ro", uri=True, timeout=60)
         dst = sqlite3.connect(target)
         try:
             src.backup(dst)  # one step: a consistent snapshot; writers in WAL mode are not blocked
@@ -283,7 +283,7 @@ def restore(settings: Settings, src: Path | str, *, force: bool = False) -> dict
             Path(f"{db_file}{suffix}").unlink(missing_ok=True)
         tmp = db_file.with_name(db_file.name + ".restore.partial")
         os.close(os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_TRUNC, 0o600))
-        s_conn = sqlite3.connect(f"file:{dump}?mode=ro", uri=True)
+        s_conn = sqlite3.connect(f"{dump.resolve().as_uri()}?mode=ro", uri=True)
         d_conn = sqlite3.connect(tmp)
         try:
             s_conn.backup(d_conn)

@@ -25,6 +25,8 @@ import os
 import shutil
 import sqlite3
 import subprocess
+from collections.abc import Iterator
+from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 
@@ -35,7 +37,7 @@ from .datafiles import PATH_COLUMNS, data_file, relativize_paths
 from .settings import Settings
 from .storage import Calibration, Camera, Estimate, Frame, IdempotencyKey, Job, make_engine
 
-__all__ = ["BackupError", "backup", "restore", "FORMAT"]
+__all__ = ["BackupError", "backup", "restore", "FORMAT", "one_line_errors"]
 
 FORMAT = 1
 """Version of the backup layout (``manifest.json``'s ``format``)."""
@@ -48,6 +50,21 @@ _SKIP_DIRS = {"metrics"}
 
 class BackupError(ValueError):
     """A backup or restore that cannot be done; the CLI prints its message on one line and exits with status 2."""
+
+
+@contextmanager
+def one_line_errors(what: str) -> Iterator[None]:
+    """Turn the file-system and database errors of an operations command (a folder not writable, a database that
+    cannot be reached or read) into a :class:`BackupError` of one line, which the CLI prints and exits 2 with."""
+    from sqlalchemy.exc import SQLAlchemyError
+
+    try:
+        yield
+    except BackupError:
+        raise
+    except (OSError, sqlite3.Error, SQLAlchemyError) as exc:
+        text = str(getattr(exc, "orig", None) or exc).strip().splitlines()
+        raise BackupError(f"{what}: {text[0] if text else type(exc).__name__}") from None
 
 
 def _sqlite_file(url: str) -> Path | None:

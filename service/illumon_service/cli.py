@@ -78,26 +78,32 @@ def _cmd_refit(args: argparse.Namespace) -> int:
 
 
 def _cmd_backup(args: argparse.Namespace) -> int:
-    from .backup import backup
+    from .backup import backup, one_line_errors
 
-    print(json.dumps(backup(_settings(args), Path(args.dest)), sort_keys=True))
+    with one_line_errors("backup"):
+        print(json.dumps(backup(_settings(args), Path(args.dest)), sort_keys=True))
     return 0
 
 
 def _cmd_restore(args: argparse.Namespace) -> int:
-    from .backup import restore
+    from .backup import one_line_errors, restore
 
-    print(json.dumps(restore(_settings(args), Path(args.src), force=args.force), sort_keys=True))
+    with one_line_errors("restore"):
+        print(json.dumps(restore(_settings(args), Path(args.src), force=args.force), sort_keys=True))
     return 0
 
 
 def _cmd_prune(args: argparse.Namespace) -> int:
+    from .backup import one_line_errors
     from .retention import prune_once
 
+    if args.retain_days is not None and not args.retain_days >= 0:
+        raise ValueError(f"--retain-days {args.retain_days}: expected a number of days ≥ 0 (0 keeps everything)")
     settings = _settings(args)
     if args.retain_days is not None:
         settings = settings.model_copy(update={"retain_days": args.retain_days})
-    print(json.dumps(prune_once(settings), sort_keys=True))
+    with one_line_errors("prune"):
+        print(json.dumps(prune_once(settings), sort_keys=True))
     return 0
 
 

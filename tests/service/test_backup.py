@@ -210,3 +210,8 @@ def test_backup_and_restore_errors(tmp_path):
     assert r.returncode == 2 and "not an empty folder" in r.stderr
     r = run("restore", str(bk), "--data-dir", str(tmp_path / "r"), "--database-url", "postgresql+psycopg://u@127.0.0.1:1/x")
     assert r.returncode == 2 and "cannot be restored into PostgreSQL" in r.stderr, r.stderr
+    # a database that cannot be reached, a negative retention: one line each, no traceback
+    for args in (["prune", "--data-dir", str(tmp_path / "var"), "--database-url", "postgresql+psycopg://u@127.0.0.1:1/x"],
+                 ["prune", "--data-dir", str(tmp_path / "var"), "--retain-days", "-1"]):
+        r = run(*args)
+        assert r.returncode == 2 and r.stderr.startswith("illumon: error:") and r.stderr.count("\n") == 1, r.stderr

@@ -17,6 +17,7 @@ Keys are remembered for :data:`~.retention.IDEMPOTENCY_TTL` (7 days), and delete
 from __future__ import annotations
 
 import hashlib
+import json
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -30,9 +31,13 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from .storage import IdempotencyKey
 
-__all__ = ["HEADER", "REPLAYED", "Claim", "parse_key", "fingerprint", "stored", "replay", "key_lock", "is_conflict"]
+__all__ = ["HEADER", "REPLAYED", "IDEMPOTENCY_DOC", "Claim", "parse_key", "fingerprint", "form_fingerprint", "stored",
+           "replay", "key_lock", "is_conflict"]
 
 HEADER = "Idempotency-Key"
+IDEMPOTENCY_DOC = ("a retried post with the same key (1–255 visible ASCII characters, unique per camera) gets the "
+                   "original answer and stores nothing new; the same key with another frame: 422")
+"""The header's description in the OpenAPI schema."""
 REPLAYED = "Idempotent-Replayed"
 MAX_KEY = 255
 
@@ -66,6 +71,11 @@ def fingerprint(*parts: bytes | bytearray | str | None) -> str:
         h.update(len(b).to_bytes(8, "little"))
         h.update(b)
     return h.hexdigest()
+
+
+def form_fingerprint(image: bytes | bytearray, fields: dict[str, str]) -> str:
+    """:func:`fingerprint` of a multipart frame post: the image and every text field (sorted by name)."""
+    return fingerprint(image, json.dumps(sorted(fields.items())))
 
 
 def stored(sessions: sessionmaker[Session] | Session, claim: Claim) -> IdempotencyKey | None:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 import time
 from datetime import datetime, timezone
@@ -19,7 +18,7 @@ from ...datafiles import stored_path
 from ...decode import ImageError, decode_frame, sniff_format
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...estimation import estimate_frame, undo_camera_gains, undo_camera_gains_sd
-from ...idempotency import Claim, fingerprint, is_conflict, key_lock, parse_key, replay, stored
+from ...idempotency import IDEMPOTENCY_DOC, Claim, fingerprint, form_fingerprint, is_conflict, key_lock, parse_key, replay, stored
 from ...proposals import MIN_FRAMES, Thumbnail, make_thumbnail, save_thumbnail
 from ...regions import Region, RegionError, region_stats, response_for
 from ...registration import (
@@ -39,9 +38,6 @@ router = APIRouter(prefix="/v1/cameras", tags=["frames"], responses=ERROR_RESPON
 
 MIN_REGISTER_SIDE = 32
 """Frames smaller than this (pixels, either side) keep no thumbnail and are not registered."""
-
-IDEMPOTENCY_DOC = ("a retried post with the same key (1–255 visible ASCII characters, unique per camera) gets the "
-                   "original answer and stores nothing new; the same key with another frame: 422")
 
 IMAGE_TYPES = {"image/png", "image/jpeg", "image/jpg", "image/tiff", "application/octet-stream", ""}
 
@@ -284,7 +280,7 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
     if len(data) > limit:
         raise HTTPException(413, f"image exceeds the upload limit of {limit} bytes")
     key = parse_key(request)
-    claim = None if key is None else Claim(cam.id, key, fingerprint(data, json.dumps(sorted(fields.items()))))
+    claim = None if key is None else Claim(cam.id, key, form_fingerprint(data, fields))
     taken_at = parse_time(fields.get("taken_at"))
     applied_gains = parse_gains(fields.get("applied_gains"))
     exposure = parse_positive(fields.get("exposure"))

@@ -161,9 +161,12 @@ def test_retention_prunes_old_frames_estimates_and_files(tmp_path, images):
             old_files = [tmp_path / p for (p,) in db.execute(
                 f"SELECT thumb_path FROM frames WHERE thumb_path IS NOT NULL AND id IN ({','.join(str(ids[t]) for t in old_t)})")]
         assert old_files and all(f.is_file() for f in old_files)
+        kept_original = tmp_path / "pending" / f"camera-{cam}" / f"{ids[old_t[0]]}.png"  # an original kept for later
+        kept_original.parent.mkdir(parents=True)
+        kept_original.write_bytes(images[0])
         out = prune(sessions, tmp_path, 30)
         assert out["frames"] == 6 and out["estimates"] == 6 and out["idempotency_keys"] == 6
-        assert out["files"] == len(old_files) and not any(f.exists() for f in old_files)
+        assert out["files"] == len(old_files) + 1 and not any(f.exists() for f in [*old_files, kept_original])
         frames = c.get(f"/v1/cameras/{cam}/frames?limit=100000", headers=h).json()
         assert sorted(f["frame_id"] for f in frames) == sorted(ids[t] for t in new_t)
         est = c.get(f"/v1/cameras/{cam}/estimates?limit=100000", headers=h).json()

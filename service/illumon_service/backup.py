@@ -2,7 +2,8 @@
 
 A backup is a folder (mode 0700: it holds the admin token and the cameras' token hashes)::
 
-    DEST/manifest.json      format, time, database kind, row counts, files, files missing at the snapshot
+    DEST/manifest.json      format, time, database kind, row counts, files, files missing at the snapshot, and
+                            SQLite's integrity check of the snapshot
     DEST/illumon.sqlite3    SQLite: a consistent snapshot by the online backup API (``sqlite3.Connection.backup``)
     DEST/database.pgdump    PostgreSQL: ``pg_dump --format=custom`` (one consistent transaction)
     DEST/data/              the data directory: models, thumbnails and reference frames, kept images, admin token
@@ -188,6 +189,19 @@ def backup(settings: Settings, dest: Path | str) -> dict:
         shutil.rmtree(partial)
     partial.mkdir(mode=0o700, parents=True)
     os.chmod(partial, 0o700)
+    try:
+        manifest = _write_backup(partial, data_dir, url, db_file)
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)  # nothing half-written is left behind
+        raise
+    if dest.exists():
+        dest.rmdir()
+    partial.rename(dest)
+    return manifest
+
+
+def _write_backup(partial: Path, data_dir: Path, url: str, db_file: Path | None) -> dict:
+    """Write the backup into ``partial`` (see :func:`backup`); returns the manifest."""
     files = partial / "data"
     files.mkdir(mode=0o700)
     copied = _copy_tree(data_dir, files, db_file)  # before the snapshot: files that may be pruned meanwhile
@@ -199,6 +213,9 @@ def backup(settings: Settings, dest: Path | str) -> dict:
         try:
             src.backup(dst)  # one step: a consistent snapshot; writers in WAL mode are not blocked
             dst.execute("PRAGMA journal_mode=DELETE")  # one self-contained file
+            check = dst.execute("PRAGMA integrity_check").fetchone()[0]
+            if check != "ok":
+                raise BackupError(f"{db_file}: the snapshot fails SQLite's integrity check ({check}); backup not written")
         finally:
             dst.close()
             src.close()
@@ -231,12 +248,10 @@ def backup(settings: Settings, dest: Path | str) -> dict:
         "files": copied,
         "paths_relativized": paths.get("relativized", 0),
         "files_missing": missing,
+        "integrity_check": "ok" if kind == "sqlite" else None,
         "counts": counts,
     }
     (partial / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
-    if dest.exists():
-        dest.rmdir()
-    partial.rename(dest)
     return manifest
 
 

@@ -210,6 +210,11 @@ def test_backup_and_restore_errors(tmp_path):
     assert r.returncode == 2 and "not an empty folder" in r.stderr
     r = run("restore", str(bk), "--data-dir", str(tmp_path / "r"), "--database-url", "postgresql+psycopg://u@127.0.0.1:1/x")
     assert r.returncode == 2 and "cannot be restored into PostgreSQL" in r.stderr, r.stderr
+    # a PostgreSQL that cannot be reached: one line, and no backup folder (not even a partial one) left behind
+    r = run("backup", str(tmp_path / "pgbk"), "--data-dir", str(tmp_path / "var"), "--database-url",
+            "postgresql+psycopg://u@127.0.0.1:1/x")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "pg_dump" in r.stderr, r.stderr
+    assert not (tmp_path / "pgbk").exists() and not (tmp_path / "pgbk.partial").exists()
     # a database that cannot be reached, a negative retention: one line each, no traceback
     for args in (["prune", "--data-dir", str(tmp_path / "var"), "--database-url", "postgresql+psycopg://u@127.0.0.1:1/x"],
                  ["prune", "--data-dir", str(tmp_path / "var"), "--retain-days", "-1"]):

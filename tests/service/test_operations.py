@@ -275,3 +275,22 @@ def test_metrics_setting(tmp_path):
 
 def test_data_file_is_path(tmp_path):
     assert isinstance(data_file(tmp_path, "a/b.png"), Path)
+
+
+def test_login_session_is_not_the_token_and_ends_with_it(tmp_path):
+    """The cookie holds a random id; the database holds only hashes; a changed admin token ends its sessions."""
+    with TestClient(create_app(make_settings(tmp_path))) as c:
+        r = c.post("/login", data={"token": ADMIN, "next": "/"}, follow_redirects=False)
+        assert r.status_code == 303
+        sid = c.cookies.get("illumon_session")
+        assert sid and ADMIN not in sid and c.get("/", follow_redirects=False).status_code == 200
+    with sqlite3.connect(tmp_path / "illumon.sqlite3") as db:
+        dump = "\n".join(db.iterdump())
+    assert sid not in dump and ADMIN not in dump  # hashes only
+    with TestClient(create_app(make_settings(tmp_path))) as c:  # same token: the session survives a restart
+        c.cookies.set("illumon_session", sid)
+        assert c.get("/", follow_redirects=False).status_code == 200
+    with TestClient(create_app(make_settings(tmp_path, admin_token="a-new-admin-token"))) as c:
+        c.cookies.set("illumon_session", sid)
+        r = c.get("/", follow_redirects=False)
+        assert r.status_code == 303 and r.headers["location"].startswith("/login")

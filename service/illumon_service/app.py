@@ -90,6 +90,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
+        runner.start_recovery()  # jobs a crash left running or queued
         runner.start_schedule()
         housekeeper.start()
         yield

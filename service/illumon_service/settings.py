@@ -41,6 +41,15 @@ class Settings(BaseSettings):
     """Frames the scene model's reflectances are fitted on (spread over the history's illuminant range)."""
     refit_every_hours: float = Field(default=0.0, ge=0.0)
     """Refit every camera every N hours inside the service (0 = off; use ``illumon refit`` from cron instead)."""
+    pending_max_frames: int = Field(default=64, ge=0, le=10_000)
+    """Original images kept per camera view while it has no regions, measured once they are confirmed (the oldest
+    beyond this number are dropped; their frames stay stored without values). 0: keep none."""
+    max_decoded_bytes: int = Field(default=64 * 1024 * 1024, gt=0)
+    """Largest decoded image in bytes (width × height × channels × bytes per sample, as the header states, checked
+    before decoding): bounds the memory one upload can take, for 16-bit images too."""
+    job_stale_seconds: float = Field(default=60.0, gt=0)
+    """A ``running`` refit job whose process has given no sign of life (heartbeat, every few seconds) for this long
+    was orphaned by a crash: it is marked failed and run again."""
     jobs_inline: bool = False
     """Run refit jobs synchronously inside the request (tests); otherwise in a background thread."""
     min_region_fraction: float = Field(default=0.5, gt=0.0, le=1.0)

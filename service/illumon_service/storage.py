@@ -84,6 +84,10 @@ class Camera(Base):
     regions: Mapped[list] = mapped_column(JSON)
     response: Mapped[dict] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    models: Mapped[dict | None] = mapped_column(JSON, nullable=True)
+    """The scene models in use, by view (``default`` or ``v-<view>``): ``{"file": name under <data dir>/models,
+    "version": id}``. A refit writes a new versioned file and switches to it in the transaction that stores its
+    estimates, so estimates and model change together (:mod:`.jobs`); ``None`` before the first refit."""
 
 
 class Frame(Base):
@@ -113,6 +117,10 @@ class Frame(Base):
     """Standard errors of the region means (region id → [r, g, b] or ``null``, same scale): the pixels' spread over
     √pixels, measured at ingest (or sent with client-measured means); the estimators add their square to the noise
     variance they assume. ``None`` when unknown."""
+    not_estimated: Mapped[str | None] = mapped_column(String(40), nullable=True)
+    """Why the frame has no estimate, while it has none: ``view_change``, ``no_regions`` (its view had none yet),
+    ``too_few_regions`` (fewer than two usable), ``no_model`` (no refit yet), ``invalid_values`` (a refit left it out),
+    ``estimate_failed``; ``None`` once estimated (or for rows of older versions)."""
 
 
 class CameraView(Base):
@@ -162,6 +170,8 @@ class Estimate(Base):
     intervals: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     source: Mapped[str] = mapped_column(String(40))
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    model: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    """Version of the scene model that made the estimate (:attr:`Camera.models`); ``None`` for other sources."""
 
 
 class Job(Base):
@@ -175,6 +185,11 @@ class Job(Base):
     summary: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
     finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    heartbeat_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    """Last sign of life of the process running the job (every few seconds); a ``running`` job whose heartbeat is
+    stale was orphaned by a crash (:meth:`.jobs.JobRunner.recover`)."""
+    attempt: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    """1 for a job as submitted, 2 for its re-run after a crash (``None``: 1)."""
 
 
 class IdempotencyKey(Base):

@@ -32,12 +32,12 @@ from ...deps import Principal, SessionDep, principal_from_token
 from ...estimation import camera_primaries
 from ...logins import MAX_AGE as LOGIN_MAX_AGE
 from ...logins import create_login, end_login, principal_from_login
+from ...manage import save_regions_and_measure
 from ...proposals import MAX_FRAMES, preview_jpeg
 from ...registration import parse_view, view_regions, view_thumbnails
-from ...status import NON_DAYLIGHT_DUV, camera_history, camera_status, fleet_status
+from ...status import NON_DAYLIGHT_DUV, REASON_WORDS, camera_history, camera_status, fleet_status
 from ...storage import Camera, Frame, as_utc
 from ..schemas import RegionsIn
-from .cameras import save_regions
 from .proposals import proposals_for
 
 __all__ = ["router", "install", "COOKIE"]
@@ -205,7 +205,7 @@ def camera_page(camera_id: int, request: Request, session: SessionDep, limit: in
     primaries = camera_primaries(cam.response, cam.sensitivities is not None)
     return _render(request, "camera.html", {"row": status, "charts": _charts(history), "recent": recent,
                                             "count": len(history), "principal": principal,
-                                            "output": PRIMARIES_WORDS[primaries]})
+                                            "output": PRIMARIES_WORDS[primaries], "reason_words": REASON_WORDS})
 
 
 PRIMARIES_WORDS = {"camera": "sensor RGB (primaries: camera)", "srgb": "rendered, sRGB primaries (primaries: srgb)"}
@@ -320,7 +320,8 @@ async def save_regions_form(camera_id: int, request: Request, session: SessionDe
         error = None
         try:
             body = RegionsIn(regions=_form_regions(form))
-            save_regions(session, cam, body, v, request.app.state.settings.data_dir, form.get("reference_latest") == "1")
+            save_regions_and_measure(session, cam, [r.model_dump() for r in body.regions], v,
+                                     request.app.state.settings, form.get("reference_latest") == "1")
         except ValueError as exc:  # a malformed number, or pydantic's ValidationError
             errs = getattr(exc, "errors", None)
             error = "; ".join(f"{'.'.join(map(str, e['loc']))}: {e['msg']}" for e in errs()) if errs else str(exc)

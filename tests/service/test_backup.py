@@ -40,6 +40,13 @@ def _wait_job(c: httpx.Client, job: str, headers: dict) -> dict:
     raise AssertionError(f"job {job} did not end")
 
 
+def _wait_for(condition, timeout: float = 120.0) -> None:  # noqa: ANN001 - a callable returning bool
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.05)
+
+
 def _state(c: httpx.Client, cam: int, headers: dict) -> dict:
     frames = c.get(f"/v1/cameras/{cam}/frames?limit=100000", headers=headers).json()
     estimates = c.get(f"/v1/cameras/{cam}/estimates?limit=100000", headers=headers).json()
@@ -92,11 +99,12 @@ def _roundtrip(tmp_path: Path, database_url: str | None = None, restored_url: st
 
         t = threading.Thread(target=writer)
         t.start()
-        time.sleep(1.0)
+        _wait_for(lambda: len(acked) >= 5 or bool(errors))  # frames are being written when the backup starts
         t_backup = time.monotonic()
         args = ["backup", str(dest), "--data-dir", str(data)] + (["--database-url", database_url] if database_url else [])
         manifest = _cli(*args)
-        time.sleep(0.5)
+        n_after = len(acked)
+        _wait_for(lambda: len(acked) >= n_after + 3 or bool(errors))  # and still after it
         stop.set()
         t.join(timeout=60)
         assert not errors, errors
@@ -168,8 +176,9 @@ def _roundtrip(tmp_path: Path, database_url: str | None = None, restored_url: st
             with sqlite3.connect(fresh / "illumon.sqlite3") as db:
                 paths = [p for (p,) in db.execute("SELECT thumb_path FROM frames WHERE thumb_path IS NOT NULL")]
             assert paths and all(not p.startswith("/") and (fresh / p).is_file() for p in paths)
-        print(f"\nbackup while writing ({manifest['database']}): {len(acked)} frames acknowledged, {len(before)} before "
-              f"the backup started, {len(copy['frames'])} in the copy, all identical; original untouched")
+        print(f"\nbackup while writing ({manifest['database']}): {N_FIRST} frames, then {len(acked)} acknowledged while "
+              f"writing, {len(before)} of them before the backup started, {len(copy['frames']) - N_FIRST} in the copy, "
+              "every frame and estimate in the copy identical; original untouched")
     finally:
         server.stop()
 

@@ -115,9 +115,18 @@ def _counts(engine: Engine) -> dict[str, int]:
 
 
 def forget_missing_files(engine: Engine, data_dir: Path) -> int:
-    """Clear the stored paths whose file is not under ``data_dir``; returns how many."""
+    """Clear the stored paths whose file is not under ``data_dir`` — frame thumbnails and kept images, and the
+    cameras' scene models in use (:attr:`~.storage.Camera.models`: a view whose model file is missing has none until
+    the next refit, rather than a name that cannot be read); returns how many."""
     n = 0
     with engine.begin() as conn:
+        for cid, models in conn.execute(select(Camera.id, Camera.models).where(Camera.models.is_not(None))).all():
+            kept = {k: v for k, v in (models or {}).items()
+                    if isinstance(v, dict) and (f := data_file(data_dir / "models", str(v.get("file") or "")))
+                    is not None and f.is_file()}
+            if kept != (models or {}):
+                conn.execute(update(Camera).where(Camera.id == cid).values(models=kept or None))
+                n += len(models or {}) - len(kept)
         for col in PATH_COLUMNS:
             for fid, value in conn.execute(select(Frame.id, col).where(col.is_not(None))).all():
                 path = data_file(data_dir, value)

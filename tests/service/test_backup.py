@@ -229,3 +229,27 @@ def test_backup_and_restore_errors(tmp_path):
                  ["prune", "--data-dir", str(tmp_path / "var"), "--retain-days", "-1"]):
         r = run(*args)
         assert r.returncode == 2 and r.stderr.startswith("illumon: error:") and r.stderr.count("\n") == 1, r.stderr
+
+
+def test_backup_forgets_what_it_could_not_copy(tmp_path):
+    """A thumbnail or model file the snapshot names but the copy lacks (deleted in between) is forgotten in the copy,
+    counted in the manifest; the original keeps its rows."""
+    from illumon_service.backup import backup
+    from illumon_service.settings import Settings
+    from illumon_service.storage import make_engine
+
+    data = tmp_path / "var"
+    make_engine(f"sqlite:///{data / 'illumon.sqlite3'}").dispose()
+    with sqlite3.connect(data / "illumon.sqlite3") as db:
+        db.execute("INSERT INTO cameras (id, name, token_hash, sensitivities, regions, response, models, created_at) "
+                   "VALUES (1, 'c', 'h', '[]', '[]', '{}', '{\"default\": {\"file\": \"camera-1.gone.json\"}}', "
+                   "'2025-01-01 00:00:00')")
+        db.execute("INSERT INTO frames (id, camera_id, taken_at, patches, thumb_path, created_at) VALUES "
+                   "(1, 1, '2025-01-01 00:00:00', '{}', 'thumbs/camera-1/1.png', '2025-01-01 00:00:00')")
+    manifest = backup(Settings(data_dir=data, admin_token="x"), tmp_path / "bk")
+    assert manifest["files_missing"] == 2 and manifest["integrity_check"] == "ok"
+    with sqlite3.connect(tmp_path / "bk" / "illumon.sqlite3") as db:
+        assert db.execute("SELECT thumb_path FROM frames").fetchone()[0] is None
+        assert db.execute("SELECT models FROM cameras").fetchone()[0] in (None, "null")
+    with sqlite3.connect(data / "illumon.sqlite3") as db:
+        assert db.execute("SELECT thumb_path FROM frames").fetchone()[0] == "thumbs/camera-1/1.png"

@@ -13,7 +13,8 @@ from numpy.typing import NDArray
 
 from .regions import Region
 
-__all__ = ["ImageError", "DecodedFrame", "sniff_format", "declared_size", "decode_image", "decode_frame",
+__all__ = ["ImageError", "DecodedFrame", "sniff_format", "declared_size", "declared_layout", "check_budget",
+           "decode_image", "decode_frame", "DEFAULT_MAX_BYTES",
            "jpeg_reduction", "is_grey", "MIN_REDUCED_SIDE"]
 
 MAGIC = {
@@ -22,6 +23,9 @@ MAGIC = {
     b"II*\x00": "tiff",
     b"MM\x00*": "tiff",
 }
+
+DEFAULT_MAX_BYTES = 64 * 1024 * 1024
+"""Default largest decoded image in bytes (:attr:`~.settings.Settings.max_decoded_bytes`)."""
 
 MIN_REDUCED_SIDE = 32
 """Smallest width and height, in decoded pixels, a region may have for a reduced-resolution JPEG decode."""
@@ -51,19 +55,30 @@ def sniff_format(data: bytes | bytearray) -> str | None:
 
 
 def _jpeg_sof(data: bytes | bytearray) -> tuple[int, int, int, int] | None:
-    """``(width, height, bits per sample, components)`` from a JPEG's first SOF marker, ``None`` if not found."""
-    i = 2
+    """``(width, height, bits per sample, components)`` from a JPEG's first SOF marker, ``None`` if not found.
+
+    Scans the markers as libjpeg does: fill bytes (``FF FF``) and stray bytes between segments (which libjpeg skips
+    with a warning, then decodes the image) are skipped too, so no file it would decode hides its size from this
+    check. Stops at the first scan (``SOS``): a frame header must come before it.
+    """
+    i, n = 2, len(data)
     try:
-        while i + 9 < len(data):
+        while i + 9 < n:
             if data[i] != 0xFF:
-                return None
+                j = data.find(b"\xff", i)
+                if j < 0:
+                    return None
+                i = j
+                continue
             marker = data[i + 1]
             if marker == 0xFF:
                 i += 1
                 continue
-            if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
+            if marker in (0xD8, 0x01, 0x00) or 0xD0 <= marker <= 0xD7:
                 i += 2
                 continue
+            if marker in (0xDA, 0xD9):  # start of scan or end of image before any frame header
+                return None
             seg = int.from_bytes(data[i + 2 : i + 4], "big")
             if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
                 h = int.from_bytes(data[i + 5 : i + 7], "big")
@@ -77,31 +92,72 @@ def _jpeg_sof(data: bytes | bytearray) -> tuple[int, int, int, int] | None:
     return None
 
 
-def declared_size(data: bytes | bytearray, fmt: str) -> tuple[int, int] | None:
-    """Width and height stated by a PNG (IHDR), JPEG (first SOF marker) or TIFF (first IFD) header; ``None`` when the
-    header is too short or malformed to say (the decoder then decides)."""
+PNG_CHANNELS = {0: 1, 2: 3, 3: 3, 4: 4, 6: 4}
+"""Channels OpenCV decodes a PNG of each colour type to (palette: RGB; grey with alpha: BGRA)."""
+
+
+def declared_layout(data: bytes | bytearray, fmt: str) -> tuple[int, int, int, int] | None:
+    """``(width, height, channels, bytes per sample)`` stated by a PNG (IHDR), JPEG (first SOF marker) or TIFF
+    (first IFD, every entry read, wherever the size tags are) header, read without decoding anything; ``None`` when
+    the header is too short or malformed to say (such an image is not decoded)."""
     try:
         if fmt == "png":
-            if len(data) >= 24 and data[12:16] == b"IHDR":
-                return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+            if len(data) >= 26 and data[12:16] == b"IHDR":
+                depth, kind = data[24], data[25]
+                return (int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big"),
+                        PNG_CHANNELS.get(kind, 4), 2 if depth > 8 else 1)
             return None
         if fmt == "jpeg":
             sof = _jpeg_sof(data)
-            return None if sof is None else (sof[0], sof[1])
+            return None if sof is None else (sof[0], sof[1], max(1, sof[3]), 2 if sof[2] > 8 else 1)
         if fmt == "tiff":
             order = "little" if data[:2] == b"II" else "big"
             off = int.from_bytes(data[4:8], order)
             n = int.from_bytes(data[off : off + 2], order)
-            dims: dict[int, int] = {}
-            for k in range(min(n, 512)):
+            if off < 8 or off + 2 + 12 * n > len(data):
+                return None
+            tags: dict[int, int] = {}
+            for k in range(n):
                 e = off + 2 + 12 * k
                 tag, typ = int.from_bytes(data[e : e + 2], order), int.from_bytes(data[e + 2 : e + 4], order)
-                if tag in (256, 257):
-                    dims[tag] = int.from_bytes(data[e + 8 : e + (10 if typ == 3 else 12)], order)
-            return (dims[256], dims[257]) if len(dims) == 2 else None
+                if tag in (256, 257, 258, 277):
+                    count = int.from_bytes(data[e + 4 : e + 8], order)
+                    if tag == 258 and typ == 3 and count > 2:  # bits per sample of each channel, stored elsewhere
+                        at = int.from_bytes(data[e + 8 : e + 12], order)
+                        value = int.from_bytes(data[at : at + 2], order)
+                    else:
+                        value = int.from_bytes(data[e + 8 : e + (10 if typ == 3 else 12)], order)
+                    tags[tag] = value
+            if 256 not in tags or 257 not in tags:
+                return None
+            bits = tags.get(258, 8) or 8
+            return tags[256], tags[257], max(1, tags.get(277, 1)), max(1, -(-bits // 8))
     except (IndexError, ValueError):
         return None
     return None
+
+
+def declared_size(data: bytes | bytearray, fmt: str) -> tuple[int, int] | None:
+    """Width and height stated by a PNG, JPEG or TIFF header (:func:`declared_layout`); ``None`` when it does not
+    say."""
+    layout = declared_layout(data, fmt)
+    return None if layout is None else (layout[0], layout[1])
+
+
+def check_budget(data: bytes | bytearray, fmt: str, max_pixels: int, max_bytes: int) -> tuple[int, int]:
+    """The declared (width, height) when the decoded image fits ``max_pixels`` and ``max_bytes`` (width × height ×
+    channels × bytes per sample); :class:`ImageError` 413 when it does not, 422 when the header does not say."""
+    layout = declared_layout(data, fmt)
+    if layout is None or layout[0] <= 0 or layout[1] <= 0:
+        raise ImageError(f"image header does not state a valid size (truncated or malformed {fmt.upper()}): "
+                         "not decoded")
+    w, h, ch, bps = layout
+    if w * h > max_pixels:
+        raise ImageError(f"image has {w}×{h} pixels; the limit is {max_pixels}", 413)
+    if w * h * ch * bps > max_bytes:
+        raise ImageError(f"image of {w}×{h} pixels, {ch} channel(s) of {8 * bps} bits would take "
+                         f"{w * h * ch * bps / 2**20:.0f} MiB decoded; the limit is {max_bytes / 2**20:.0f} MiB", 413)
+    return w, h
 
 
 def jpeg_reduction(
@@ -126,7 +182,8 @@ def jpeg_reduction(
     return 1
 
 
-def decode_image(data: bytes | bytearray, *, max_pixels: int = 50_000_000, reduction: int = 1) -> tuple[NDArray, float]:
+def decode_image(data: bytes | bytearray, *, max_pixels: int = 50_000_000, reduction: int = 1,
+                 max_bytes: int = DEFAULT_MAX_BYTES) -> tuple[NDArray, float]:
     """Decode ``data`` to an RGB array (H × W × 3, uint8 or uint16) and its full-scale value (255 or 65535).
 
     ``reduction`` 2, 4 or 8 (a JPEG only, see :func:`jpeg_reduction`) decodes at that fraction of the size, ⌈H/s⌉ ×
@@ -137,10 +194,9 @@ def decode_image(data: bytes | bytearray, *, max_pixels: int = 50_000_000, reduc
     fmt = sniff_format(data)
     if fmt is None:
         raise ImageError("image is not PNG, JPEG or TIFF (unrecognised file signature)", 415)
-    size = declared_size(data, fmt)
-    if size is not None and size[0] * size[1] > max_pixels:
-        # Refuse decompression bombs before allocating: the header states the size.
-        raise ImageError(f"image has {size[0]}×{size[1]} pixels; the limit is {max_pixels}", 413)
+    # Refuse decompression bombs before allocating: the header states the size (an image whose header does not is
+    # not decoded at all).
+    check_budget(data, fmt, max_pixels, max_bytes)
     if reduction == 1:
         img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     else:
@@ -201,12 +257,13 @@ class DecodedFrame:
 
 def decode_frame(
     data: bytes | bytearray, regions: Iterable[Region], *, max_pixels: int = 50_000_000, max_reduction: int = 1,
+    max_bytes: int = DEFAULT_MAX_BYTES,
 ) -> DecodedFrame:
     """Decode an upload for the robust means of ``regions``: a JPEG at the reduction :func:`jpeg_reduction` allows
     (at most ``max_reduction``), anything else at full size. Raises :class:`ImageError` like :func:`decode_image`, and
     (422) for a grey image (:func:`is_grey`), which carries no colour to estimate the light from."""
     scale = jpeg_reduction(data, regions, max_reduction)
-    image, full = decode_image(data, max_pixels=max_pixels, reduction=scale)
+    image, full = decode_image(data, max_pixels=max_pixels, reduction=scale, max_bytes=max_bytes)
     if is_grey(image):
         raise ImageError(
             "image is grey (one channel, or three identical ones): the light is estimated from the colours of the "

@@ -38,6 +38,9 @@ __all__ = [
     "check_response",
     "model_path",
     "model_available",
+    "view_model_key",
+    "versioned_model_path",
+    "current_model",
     "sensitivities_array",
     "undo_camera_gains",
     "undo_camera_gains_sd",
@@ -64,6 +67,30 @@ def model_path(data_dir: Path | str, camera_id: int, view: str | None = None) ->
 def model_available(data_dir: Path | str, camera_id: int, view: str | None = None) -> bool:
     """Whether per-frame estimation is possible for the camera (a scene model has been fitted)."""
     return model_path(data_dir, camera_id, view).is_file()
+
+
+def view_model_key(view: str | None) -> str:
+    """Key of a view in :attr:`.storage.Camera.models` (``default`` for a fixed camera's one view)."""
+    return "default" if view is None else f"v-{view}"
+
+
+def versioned_model_path(data_dir: Path | str, camera_id: int, view: str | None, version: str) -> Path:
+    """Where a refit writes a new scene model: ``models/camera-<id>[-view-<view>].<version>.json`` (a new file per
+    refit; the camera row says which one is in use)."""
+    legacy = model_path(data_dir, camera_id, view)
+    return legacy.with_name(f"{legacy.stem}.{version}.json")
+
+
+def current_model(data_dir: Path | str, models: dict | None, camera_id: int, view: str | None = None
+                  ) -> tuple[Path, str] | None:
+    """``(file, version)`` of the scene model a camera's view uses (:attr:`.storage.Camera.models`), or the
+    unversioned file of an older version (version ``legacy``) when the camera row names none; ``None`` before the
+    first refit."""
+    entry = (models or {}).get(view_model_key(view))
+    if entry and entry.get("file"):
+        return Path(data_dir) / "models" / str(entry["file"]), str(entry.get("version") or "")
+    legacy = model_path(data_dir, camera_id, view)
+    return (legacy, "legacy") if legacy.is_file() else None
 
 
 def camera_primaries(response: dict | None, measured: bool) -> str:
@@ -166,6 +193,8 @@ class _Loaded:
     solvers: dict[tuple[int, ...], FrameSolver] = field(default_factory=dict)
 
 
+MODEL_CACHE_SIZE = 256
+"""Scene models kept loaded (oldest dropped first)."""
 _MODEL_CACHE: dict[str, _Loaded] = {}
 _CACHE_LOCK = threading.Lock()
 
@@ -180,6 +209,8 @@ def _load_model(path: Path) -> _Loaded:
             return hit
     loaded = _Loaded(mtime, scene_model.SceneModel.load(path))
     with _CACHE_LOCK:
+        if len(_MODEL_CACHE) >= MODEL_CACHE_SIZE:  # versioned files: old versions are never asked for again
+            _MODEL_CACHE.pop(next(iter(_MODEL_CACHE)))
         _MODEL_CACHE[key] = loaded
     return loaded
 
@@ -227,11 +258,12 @@ def _intervals(result: RetrievalResult, extra: dict, i: int) -> dict | None:
 
 def estimate_frame(
     data_dir: Path | str, camera_id: int, frame_id: str, taken_at: str, patches: dict, region_ids: Sequence[str],
-    view: str | None = None, sd: dict | None = None,
+    view: str | None = None, sd: dict | None = None, model_file: Path | None = None,
 ) -> dict | None:
     """Per-frame estimate from the camera's (view's) fitted scene model, or ``None`` when there is none (yet);
-    ``sd``: the regions' standard errors (see :func:`build_observations`)."""
-    path = model_path(data_dir, camera_id, view)
+    ``sd``: the regions' standard errors (see :func:`build_observations`); ``model_file``: the model to use (default:
+    the view's unversioned file of older versions)."""
+    path = model_path(data_dir, camera_id, view) if model_file is None else Path(model_file)
     if not path.is_file():
         return None
     obs = build_observations([(frame_id, taken_at, patches, sd)], region_ids)

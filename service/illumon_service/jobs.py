@@ -18,7 +18,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
-from sqlalchemy import delete, insert, select
+from sqlalchemy import delete, insert, select, true, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from .estimation import (
@@ -26,12 +26,16 @@ from .estimation import (
     RefitInputError,
     camera_primaries,
     check_response,
+    estimate_frame,
     model_path,
     refit_estimates,
     sensitivities_array,
     undo_camera_gains,
     undo_camera_gains_sd,
+    versioned_model_path,
+    view_model_key,
 )
+from .limits import frame_problem
 from .metrics import Metrics
 from .registration import view_regions
 from .settings import Settings
@@ -60,6 +64,13 @@ def refit_camera(
 ) -> dict:
     """Re-estimate the most recent ``max_frames`` frames of a camera and store the estimates; returns a summary.
 
+    Frames it cannot use are left out and reported (``dropped``: frame id and reason — a value outside the ranges of
+    :mod:`.limits`, stored by an older version), never a reason to fail. Each view's new scene model is written to a
+    new versioned file; the estimates and the switch to the new models (:attr:`.storage.Camera.models`) are then
+    committed in one transaction (:func:`_commit_refit`), so a crash at any point leaves either the old estimates and
+    models or the new ones, never a mixture; frames stored while the fit ran are estimated with the new model in that
+    same transaction.
+
     Parameters
     ----------
     sessions
@@ -67,7 +78,7 @@ def refit_camera(
     camera_id
         The camera to refit.
     data_dir
-        Service data folder (the fitted scene model goes to ``models/camera-<id>.json``).
+        Service data folder (the fitted scene models go to ``models/camera-<id>[-view-<view>].<version>.json``).
     max_frames
         At most this many of the most recent frames are re-estimated.
     method
@@ -80,9 +91,12 @@ def refit_camera(
     Returns
     -------
     dict
-        Frames estimated, skipped, method, timings (``seconds``, ``read_s``, ``fit_s``, ``write_s``), the check of the
-        declared tone response (``response_check``, :func:`~.estimation.check_response`) and ``warnings`` (one
-        sentence each, shown with the camera and on the status page).
+        Frames estimated, skipped, dropped (``dropped``: ``[{"frame_id", "reason"}]``, at most
+        :data:`MAX_DROPPED_LISTED`, ``dropped_frames`` their number), method, model ``version``, timings
+        (``seconds``, ``read_s``, ``fit_s``, ``write_s``), the check of the declared tone response
+        (``response_check``, :func:`~.estimation.check_response`) and ``warnings``: every warning of the refit in one
+        list (tone response, calibration images, views, the model's identifiability and white-balance warnings), shown
+        with the camera and on the status page.
 
     Raises
     ------
@@ -90,6 +104,7 @@ def refit_camera(
         Too few usable frames.
     """
     t0 = time.perf_counter()
+    started = time.time()
     report = progress or (lambda _p: None)
     with sessions() as s:
         cam = s.get(Camera, camera_id)
@@ -101,8 +116,18 @@ def refit_camera(
             .where(Frame.camera_id == camera_id)
             .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(max_frames)
         ).all()
+        read_ids = [r.id for r in rows]
         # Frames of an unknown view (a view change) or measured before any region existed carry no region values.
         rows = [r for r in rows if r.patches and (r.registration or {}).get("state") != "view_change"]
+        dropped: list[dict] = []
+        usable_rows = []
+        for r in rows:
+            problem = frame_problem(r.patches, r.patch_sd, r.applied_gains, r.exposure)
+            if problem is None:
+                usable_rows.append(r)
+            else:
+                dropped.append({"frame_id": r.id, "reason": problem})
+        rows = usable_rows
         views = sorted({r.view for r in rows if r.view is not None})
         view_ids = {v: [r["id"] for r in view_regions(s, cam, v)] for v in views}
         rows = [r for r in rows if r.view is None or view_ids.get(r.view)]
@@ -113,47 +138,65 @@ def refit_camera(
         primaries = camera_primaries(cam.response, css is not None)
         cals = s.scalars(select(Calibration).where(Calibration.camera_id == camera_id).order_by(Calibration.id)).all()
         calibrations, known, cal_warnings = calibration_frames(cals, matrix)
+    if dropped:
+        log.warning("refit of camera %s: %d frame(s) left out (%s)", camera_id, len(dropped), dropped[0]["reason"])
     rows.reverse()
     frames = [_history_row(r, matrix) for r in rows if r.view is None]
     times = {str(r.id): r.taken_at for r in rows}
     t_read = time.perf_counter()
     report(0.1)
+    version = uuid.uuid4().hex[:16]
+    new_models: dict[str | None, Path] = {}
     view_warnings = []
     estimates: dict = {}
     for v in views:  # each PTZ preset: its own regions and scene model (calibration images are of the default view)
         vf = [_history_row(r, matrix) for r in rows if r.view == v]
+        path = versioned_model_path(data_dir, camera_id, v, version)
         try:
-            est_v, _ = refit_estimates(vf, view_ids[v], css, method=method, model_file=model_path(data_dir, camera_id, v),
-                                       max_fit_frames=max_fit_frames, primaries=primaries)
+            est_v, summary_v = refit_estimates(vf, view_ids[v], css, method=method, model_file=path,
+                                               max_fit_frames=max_fit_frames, primaries=primaries)
             estimates.update(est_v)
+            new_models[v] = path
+            view_warnings += [f"view {v!r}: {w}" for w in summary_v.get("identifiability_warnings") or []]
         except RefitInputError as exc:
             view_warnings.append(f"view {v!r} not refitted: {exc}")
     if not frames and estimates:
         summary = {"frames": 0, "method": method, "views": len(views)}
     else:
-        est_d, summary = refit_estimates(
-            frames, region_ids, css, method=method, model_file=model_path(data_dir, camera_id),
-            max_fit_frames=max_fit_frames, calibrations=calibrations, known_reflectances=known, primaries=primaries,
-        )
+        path = versioned_model_path(data_dir, camera_id, None, version)
+        try:
+            est_d, summary = refit_estimates(
+                frames, region_ids, css, method=method, model_file=path,
+                max_fit_frames=max_fit_frames, calibrations=calibrations, known_reflectances=known, primaries=primaries,
+            )
+        except Exception:
+            for p in new_models.values():  # nothing committed: the new files of the other views go too
+                p.unlink(missing_ok=True)
+            path.unlink(missing_ok=True)
+            raise
         estimates.update(est_d)
+        if path.is_file():
+            new_models[None] = path
     check = check_response(frames, region_ids, css, encoding) if frames else {"warnings": []}
     summary["response_check"] = {k: v for k, v in check.items() if k != "warnings"}
-    summary["warnings"] = cal_warnings + check["warnings"] + view_warnings
+    model_warnings = [str(w) for w in summary.get("identifiability_warnings") or []]
+    if isinstance(summary.get("model"), str) and summary["model"].startswith("scene model fit failed"):
+        model_warnings.append(summary["model"])
+    summary["warnings"] = list(dict.fromkeys(cal_warnings + check["warnings"] + view_warnings + model_warnings))
     summary["views"] = len(views) + bool(frames)
+    summary["version"] = version
+    summary["dropped_frames"] = len(dropped)
+    summary["dropped"] = dropped[:MAX_DROPPED_LISTED]
     t_fit = time.perf_counter()
     report(0.8)
-    items = list(estimates.items())
-    for start in range(0, len(items), WRITE_CHUNK):
-        chunk = items[start : start + WRITE_CHUNK]
-        with sessions() as s, s.begin():
-            s.execute(delete(Estimate).where(Estimate.frame_id.in_([int(fid) for fid, _ in chunk])))
-            s.execute(insert(Estimate), [
-                {"frame_id": int(fid), "camera_id": camera_id, "taken_at": times[fid], **est} for fid, est in chunk
-            ])
-        report(0.8 + 0.2 * min(1.0, (start + len(chunk)) / max(1, len(items))))
+    written = _commit_refit(sessions, data_dir, camera_id, version, new_models, estimates, times,
+                            {v: (view_ids[v] if v is not None else region_ids) for v in new_models}, matrix,
+                            read_ids, dropped)
+    _remove_old_models(data_dir, camera_id, new_models, started)
     t_end = time.perf_counter()
     summary.update({
         "camera_id": camera_id,
+        "frames_written": written,
         "seconds": round(t_end - t0, 3),
         "read_s": round(t_read - t0, 3),
         "fit_s": round(t_fit - t_read, 3),
@@ -161,6 +204,88 @@ def refit_camera(
     })
     report(1.0)
     return summary
+
+
+MAX_DROPPED_LISTED = 100
+"""Frames a refit's summary lists by id among those it left out (all are counted)."""
+
+
+def _commit_refit(
+    sessions: sessionmaker[Session], data_dir: Path, camera_id: int, version: str, new_models: dict[str | None, Path],
+    estimates: dict[str, dict], times: dict, region_ids: dict[str | None, list[str]], matrix: list | None,
+    read_ids: list[int], dropped: list[dict],
+) -> int:
+    """Store a refit in one transaction: switch the camera's views to their new model files, replace the estimates,
+    estimate with the new models the frames stored since the refit read the history, and record why the others have
+    none. Returns the number of estimates written.
+
+    The camera row is updated first: on SQLite that takes the write lock before anything is read, on PostgreSQL it
+    locks the row that every ingest locks (:func:`frame_model_guard`) before storing an estimate, so no ingest
+    commits an estimate of the old model after this commit."""
+    read = set(read_ids)
+    with sessions() as s, s.begin():
+        cam = s.get(Camera, camera_id, with_for_update=True)
+        if cam is None:  # deleted while the refit ran
+            for p in new_models.values():
+                p.unlink(missing_ok=True)
+            return 0
+        models = dict(cam.models or {})
+        for v, p in new_models.items():
+            models[view_model_key(v)] = {"file": p.name, "version": version}
+        cam.models = models
+        s.flush()
+        late = s.execute(
+            select(Frame.id, Frame.taken_at, Frame.patches, Frame.applied_gains, Frame.exposure, Frame.view,
+                   Frame.registration, Frame.patch_sd)
+            .where(Frame.camera_id == camera_id, Frame.id.not_in(read) if read else true())
+        ).all()
+        rows = {fid: {"frame_id": int(fid), "camera_id": camera_id, "taken_at": times[fid], "model": version, **est}
+                for fid, est in estimates.items()}
+        for r in late:  # stored while the refit fitted: estimated now with the new model of their view
+            if r.view not in new_models or not r.patches or frame_problem(r.patches, r.patch_sd, r.applied_gains,
+                                                                          r.exposure):
+                continue
+            if (r.registration or {}).get("state") == "view_change":
+                continue
+            row = _history_row(r, matrix)
+            est = estimate_frame(data_dir, camera_id, row[0], row[1], row[2], region_ids[r.view], r.view, row[3],
+                                 model_file=new_models[r.view])
+            if est is not None:
+                rows[str(r.id)] = {"frame_id": r.id, "camera_id": camera_id, "taken_at": r.taken_at, "model": version,
+                                   **est}
+        ids = [int(fid) for fid in rows]
+        for start in range(0, len(ids), WRITE_CHUNK):  # one transaction; statements of bounded size
+            s.execute(delete(Estimate).where(Estimate.frame_id.in_(ids[start : start + WRITE_CHUNK])))
+        items = list(rows.values())
+        for start in range(0, len(items), WRITE_CHUNK):
+            s.execute(insert(Estimate), items[start : start + WRITE_CHUNK])
+        for start in range(0, len(ids), WRITE_CHUNK):
+            s.execute(update(Frame).where(Frame.id.in_(ids[start : start + WRITE_CHUNK])).values(not_estimated=None))
+        bad = [d["frame_id"] for d in dropped]
+        for start in range(0, len(bad), WRITE_CHUNK):
+            part = bad[start : start + WRITE_CHUNK]
+            s.execute(delete(Estimate).where(Estimate.frame_id.in_(part)))
+            s.execute(update(Frame).where(Frame.id.in_(part)).values(not_estimated="invalid_values"))
+        if _commit_hook is not None:
+            _commit_hook()
+    return len(rows)
+
+
+_commit_hook: Callable[[], None] | None = None
+"""Called inside a refit's transaction just before it commits (tests simulate a crash there)."""
+
+
+def _remove_old_models(data_dir: Path, camera_id: int, new_models: dict[str | None, Path], started: float) -> None:
+    """Delete the model files of the refitted views other than the new ones, older than this refit (an older
+    version's unversioned file too; a newer refit running elsewhere keeps its file)."""
+    for v, keep in new_models.items():
+        legacy = model_path(data_dir, camera_id, v)
+        for p in [legacy, *legacy.parent.glob(f"{legacy.stem}.*.json")]:
+            try:
+                if p != keep and p.is_file() and p.stat().st_mtime < started:
+                    p.unlink()
+            except FileNotFoundError:
+                pass
 
 
 def _history_row(r: Frame, matrix: list | None) -> tuple[str, str, dict, dict | None]:
@@ -212,17 +337,27 @@ class JobRunner:
         self._stop = threading.Event()
         self._scheduler: threading.Thread | None = None
         self._lock_fd: int | None = None
+        self._alive_fd: int | None = None
+        self._sweeper: threading.Thread | None = None
+        self._running: set[str] = set()
+        self._running_lock = threading.Lock()
+        self._started: set[str] = set()
+        """Jobs this process has handed to its pool (recovery does not start them twice)."""
 
-    def submit(self, camera_id: int) -> str:
+    def submit(self, camera_id: int, attempt: int = 1) -> str:
         """Record a queued job for the camera and start it; returns the job id."""
         job_id = uuid.uuid4().hex
         with self.sessions() as s, s.begin():
-            s.add(Job(id=job_id, camera_id=camera_id, state="queued", progress=0.0))
+            s.add(Job(id=job_id, camera_id=camera_id, state="queued", progress=0.0, attempt=attempt))
+        self._started.add(job_id)
+        self._start(job_id, camera_id)
+        return job_id
+
+    def _start(self, job_id: str, camera_id: int) -> None:
         if self.settings.jobs_inline:
             self._run(job_id, camera_id)
         else:
             self._pool.submit(self._run, job_id, camera_id)
-        return job_id
 
     def _set(self, job_id: str, **fields) -> None:
         with self.sessions() as s, s.begin():
@@ -231,9 +366,19 @@ class JobRunner:
                 for k, v in fields.items():
                     setattr(job, k, v)
 
+    def _claim(self, job_id: str) -> bool:
+        """Take a queued job (``queued`` → ``running``, heartbeat now) unless another process took it first."""
+        with self.sessions() as s, s.begin():
+            done = s.execute(update(Job).where(Job.id == job_id, Job.state == "queued")
+                             .values(state="running", progress=0.0, heartbeat_at=utcnow()))
+        return done.rowcount == 1
+
     def _run(self, job_id: str, camera_id: int) -> None:
+        if not self._claim(job_id):
+            return
         t0 = time.perf_counter()
-        self._set(job_id, state="running", progress=0.0)
+        with self._running_lock:
+            self._running.add(job_id)
         try:
             summary = refit_camera(
                 self.sessions,
@@ -242,7 +387,7 @@ class JobRunner:
                 max_frames=self.settings.refit_max_frames,
                 method=self.settings.refit_method,
                 max_fit_frames=self.settings.refit_fit_frames,
-                progress=lambda p: self._set(job_id, progress=p),
+                progress=lambda p: self._set(job_id, progress=p, heartbeat_at=utcnow()),
             )
         except Exception as exc:  # noqa: BLE001 - a failed job is reported in its summary, never raised
             if isinstance(exc, RefitInputError):  # the user's history, not a fault: one line
@@ -252,9 +397,99 @@ class JobRunner:
             self.metrics.inc("illumon_refit_total", labels='outcome="failed"')
             self._set(job_id, state="failed", summary={"error": str(exc)}, finished_at=utcnow())
             return
+        finally:
+            with self._running_lock:
+                self._running.discard(job_id)
         self.metrics.observe("illumon_refit_seconds", time.perf_counter() - t0)
         self.metrics.inc("illumon_refit_total", labels='outcome="done"')
         self._set(job_id, state="done", progress=1.0, summary=summary, finished_at=utcnow())
+
+    def _alone(self) -> bool:
+        """Hold ``<data dir>/service.lock`` shared for this process's life; ``True`` when no other service process
+        held it at start-up (every ``running`` job is then an orphan of a crash, whatever its heartbeat)."""
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not on POSIX: rely on heartbeats alone
+            return False
+        if self._alive_fd is None:
+            self._alive_fd = os.open(Path(self.settings.data_dir) / "service.lock", os.O_RDWR | os.O_CREAT, 0o600)
+        try:
+            fcntl.flock(self._alive_fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            alone = True
+        except OSError:
+            alone = False
+        fcntl.flock(self._alive_fd, fcntl.LOCK_SH)
+        return alone
+
+    def recover(self, alone: bool = False) -> dict[str, list[str]]:
+        """Pick up jobs a crash left behind: a ``running`` job whose heartbeat is older than
+        ``job_stale_seconds`` (or any ``running`` job when ``alone``: no other service process is alive) is marked
+        ``failed`` (its summary says it was interrupted) and, on its first attempt, run again as a new job (a refit
+        is idempotent: it recomputes everything from the stored frames); ``queued`` jobs not yet started are
+        started (a claim makes sure one process runs each). Returns the ids: ``{"failed", "requeued", "resumed"}``.
+        """
+        now = utcnow()
+        stale = self.settings.job_stale_seconds
+        out: dict[str, list[str]] = {"failed": [], "requeued": [], "resumed": []}
+        with self._running_lock:
+            mine = set(self._running)
+        with self.sessions() as s, s.begin():
+            jobs = s.scalars(select(Job).where(Job.state.in_(("running", "queued")))).all()
+            retry = []
+            for job in jobs:
+                beat = as_utc(job.heartbeat_at or job.created_at)
+                if job.state != "running" or job.id in mine:
+                    continue
+                if not alone and beat is not None and (now - beat).total_seconds() < stale:
+                    continue
+                attempt = job.attempt or 1
+                again = attempt < 2
+                new_id = uuid.uuid4().hex if again else None
+                job.state, job.finished_at = "failed", now
+                job.summary = {"error": "interrupted: the service stopped while this refit ran"
+                                        + (f"; run again as job {new_id}" if again else "; not run again (second "
+                                           "attempt)"), "interrupted": True, "requeued_as": new_id}
+                out["failed"].append(job.id)
+                if again:
+                    s.add(Job(id=new_id, camera_id=job.camera_id, state="queued", progress=0.0, attempt=attempt + 1))
+                    retry.append((new_id, job.camera_id))
+                    out["requeued"].append(new_id)
+            queued = [(j.id, j.camera_id) for j in jobs if j.state == "queued" and j.id not in self._started]
+        for job_id, _camera in queued + retry:
+            self._started.add(job_id)
+            if job_id not in out["requeued"]:
+                out["resumed"].append(job_id)
+        if any(out.values()):
+            log.warning("jobs left by a crash: %d marked failed, %d run again, %d queued resumed",
+                        len(out["failed"]), len(out["requeued"]), len(out["resumed"]))
+        for job_id, camera_id in queued + retry:
+            self._start(job_id, camera_id)
+        return out
+
+    def start_recovery(self) -> dict[str, list[str]]:
+        """At start-up: :meth:`recover` (every ``running`` job when no other service process shares the data
+        dir), then a daemon thread that keeps the heartbeat of this process's running job and recovers stale jobs of
+        crashed processes every few seconds."""
+        out = self.recover(alone=self._alone())
+        if self._sweeper is None:
+            period = max(0.5, min(5.0, self.settings.job_stale_seconds / 4))
+
+            def loop() -> None:
+                while not self._stop.wait(period):
+                    try:
+                        with self._running_lock:
+                            running = list(self._running)
+                        if running:
+                            with self.sessions() as s, s.begin():
+                                s.execute(update(Job).where(Job.id.in_(running), Job.state == "running")
+                                          .values(heartbeat_at=utcnow()))
+                        self.recover()
+                    except Exception:  # noqa: BLE001 - a database hiccup must not end the sweeper
+                        log.exception("job heartbeat / recovery failed")
+
+            self._sweeper = threading.Thread(target=loop, name="illumon-jobs-sweeper", daemon=True)
+            self._sweeper.start()
+        return out
 
     def _take_schedule_lock(self) -> bool:
         """Hold ``<data dir>/refit-schedule.lock`` (an exclusive ``flock``, released when this process ends): of the
@@ -299,6 +534,9 @@ class JobRunner:
         if self._lock_fd is not None:
             os.close(self._lock_fd)  # releases the schedule lock
             self._lock_fd = None
+        if self._alive_fd is not None:
+            os.close(self._alive_fd)
+            self._alive_fd = None
 
 
 def _refit_worker(

@@ -80,7 +80,7 @@ class Metrics:
         changes, snap = self._snapshot()
         if changes == self._published:
             return
-        tmp = self._dir / f".{self._id}.tmp"
+        tmp = self._dir / f".{self._id}.{threading.get_ident()}.tmp"  # a scrape and the publisher thread may race
         tmp.write_text(json.dumps(snap))
         os.replace(tmp, self._dir / f"{self._id}.json")
         self._published = changes

@@ -123,10 +123,13 @@ def make_thumbnail(image: NDArray, response: ResponseCurve, clip_fraction: float
 def save_thumbnail(path: Path, thumb: Thumbnail) -> None:
     """Write a thumbnail as a 16-bit RGBA PNG (RGB linear × 65535, alpha the unclipped fraction)."""
     rgba = np.dstack([thumb.linear[:, :, ::-1], thumb.unclipped])
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.png")
-    cv2.imwrite(str(tmp), np.round(np.clip(rgba, 0, 1) * 65535).astype(np.uint16), [cv2.IMWRITE_PNG_COMPRESSION, 1])
-    tmp.replace(path)
+    ok, buf = cv2.imencode(".png", np.round(np.clip(rgba, 0, 1) * 65535).astype(np.uint16),
+                           [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise ValueError("thumbnail could not be encoded")
+    from .pending import atomic_write
+
+    atomic_write(path, buf.tobytes())  # a private temporary file: concurrent writers never share one
 
 
 def load_thumbnail(path: Path | str, full_width: int) -> Thumbnail | None:

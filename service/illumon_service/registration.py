@@ -16,6 +16,7 @@ re-anchors a view on its latest frame after the camera was moved for good.
 
 from __future__ import annotations
 
+import os
 import re
 import threading
 from dataclasses import dataclass
@@ -29,12 +30,14 @@ from numpy.typing import NDArray
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from .datafiles import data_file
 from .proposals import KEEP_RECENT, Thumbnail, load_thumbnail, save_thumbnail, thumbnail_grey
 from .regions import Region
 from .storage import Camera, CameraView, Frame, as_utc
 
 __all__ = [
-    "MAX_SHIFT_FRACTION", "MIN_RESPONSE", "MIN_STRUCTURE", "Registration", "thumbs_dir", "reference_path", "view_key",
+    "MAX_SHIFT_FRACTION", "MIN_RESPONSE", "MIN_STRUCTURE", "MATCH_SCORE", "match_score",
+    "Registration", "thumbs_dir", "reference_path", "view_key",
     "parse_view", "view_regions", "set_view_regions", "register_frame", "shift_regions", "prune_thumbnails", "set_reference",
     "view_thumbnails", "phase_shift", "thumbnail_due", "THUMB_EVERY",
 ]
@@ -46,6 +49,15 @@ MIN_RESPONSE = 0.15
 the development scenes of ``benchmarks/regions_setup.py``: frames of the same view shifted by up to ±20 px and
 under other daylight peak at 0.72 or more and register within 0.21 px; another scene of the same layout peaks at
 0.012…0.052)."""
+
+MATCH_SCORE = 0.25
+"""Smallest :func:`match_score` at which a frame whose correlation peak is weak still counts as the reference's view
+(measured with its regions in place, registration ``uncertain``). Chosen on rendered scenes: the same view under
+other light scores ≥ 0.34 even with sensor noise that drowns the phase correlation (peaks 0.0–0.15: a cluttered,
+low-contrast background), a 100 px jump ≤ 0.15 and another scene of the same layout ≤ 0.17."""
+MATCH_BLUR = 1.5
+"""Gaussian blur (thumbnail pixels) applied before :func:`match_score`: averages sensor noise, keeps the scene's
+structure."""
 
 THUMB_EVERY = timedelta(minutes=10)
 """A view keeps at most one new thumbnail per this much frame time (and one at every change of view state)."""
@@ -60,17 +72,25 @@ class Registration:
     """Where a frame lies relative to its view's reference frame."""
 
     state: str
-    """``reference`` (this frame became the reference), ``ok`` (registered), ``featureless`` (nothing to register
-    on: regions left in place) or ``view_change``."""
+    """``reference`` (this frame became the reference), ``ok`` (registered), ``uncertain`` (a weak correlation peak,
+    but the frame still matches the reference with its regions where they were, or at a shift they follow: measured
+    there), ``featureless`` (nothing to register on: regions left in place) or ``view_change`` (positive evidence:
+    the frame matches the reference neither where the regions were nor at a shift they could follow)."""
     shift: tuple[float, float]
     """(dx, dy) in full-resolution pixels: the scene moved by this much in the image."""
     response: float | None
     """Phase-correlation peak (``None`` for the reference itself)."""
+    match: float | None = None
+    """Where the peak was weak or the shift too large: the frame's match with the reference at the shift used
+    (:func:`match_score`); ``None`` when not needed."""
 
     def as_dict(self) -> dict:
         """JSON form (stored with the frame)."""
-        return {"state": self.state, "shift": [round(self.shift[0], 2), round(self.shift[1], 2)],
-                "response": None if self.response is None else round(self.response, 4)}
+        out = {"state": self.state, "shift": [round(self.shift[0], 2), round(self.shift[1], 2)],
+               "response": None if self.response is None else round(self.response, 4)}
+        if self.match is not None:
+            out["match"] = self.match
+        return out
 
 
 def parse_view(text: str | None) -> str | None:
@@ -156,6 +176,28 @@ def phase_shift(ref: Thumbnail, thumb: Thumbnail, regions: list[dict],
     return float(dx) * ref.factor, float(dy) * ref.factor, float(response)
 
 
+def match_score(ref: Thumbnail, thumb: Thumbnail, regions: list[dict], dx: float = 0.0, dy: float = 0.0) -> float:
+    """How well ``thumb``, moved back by (``dx``, ``dy``) full-resolution pixels, matches the reference where the
+    regions and their surroundings are: the weighted (:func:`_weights`) zero-mean normalised correlation of the two
+    log-grey images after a :data:`MATCH_BLUR` blur (−1…1; 1: the same view). Unlike the phase-correlation peak,
+    which weighs every spatial frequency alike and so drowns in sensor noise on a low-contrast background, it rests on
+    the scene's coarse structure."""
+    a = cv2.GaussianBlur(thumbnail_grey(ref), (0, 0), MATCH_BLUR)
+    b = cv2.GaussianBlur(thumbnail_grey(thumb), (0, 0), MATCH_BLUR)
+    if a.shape != b.shape:
+        return -1.0
+    if dx or dy:
+        h, w = b.shape
+        m = np.float32([[1, 0, -dx / ref.factor], [0, 1, -dy / ref.factor]])
+        b = cv2.warpAffine(b, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+    wts = _weights(ref, regions)
+    total = float(wts.sum())
+    da = a - float((a * wts).sum() / total)
+    db = b - float((b * wts).sum() / total)
+    den = float(np.sqrt((wts * da * da).sum() * (wts * db * db).sum()))
+    return float((wts * da * db).sum() / den) if den > 0 else -1.0
+
+
 @lru_cache(maxsize=16)
 def _hanning(shape: tuple[int, int]) -> NDArray[np.float32]:
     return cv2.createHanningWindow((shape[1], shape[0]), cv2.CV_32F)
@@ -191,6 +233,10 @@ def register_frame(data_dir: Path | str, camera_id: int, view: str | None, thumb
     """Register ``thumb`` to its view's reference frame (the frame becomes the reference when there is none)."""
     path = reference_path(data_dir, camera_id, view)
     ref = _reference(path, size[0])
+    if ref is None:
+        if _claim_reference(path, thumb):
+            return Registration("reference", (0.0, 0.0), None)
+        ref = _reference(path, size[0])  # a concurrent first frame became the reference: register to it
     if ref is None or ref.unclipped.shape != thumb.unclipped.shape:
         save_thumbnail(path, thumb)
         return Registration("reference", (0.0, 0.0), None)
@@ -205,19 +251,46 @@ def register_frame(data_dir: Path | str, camera_id: int, view: str | None, thumb
         with _REF_LOCK:
             _PREPARED[str(path)] = hit
     dx, dy, response = phase_shift(ref, thumb, regions, hit[2])
-    ok = response >= MIN_RESPONSE and abs(dx) <= MAX_SHIFT_FRACTION * size[0] and abs(dy) <= MAX_SHIFT_FRACTION * size[1]
-    return Registration("ok" if ok else "view_change", (dx, dy), response)
+    within = abs(dx) <= MAX_SHIFT_FRACTION * size[0] and abs(dy) <= MAX_SHIFT_FRACTION * size[1]
+    if response >= MIN_RESPONSE and within:
+        return Registration("ok", (dx, dy), response)
+    # No clear registration: a view change only on positive evidence. Where the regions were, does the frame still
+    # look like the reference? And, for a shift regions could follow, does it there?
+    in_place = match_score(ref, thumb, regions)
+    moved = match_score(ref, thumb, regions, dx, dy) if within and (dx or dy) else -1.0
+    if max(in_place, moved) >= MATCH_SCORE:
+        if moved > in_place:
+            return Registration("uncertain", (dx, dy), response, round(moved, 3))
+        return Registration("uncertain", (0.0, 0.0), response, round(in_place, 3))
+    return Registration("view_change", (dx, dy), response, round(max(in_place, moved), 3))
+
+
+def _claim_reference(path: Path, thumb: Thumbnail) -> bool:
+    """Make ``thumb`` the view's first reference frame unless another frame got there first: written to a private
+    temporary file, then hard-linked into place (the link fails when the reference exists), so concurrent first
+    frames of a camera agree on one reference and never share a temporary file."""
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.{threading.get_ident()}.claim.png")
+    save_thumbnail(tmp, thumb)
+    try:
+        os.link(tmp, path)
+        return True
+    except FileExistsError:
+        return False
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def set_reference(data_dir: Path | str, camera_id: int, view: str | None, thumb_file: str | None) -> bool:
-    """Make a stored frame's thumbnail the view's reference frame (after the camera was moved for good)."""
-    if not thumb_file or not Path(thumb_file).is_file():
+    """Make a stored frame's thumbnail (``thumb_file``, its stored path) the view's reference frame (after the camera
+    was moved for good)."""
+    source = data_file(data_dir, thumb_file)
+    if source is None or not source.is_file():
         return False
     path = reference_path(data_dir, camera_id, view)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".tmp.png")
-    tmp.write_bytes(Path(thumb_file).read_bytes())
-    tmp.replace(path)
+    from .pending import atomic_write
+
+    atomic_write(path, source.read_bytes())
     return True
 
 
@@ -253,9 +326,9 @@ def thumbnail_due(session: Session, camera_id: int, view: str | None, taken_at: 
     return abs(taken_at - as_utc(last.taken_at)) >= THUMB_EVERY
 
 
-def prune_thumbnails(session: Session, camera_id: int, view: str | None) -> None:
+def prune_thumbnails(session: Session, camera_id: int, view: str | None, data_dir: Path | str) -> None:
     """Keep a view's :data:`~.proposals.KEEP_RECENT` most recent thumbnails and the latest one of every hour of the
-    day (UTC); delete the others' files and forget their paths (not committed)."""
+    day (UTC); delete the others' files (under ``data_dir``) and forget their paths (not committed)."""
     rows = session.scalars(
         select(Frame).where(Frame.camera_id == camera_id, Frame.thumb_path.is_not(None),
                             Frame.view.is_(None) if view is None else Frame.view == view)
@@ -267,13 +340,16 @@ def prune_thumbnails(session: Session, camera_id: int, view: str | None) -> None
         if i < KEEP_RECENT or hour not in hours:
             hours.add(hour)
             continue
-        Path(f.thumb_path).unlink(missing_ok=True)
+        old = data_file(data_dir, f.thumb_path)
+        if old is not None:
+            old.unlink(missing_ok=True)
         f.thumb_path = None
 
 
-def view_thumbnails(session: Session, cam: Camera, view: str | None, limit: int = 32) -> tuple[list[Thumbnail], list[Frame]]:
-    """The kept thumbnails of a view's registered frames (newest first, at most ``limit``), each moved back by its
-    stored shift into the reference frame's pixels, and their frames."""
+def view_thumbnails(session: Session, cam: Camera, view: str | None, data_dir: Path | str, limit: int = 32
+                    ) -> tuple[list[Thumbnail], list[Frame]]:
+    """The kept thumbnails (under ``data_dir``) of a view's registered frames (newest first, at most ``limit``), each
+    moved back by its stored shift into the reference frame's pixels, and their frames."""
     from .proposals import shifted
 
     rows = session.scalars(
@@ -286,7 +362,8 @@ def view_thumbnails(session: Session, cam: Camera, view: str | None, limit: int 
         reg = f.registration or {}
         if reg.get("state") == "view_change" or not f.width:
             continue
-        t = load_thumbnail(f.thumb_path, f.width)
+        path = data_file(data_dir, f.thumb_path)
+        t = None if path is None else load_thumbnail(path, f.width)
         if t is None or (thumbs and t.unclipped.shape != thumbs[0].unclipped.shape):
             continue
         dx, dy = reg.get("shift") or (0.0, 0.0)

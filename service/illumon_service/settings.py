@@ -41,6 +41,15 @@ class Settings(BaseSettings):
     """Frames the scene model's reflectances are fitted on (spread over the history's illuminant range)."""
     refit_every_hours: float = Field(default=0.0, ge=0.0)
     """Refit every camera every N hours inside the service (0 = off; use ``illumon refit`` from cron instead)."""
+    pending_max_frames: int = Field(default=64, ge=0, le=10_000)
+    """Original images kept per camera view while it has no regions, measured once they are confirmed (the oldest
+    beyond this number are dropped; their frames stay stored without values). 0: keep none."""
+    max_decoded_bytes: int = Field(default=64 * 1024 * 1024, gt=0)
+    """Largest decoded image in bytes (width × height × channels × bytes per sample, as the header states, checked
+    before decoding): bounds the memory one upload can take, for 16-bit images too."""
+    job_stale_seconds: float = Field(default=60.0, gt=0)
+    """A ``running`` refit job whose process has given no sign of life (heartbeat, every few seconds) for this long
+    was orphaned by a crash: it is marked failed and run again."""
     jobs_inline: bool = False
     """Run refit jobs synchronously inside the request (tests); otherwise in a background thread."""
     min_region_fraction: float = Field(default=0.5, gt=0.0, le=1.0)
@@ -55,7 +64,15 @@ class Settings(BaseSettings):
     decoded pixels per side; region edges that cut decoded pixels are weighted by coverage. 1 (default): always full
     size. 2 decodes 1920×1080 ~35 % faster; the region means then average codes over 2×2 pixels before linearising:
     ~0.04 % (median) from the full decode's on smooth regions, ~0.2 % (p95 0.6 %) on finely textured ones, and the
-    white up to ~0.06° (README, *Ingest speed*)."""
+    white up to ~0.06° (docs/service.md, *Ingest speed*)."""
+
+    retain_days: float = Field(default=0.0, ge=0.0)
+    """Delete frames (with their estimates, thumbnails and kept images) taken more than this many days ago, and
+    finished refit jobs as old; checked every hour by the service (and by ``illumon prune``). 0 (default): keep
+    everything."""
+    metrics: Literal["public", "admin", "off"] = "public"
+    """``/metrics``: ``public`` (default: anyone who reaches the port; the figures hold counts and timings, no camera
+    data, names or tokens), ``admin`` (``Authorization: Bearer`` with the admin token) or ``off`` (404)."""
 
     @field_validator("jpeg_max_reduction")
     @classmethod

@@ -11,8 +11,9 @@ function of an :class:`AlertContext` (the camera, its recent frames and its late
 * ``regions_missing`` — regions without a value (mostly occluded, shadowed or clipped pixels, or not sent) in at
   least a quarter (and at least 3) of the recent frames: something covers, shadows or changed those static patches;
 * ``clipping`` — region values at or above the clip level (``ILLUMON_CLIP_FRACTION`` of white) in recent frames;
-* ``non_daylight`` — the latest estimate is more than 0.02 in Duv off the Planckian locus: not daylight (or a
-  wrong camera set-up);
+* ``non_daylight`` — the latest estimate's ``non_daylight`` (posterior probability that its light is not daylight,
+  :mod:`illumon.model.lamps`) is at least 0.5; for an estimate without it, more than 0.02 in Duv off the Planckian
+  locus: not daylight (or a wrong camera set-up);
 * ``low_confidence`` — the latest estimate's confidence is below 0.5;
 * ``no_estimate`` — frames are stored but none is estimated yet (no refit has run);
 * ``refit_warning`` — a warning of the latest refit, e.g. a stored history that still looks non-linear for the
@@ -21,6 +22,9 @@ function of an :class:`AlertContext` (the camera, its recent frames and its late
   the prior from measured cameras (an information, not a fault);
 * ``no_regions`` — a camera registered without regions: frames are stored, and the page says how to confirm
   proposed regions (an information);
+* ``refit_failed`` — the camera's latest refit failed (its error; the previous estimates stand);
+* ``frames_not_estimated`` — stored frames without an estimate because of a view change, values a refit left out or
+  a failed estimate (counted by reason);
 * ``view_change`` — the latest frame does not register to its view's reference frame (:mod:`.registration`: a
   PTZ preset, a knocked camera): it is stored but not estimated.
 
@@ -39,10 +43,10 @@ from datetime import datetime
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from .crud import estimate_out
+from .crud import estimate_non_daylight, estimate_out
 from .deps import Principal
 from .settings import Settings
-from .storage import Calibration, Camera, Estimate, Frame, as_utc, refit_warnings
+from .storage import Calibration, Camera, Estimate, Frame, Job, as_utc, refit_warnings
 
 __all__ = [
     "Alert",
@@ -51,6 +55,7 @@ __all__ = [
     "CameraStatus",
     "RECENT_FRAMES",
     "NON_DAYLIGHT_DUV",
+    "NON_DAYLIGHT_PROBABILITY",
     "LOW_CONFIDENCE",
     "MISSING_FRACTION",
     "MISSING_MIN_FRAMES",
@@ -58,12 +63,16 @@ __all__ = [
     "camera_status",
     "fleet_status",
     "camera_history",
+    "not_estimated_counts",
+    "latest_job",
 ]
 
 RECENT_FRAMES = 12
 """Alerts look at this many of a camera's most recent frames."""
 NON_DAYLIGHT_DUV = 0.02
-"""|Duv| above this is reported as non-daylight light."""
+"""|Duv| above this is reported as non-daylight light (estimates without ``non_daylight``)."""
+NON_DAYLIGHT_PROBABILITY = 0.5
+"""``non_daylight`` alert: the latest estimate's posterior probability of non-daylight light at or above this."""
 LOW_CONFIDENCE = 0.5
 """Confidence below this is reported."""
 MISSING_FRACTION = 0.25
@@ -96,6 +105,10 @@ class AlertContext:
     """Warnings of the camera's latest finished refit (:func:`~.storage.refit_warnings`)."""
     uncalibrated: bool = False
     """No measured sensitivities and no calibration image."""
+    not_estimated: dict[str, int] = field(default_factory=dict)
+    """Stored frames without an estimate, by reason (:func:`not_estimated_counts`)."""
+    last_job: Job | None = None
+    """The camera's latest finished refit job (done or failed)."""
 
 
 def _measured(frame: Frame) -> bool:
@@ -136,7 +149,15 @@ def _clipping(ctx: AlertContext) -> list[Alert]:
 
 def _non_daylight(ctx: AlertContext) -> list[Alert]:
     e = ctx.latest
-    if e is None or abs(e.duv) <= NON_DAYLIGHT_DUV:
+    if e is None:
+        return []
+    p = estimate_non_daylight(e)
+    if p is not None:  # the model's posterior (issue 28); the Duv rule for estimates made without it
+        if p < NON_DAYLIGHT_PROBABILITY:
+            return []
+        return [Alert("non_daylight", "Non-daylight light",
+                      f"the latest frame's light is not daylight with probability {p:.2f}")]
+    if abs(e.duv) <= NON_DAYLIGHT_DUV:
         return []
     return [Alert("non_daylight", "Non-daylight light",
                   f"latest Duv {e.duv:+.4f} is more than {NON_DAYLIGHT_DUV} off the Planckian locus")]
@@ -196,8 +217,37 @@ def _view_change(ctx: AlertContext) -> list[Alert]:
                   f"regions again at /cameras/{ctx.camera.id}/regions")]
 
 
+REASON_WORDS = {
+    "view_change": "view changed", "no_regions": "posted before regions", "too_few_regions": "fewer than two regions",
+    "no_model": "awaiting a refit", "invalid_values": "left out by the refit (values out of range)",
+    "estimate_failed": "estimate failed", "pending": "awaiting a refit",
+}
+"""What each reason a frame has no estimate means (:attr:`.storage.Frame.not_estimated`)."""
+
+
+def _refit_failed(ctx: AlertContext) -> list[Alert]:
+    job = ctx.last_job
+    if job is None or job.state != "failed":
+        return []
+    error = str((job.summary or {}).get("error") or "unknown error")
+    return [Alert("refit_failed", "Refit failed",
+                  f"the latest refit (job {job.id}) failed: {error}. The previous estimates stand; fix the cause, "
+                  "then refit again")]
+
+
+def _frames_not_estimated(ctx: AlertContext) -> list[Alert]:
+    counts = {k: v for k, v in ctx.not_estimated.items() if k in ("view_change", "invalid_values", "estimate_failed")}
+    if not counts:
+        return []
+    parts = ", ".join(f"{n} {REASON_WORDS.get(k, k)}" for k, n in sorted(counts.items()))
+    return [Alert("frames_not_estimated", "Frames not estimated",
+                  f"{sum(counts.values())} stored frame(s) have no estimate: {parts} (GET "
+                  f"/v1/cameras/{ctx.camera.id}/frames lists each with its reason)")]
+
+
 ALERT_RULES: list[Callable[[AlertContext], list[Alert]]] = [
-    _view_change, _no_regions, _refit_warning, _uncalibrated, _regions_missing, _clipping, _non_daylight, _low_confidence,
+    _view_change, _refit_failed, _frames_not_estimated, _no_regions, _refit_warning, _uncalibrated,
+    _regions_missing, _clipping, _non_daylight, _low_confidence,
     _no_estimate,
 ]
 """Rules producing a camera's alerts, in display order; append a rule to add a kind of alert."""
@@ -215,6 +265,32 @@ class CameraStatus:
     latest: dict | None
     """The latest estimate as the JSON API gives it (``estimate_out``), with ``intervals``."""
     alerts: list[Alert] = field(default_factory=list)
+    not_estimated: dict[str, int] = field(default_factory=dict)
+    """Stored frames without an estimate, by reason."""
+    warnings: list[str] = field(default_factory=list)
+    """Every warning of the latest refit (one list: tone response, calibration, identifiability, white balance)."""
+
+
+def not_estimated_counts(session: Session, camera_id: int) -> dict[str, int]:
+    """The camera's stored frames that have no estimate, counted by reason (:attr:`.storage.Frame.not_estimated`;
+    ``pending`` for frames of older versions, which recorded none)."""
+    rows = session.execute(
+        select(Frame.not_estimated, func.count()).select_from(Frame)
+        .outerjoin(Estimate, Estimate.frame_id == Frame.id)
+        .where(Frame.camera_id == camera_id, Estimate.frame_id.is_(None))
+        .group_by(Frame.not_estimated)).all()
+    out: dict[str, int] = {}
+    for reason, n in rows:
+        key = reason or "pending"
+        out[key] = out.get(key, 0) + int(n)
+    return dict(sorted(out.items()))
+
+
+def latest_job(session: Session, camera_id: int) -> Job | None:
+    """The camera's latest finished refit job (``done`` or ``failed``), or ``None``."""
+    return session.scalars(
+        select(Job).where(Job.camera_id == camera_id, Job.state.in_(("done", "failed")))
+        .order_by(Job.finished_at.desc(), Job.created_at.desc()).limit(1)).first()
 
 
 def visible_cameras(session: Session, principal: Principal) -> list[Camera]:
@@ -240,7 +316,9 @@ def camera_status(session: Session, cam: Camera, settings: Settings) -> CameraSt
     latest = _latest_estimate(session, cam.id)
     calibrated = bool(cam.sensitivities) or session.scalar(
         select(func.count()).select_from(Calibration).where(Calibration.camera_id == cam.id)) > 0
-    ctx = AlertContext(cam, frames, latest, settings, int(count), refit_warnings(session, cam.id), not calibrated)
+    counts = not_estimated_counts(session, cam.id)
+    ctx = AlertContext(cam, frames, latest, settings, int(count), refit_warnings(session, cam.id), not calibrated,
+                       counts, latest_job(session, cam.id))
     alerts = [a for rule in ALERT_RULES for a in rule(ctx)]
     out = None
     if latest is not None:
@@ -249,6 +327,7 @@ def camera_status(session: Session, cam: Camera, settings: Settings) -> CameraSt
     return CameraStatus(
         id=cam.id, name=cam.name, regions=len(cam.regions), frames=int(count),
         last_frame_at=as_utc(frames[0].taken_at) if frames else None, latest=out, alerts=alerts,
+        not_estimated=counts, warnings=refit_warnings(session, cam.id),
     )
 
 

@@ -8,13 +8,15 @@ Arrays are stored as JSON lists (small: 61 samples at most).
 from __future__ import annotations
 
 import hashlib
+import os
 import secrets
 import threading
 from collections.abc import Callable
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import TypeVar
 
-from sqlalchemy import JSON, DateTime, Float, ForeignKey, Integer, String, create_engine, event, select
+from sqlalchemy import JSON, DateTime, Float, ForeignKey, Integer, String, UniqueConstraint, create_engine, event, select
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
 
@@ -35,6 +37,9 @@ __all__ = [
     "camera_by_token",
     "refit_warnings",
     "GroupCommit",
+    "IdempotencyKey",
+    "LoginSession",
+    "private_sqlite_file",
 ]
 
 T = TypeVar("T")
@@ -79,6 +84,10 @@ class Camera(Base):
     regions: Mapped[list] = mapped_column(JSON)
     response: Mapped[dict] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    models: Mapped[dict | None] = mapped_column(JSON, nullable=True)
+    """The scene models in use, by view (``default`` or ``v-<view>``): ``{"file": name under <data dir>/models,
+    "version": id}``. A refit writes a new versioned file and switches to it in the transaction that stores its
+    estimates, so estimates and model change together (:mod:`.jobs`); ``None`` before the first refit."""
 
 
 class Frame(Base):
@@ -108,6 +117,10 @@ class Frame(Base):
     """Standard errors of the region means (region id → [r, g, b] or ``null``, same scale): the pixels' spread over
     √pixels, measured at ingest (or sent with client-measured means); the estimators add their square to the noise
     variance they assume. ``None`` when unknown."""
+    not_estimated: Mapped[str | None] = mapped_column(String(40), nullable=True)
+    """Why the frame has no estimate, while it has none: ``view_change``, ``no_regions`` (its view had none yet),
+    ``too_few_regions`` (fewer than two usable), ``no_model`` (no refit yet), ``invalid_values`` (a refit left it out),
+    ``estimate_failed``; ``None`` once estimated (or for rows of older versions)."""
 
 
 class CameraView(Base):
@@ -157,6 +170,8 @@ class Estimate(Base):
     intervals: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     source: Mapped[str] = mapped_column(String(40))
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    model: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    """Version of the scene model that made the estimate (:attr:`Camera.models`); ``None`` for other sources."""
 
 
 class Job(Base):
@@ -170,11 +185,64 @@ class Job(Base):
     summary: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
     finished_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    heartbeat_at: Mapped[datetime | None] = mapped_column(DateTime(timezone=True), nullable=True)
+    """Last sign of life of the process running the job (every few seconds); a ``running`` job whose heartbeat is
+    stale was orphaned by a crash (:meth:`.jobs.JobRunner.recover`)."""
+    attempt: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    """1 for a job as submitted, 2 for its re-run after a crash (``None``: 1)."""
+
+
+class IdempotencyKey(Base):
+    """An ``Idempotency-Key`` a camera sent with a frame (:mod:`.idempotency`): unique per camera; the frame it
+    stored, a fingerprint of the request and the answer given, returned again to a retry with the same key."""
+
+    __tablename__ = "idempotency_keys"
+    __table_args__ = (UniqueConstraint("camera_id", "key", name="uq_idempotency_camera_key"),)
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"), index=True)
+    key: Mapped[str] = mapped_column(String(255))
+    fingerprint: Mapped[str] = mapped_column(String(64))
+    frame_id: Mapped[int | None] = mapped_column(ForeignKey("frames.id", ondelete="CASCADE"), nullable=True, index=True)
+    answer: Mapped[dict | None] = mapped_column(JSON, nullable=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow, index=True)
+
+
+class LoginSession(Base):
+    """A status-page login (:mod:`.sessions`): the SHA-256 of the random session id the cookie holds, and the hash
+    of the token that logged in (a session ends when that token no longer authenticates)."""
+
+    __tablename__ = "login_sessions"
+    id_hash: Mapped[str] = mapped_column(String(64), primary_key=True)
+    token_hash: Mapped[str] = mapped_column(String(64))
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    expires_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), index=True)
+
+
+def private_sqlite_file(url: str) -> Path | None:
+    """For a file-backed SQLite URL: create the database file readable and writable by its owner only (0600) when
+    it does not exist yet, and take group and other permissions away from an existing one and its ``-wal`` /
+    ``-shm`` files (SQLite gives those the main file's mode). Returns the file, ``None`` for other URLs."""
+    from sqlalchemy.engine import make_url
+
+    u = make_url(url)
+    if not u.drivername.startswith("sqlite") or not u.database or u.database == ":memory:" or u.database.startswith("file:"):
+        return None
+    path = Path(u.database)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    os.close(os.open(path, os.O_RDWR | os.O_CREAT, 0o600))
+    for f in (path, Path(f"{path}-wal"), Path(f"{path}-shm")):
+        try:
+            if f.stat().st_mode & 0o077:
+                f.chmod(0o600)
+        except FileNotFoundError:
+            pass
+    return path
 
 
 def make_engine(url: str) -> Engine:
     """An engine for ``url`` with the tables created; SQLite gets WAL, ``synchronous=FULL`` and a busy timeout."""
     if url.startswith("sqlite"):
+        private_sqlite_file(url)
         engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
 
         @event.listens_for(engine, "connect")

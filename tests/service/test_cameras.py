@@ -164,9 +164,12 @@ def test_nonlinear_history_warns(tmp_path, scene, populated):
         assert job["state"] == "done"
         check = job["summary"]["response_check"]
         assert check["tone_score"] < -15 and 1.8 < check["gamma"] < 3.0, check
-        (warning,) = job["summary"]["warnings"]
+        (warning,) = [w for w in job["summary"]["warnings"] if "tone-encoded" in w]
         assert "'linear'" in warning and "'srgb'" in warning
-        assert c.get(f"/v1/cameras/{cid}", headers=bearer(token)).json()["warnings"] == [warning]
+        # one list: the model's own warnings (identifiability) join the tone response's
+        assert job["summary"]["warnings"] == list(dict.fromkeys(
+            [warning] + job["summary"]["identifiability_warnings"]))
+        assert c.get(f"/v1/cameras/{cid}", headers=bearer(token)).json()["warnings"] == job["summary"]["warnings"]
         page = c.get(f"/cameras/{cid}", headers=bearer(token))
         assert page.status_code == 200 and "Check set-up" in page.text
 

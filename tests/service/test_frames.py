@@ -83,11 +83,20 @@ def test_oversized(tmp_path):
 
 
 def test_region_outside_image(client):
+    """A region accepted before any image size was known (registration) never makes frames unusable: the frame is
+    stored with that region missing and a warning; once the size is known, PUT …/regions refuses such a region."""
     regions = grid_regions() + [{"id": "far", "x": 1000, "y": 10, "width": 20, "height": 20}]
     cid, token = register(client, _css(), regions)
     r = post_image(client, cid, token, _image())
-    assert r.status_code == 422
-    assert "far" in r.json()["detail"] and "outside" in r.json()["detail"]
+    assert r.status_code == 201, r.text
+    j = r.json()
+    assert j["regions"]["far"] is None and j["usable_regions"] == len(regions) - 1
+    assert any("far" in w and "outside" in w for w in j["warnings"])
+    r = client.put(f"/v1/cameras/{cid}/regions", json={"regions": regions}, headers=bearer(token))
+    assert r.status_code == 422 and "'far'" in r.json()["detail"] and "outside" in r.json()["detail"]
+    r = client.put(f"/v1/cameras/{cid}/regions", json={"regions": grid_regions()}, headers=bearer(token))
+    assert r.status_code == 200
+    assert post_image(client, cid, token, _image()).json()["usable_regions"] == len(grid_regions())
 
 
 def test_bad_taken_at(client, cam):
@@ -158,7 +167,7 @@ def test_reduced_jpeg_decode_setting(tmp_path):
             outside = [{"id": "edge", "x": SIZE[0] + 1 - 69, "y": 0, "width": 70, "height": 70}]
             cid2, token2 = register(c, _css(), outside)  # one pixel beyond the right edge (inside the decoded 161)
             r = post_image(c, cid2, token2, jpeg, content_type="image/jpeg")
-            assert r.status_code == 422 and "outside" in r.json()["detail"], r.text
+            assert r.status_code == 422 and "inside the 321×240 image" in r.json()["detail"], r.text
     for key, value in values[1].items():
         np.testing.assert_allclose(values[8][key], value, rtol=0.01)  # ~0.3 %: codes averaged before linearising
 

@@ -65,7 +65,9 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
                   file=sys.stderr)
         else:
             result = retrieve_illuminants(obs, css, method=args.method, **kwargs)
-        extra = None
+        from ..model.lamps import non_daylight_column
+
+        extra = {"non_daylight": non_daylight_column(obs, css)}
     write_estimates(args.out, result, extra)
     if args.reflectances:
         write_reflectances(args.reflectances, result)

@@ -6,7 +6,20 @@ from datetime import datetime
 from typing import Annotated, Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
+
+from ..limits import (
+    EXPOSURE_RANGE,
+    GAINS_RANGE,
+    GAMMA_RANGE,
+    LEVEL_MAX,
+    MATRIX_MAX,
+    MATRIX_MAX_CONDITION,
+    MAX_VALUE,
+    SENSITIVITY_MAX,
+    WAVELENGTH_RANGE,
+    check_text,
+)
 
 
 def _iso_text(value: Any) -> Any:
@@ -30,7 +43,7 @@ __all__ = [
     "SensitivitiesIn", "RegionIn", "ResponseIn", "CameraIn", "RegionsIn", "ObservationIn", "ErrorOut", "ERROR_RESPONSES",
     "FRAME_UPLOAD", "MAX_LIST", "multipart_body", "CAMERA_APPLIED", "EstimateOut", "SpectrumOut", "IlluminantOut", "JobRef",
     "HealthOut", "CameraOut", "CameraCreated", "FrameIngestOut", "FrameOut", "WbGainsOut", "JobOut", "CalibrationOut",
-    "ProposalsOut",
+    "ProposalsOut", "DeletedOut",
 ]
 
 # strict: JSON numbers only (pydantic's lax mode would read true/false or numeric text as numbers, which the OpenAPI
@@ -38,12 +51,26 @@ __all__ = [
 Finite = Annotated[float, Field(allow_inf_nan=False, strict=True)]
 NonNegative = Annotated[float, Field(allow_inf_nan=False, ge=0, strict=True)]
 Positive = Annotated[float, Field(allow_inf_nan=False, gt=0, strict=True)]
-Gains = Annotated[list[Positive], Field(min_length=3, max_length=3)]
-"""r, g, b multipliers a camera applied to linear values (positive, finite)."""
+Gain = Annotated[float, Field(allow_inf_nan=False, ge=GAINS_RANGE[0], le=GAINS_RANGE[1], strict=True)]
+Gains = Annotated[list[Gain], Field(min_length=3, max_length=3)]
+"""r, g, b multipliers a camera applied to linear values (within :data:`~illumon_service.limits.GAINS_RANGE`)."""
+Exposure = Annotated[float, Field(allow_inf_nan=False, ge=EXPOSURE_RANGE[0], le=EXPOSURE_RANGE[1], strict=True)]
+"""A relative exposure (within :data:`~illumon_service.limits.EXPOSURE_RANGE`)."""
+
+
+def _plain_text(value: str) -> str:
+    return check_text(value, "text")
+
+
+Text = Annotated[str, AfterValidator(_plain_text)]
+"""A string without control characters (NUL and the like: 422 on every database)."""
 
 
 class _Strict(BaseModel):
     model_config = ConfigDict(allow_inf_nan=False, extra="forbid")
+
+
+Sensitivity = Annotated[float, Field(allow_inf_nan=False, ge=0, le=SENSITIVITY_MAX, strict=True)]
 
 
 class SensitivitiesIn(_Strict):
@@ -52,16 +79,20 @@ class SensitivitiesIn(_Strict):
     At least 6 samples (the spline interpolation onto the 5-nm grid needs them).
     """
 
-    wavelength_nm: list[Finite] = Field(min_length=6, max_length=2000)
-    r: list[NonNegative]
-    g: list[NonNegative]
-    b: list[NonNegative]
+    wavelength_nm: list[Annotated[float, Field(allow_inf_nan=False, ge=WAVELENGTH_RANGE[0], le=WAVELENGTH_RANGE[1],
+                                               strict=True)]] = Field(min_length=6, max_length=2000)
+    r: list[Sensitivity]
+    g: list[Sensitivity]
+    b: list[Sensitivity]
 
     @model_validator(mode="after")
     def _lengths(self) -> SensitivitiesIn:
         n = len(self.wavelength_nm)
         if not (len(self.r) == len(self.g) == len(self.b) == n):
             raise ValueError("wavelength_nm, r, g and b must have the same length")
+        for ch in ("r", "g", "b"):
+            if max(getattr(self, ch), default=0.0) <= 0:
+                raise ValueError(f"sensitivities {ch}: every value is 0 (the channel would see nothing)")
         return self
 
 
@@ -75,7 +106,7 @@ MAX_SIDE = 1_000_000
 class RegionIn(_Strict):
     """A rectangle of static scene in pixels (origin top-left)."""
 
-    id: str = Field(min_length=1, max_length=100)
+    id: Text = Field(min_length=1, max_length=100)
     x: int = Field(ge=0, le=MAX_SIDE, strict=True)
     y: int = Field(ge=0, le=MAX_SIDE, strict=True)
     width: int = Field(gt=0, le=MAX_SIDE, strict=True)
@@ -89,6 +120,9 @@ def _unique(regions: list[RegionIn]) -> list[RegionIn]:
     return regions
 
 
+MatrixEntry = Annotated[float, Field(allow_inf_nan=False, ge=-MATRIX_MAX, le=MATRIX_MAX, strict=True)]
+
+
 class ResponseIn(_Strict):
     """The camera's output pipeline: tone curve, levels in the image's units (white level defaults to the image's
     full scale) and, optionally, the fixed 3 × 3 colour matrix it applies (output = ``matrix`` @ sensor RGB).
@@ -100,12 +134,12 @@ class ResponseIn(_Strict):
     """
 
     encoding: Literal["linear", "srgb", "gamma", "table"] = "srgb"
-    gamma: float = Field(default=2.2, gt=0, allow_inf_nan=False, strict=True)
-    black_level: float = Field(default=0.0, ge=0, allow_inf_nan=False, strict=True)
-    white_level: float | None = Field(default=None, gt=0, allow_inf_nan=False, strict=True)
+    gamma: float = Field(default=2.2, ge=GAMMA_RANGE[0], le=GAMMA_RANGE[1], allow_inf_nan=False, strict=True)
+    black_level: float = Field(default=0.0, ge=0, lt=LEVEL_MAX, allow_inf_nan=False, strict=True)
+    white_level: float | None = Field(default=None, gt=0, le=LEVEL_MAX, allow_inf_nan=False, strict=True)
     table: list[Annotated[float, Field(allow_inf_nan=False, ge=0, le=1, strict=True)]] | None = Field(
         default=None, min_length=2, max_length=65536)
-    matrix: list[Annotated[list[Finite], Field(min_length=3, max_length=3)]] | None = Field(
+    matrix: list[Annotated[list[MatrixEntry], Field(min_length=3, max_length=3)]] | None = Field(
         default=None, min_length=3, max_length=3)
     primaries: Literal["camera", "srgb"] | None = None
     """The output space: ``srgb`` (rendered output — the camera white-balanced its sensor and applied a colour matrix
@@ -131,8 +165,9 @@ class ResponseIn(_Strict):
                                        or self.table[-1] <= 0):
             raise ValueError("table must be non-decreasing and end above 0")
         if self.matrix is not None:
-            if abs(np.linalg.det(np.asarray(self.matrix))) < 1e-9:
-                raise ValueError("matrix is singular")
+            m = np.asarray(self.matrix)
+            if abs(np.linalg.det(m)) < 1e-9 or np.linalg.cond(m) > MATRIX_MAX_CONDITION:
+                raise ValueError(f"matrix is singular or nearly so (condition number above {MATRIX_MAX_CONDITION:g})")
         return self
 
 
@@ -140,7 +175,7 @@ class CameraIn(_Strict):
     """Registration of a camera; without ``sensitivities`` the camera is unmeasured (a prior from measured cameras,
     pinned by a calibration image: ``POST /v1/cameras/{id}/calibration``)."""
 
-    name: str = Field(min_length=1, max_length=200)
+    name: Text = Field(min_length=1, max_length=200)
     sensitivities: SensitivitiesIn | None = None
     regions: list[RegionIn] = Field(default_factory=list, max_length=500)
     """Without regions, frames are stored (with thumbnails) until regions are confirmed (region proposals)."""
@@ -166,11 +201,23 @@ class ObservationIn(_Strict):
     sd: dict[str, Annotated[list[NonNegative], Field(min_length=3, max_length=3)] | None] | None = None
     """Optional standard errors of the means (region id → ``[r, g, b]``, same scale as ``patches``; e.g. the pixels'
     standard deviation over √pixels): a noisy region then weighs less and widens the frame's intervals."""
-    white_level: float = Field(default=1.0, gt=0, allow_inf_nan=False, strict=True)
+    white_level: float = Field(default=1.0, gt=0, le=1e9, allow_inf_nan=False, strict=True)
     applied_gains: Gains | None = None
     """White-balance gains (r, g, b) the camera applied to linear values in this frame; divided out."""
-    exposure: Positive | None = None
+    exposure: Exposure | None = None
     """Relative exposure the camera applied in this frame; divided out."""
+
+    @model_validator(mode="after")
+    def _within_white(self) -> ObservationIn:
+        """Means and standard errors at most :data:`~illumon_service.limits.MAX_VALUE` × ``white_level``."""
+        limit = MAX_VALUE * self.white_level
+        for field, values in (("patches", self.patches), ("sd", self.sd or {})):
+            for rid, v in values.items():
+                check_text(rid, f"{field} key")
+                if v is not None and max(v) > limit:
+                    raise ValueError(f"{field}[{rid!r}]: {max(v):g} exceeds {MAX_VALUE:g} × white_level ({limit:g}): "
+                                     "region means are linear values on the 0…white_level scale")
+        return self
 
 
 class EstimateOut(BaseModel):
@@ -186,6 +233,9 @@ class EstimateOut(BaseModel):
     white_rgb: list[float | None]
     gains_rgb: list[float | None]
     confidence: float | None
+    non_daylight: float | None = None
+    """Posterior probability that the frame's light is not daylight (``null`` where the estimate was made without
+    the test: retrieval methods, models saved before it)."""
     source: str
 
 
@@ -275,6 +325,8 @@ class CameraOut(BaseModel):
     calibrations: list[CalibrationRef]
     created_at: str
     warnings: list[str]
+    not_estimated: dict[str, int]
+    """Stored frames without an estimate, counted by reason (see :class:`FrameOut`)."""
     views: dict[str, list[RegionIn]]
     alerts: list[AlertOut]
 
@@ -328,6 +380,9 @@ class FrameOut(BaseModel):
     exposure: float | None
     view: str | None
     registration: RegistrationOut | None
+    not_estimated: str | None
+    """Why the frame has no estimate (``view_change``, ``no_regions``, ``too_few_regions``, ``no_model``,
+    ``invalid_values``, ``estimate_failed``; ``pending`` for frames of older versions), ``null`` once estimated."""
 
 
 class OnvifGains(BaseModel):
@@ -461,6 +516,14 @@ class ProposalsOut(BaseModel):
     hours_covered: int
     proposals: list[ProposalOut]
     warnings: list[str]
+
+
+class DeletedOut(BaseModel):
+    """What an admin ``DELETE`` removed: the camera (and frame) and the number of stored rows of each kind."""
+
+    camera_id: int
+    frame_id: int | None
+    deleted: dict[str, int]
 
 
 class ErrorOut(BaseModel):

@@ -22,8 +22,8 @@ from ...decode import ImageError, decode_frame
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...regions import Region, RegionError, region_means, response_for
 from ...storage import Calibration
+from ...uploads import IMAGE_TYPES, parse_gains, parse_positive, read_multipart
 from ..schemas import CAMERA_APPLIED, ERROR_RESPONSES, CalibrationOut, multipart_body
-from .frames import IMAGE_TYPES, parse_gains, parse_positive, read_multipart
 
 router = APIRouter(prefix="/v1/cameras", tags=["calibration"], responses=ERROR_RESPONSES)
 
@@ -79,7 +79,7 @@ async def post_calibration(camera_id: int, request: Request, session: SessionDep
     region = _grey_region(_json_field(fields, "region")) if kind == "grey" else None
     reflectance = None
     if kind == "grey":
-        reflectance = parse_positive(fields.get("reflectance"), "reflectance") or 0.18
+        reflectance = parse_positive(fields.get("reflectance"), "reflectance", 0.01, 1.0) or 0.18
         if reflectance > 1:
             raise HTTPException(422, "reflectance: a grey card's reflectance lies in (0, 1]")
     applied_gains = parse_gains(fields.get("applied_gains"))
@@ -87,7 +87,8 @@ async def post_calibration(camera_id: int, request: Request, session: SessionDep
 
     def work() -> dict:
         try:
-            frame = decode_frame(data, [], max_pixels=settings.max_image_pixels)
+            frame = decode_frame(data, [], max_pixels=settings.max_image_pixels,
+                                 max_bytes=settings.max_decoded_bytes)
             response = response_for(cam.response, frame.full_scale)
             if kind == "grey":
                 w, h = frame.size

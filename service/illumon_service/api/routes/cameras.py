@@ -11,11 +11,12 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from ...deps import AdminDep, PrincipalDep, SessionDep, camera_for
-from ...registration import parse_view, set_reference, set_view_regions
+from ...manage import delete_camera, save_regions_and_measure
+from ...registration import parse_view
 from ...settings import Settings
-from ...status import camera_status, visible_cameras
-from ...storage import Calibration, Camera, CameraView, Frame, as_utc, hash_token, new_token, refit_warnings
-from ..schemas import ERROR_RESPONSES, CameraCreated, CameraIn, CameraOut, ErrorOut, RegionsIn
+from ...status import camera_status, not_estimated_counts, visible_cameras
+from ...storage import Calibration, Camera, CameraView, as_utc, hash_token, new_token, refit_warnings
+from ..schemas import ERROR_RESPONSES, CameraCreated, CameraIn, CameraOut, DeletedOut, ErrorOut, RegionsIn
 
 router = APIRouter(prefix="/v1/cameras", tags=["cameras"], responses=ERROR_RESPONSES)
 
@@ -40,6 +41,7 @@ def camera_out(cam: Camera, session: Session, settings: Settings | None = None) 
                          for c in cals],
         "created_at": as_utc(cam.created_at).isoformat(),
         "warnings": refit_warnings(session, cam.id),
+        "not_estimated": not_estimated_counts(session, cam.id),
         "views": {v.view: v.regions for v in session.scalars(
             select(CameraView).where(CameraView.camera_id == cam.id).order_by(CameraView.view)).all()},
         **({} if settings is None else {"alerts": [
@@ -87,23 +89,6 @@ def get_camera(camera_id: int, request: Request, session: SessionDep, principal:
     return camera_out(camera_for(session, principal, camera_id), session, request.app.state.settings)
 
 
-def save_regions(session: Session, cam: Camera, body: RegionsIn, view: str | None, data_dir, reference_latest: bool
-                 ) -> None:  # noqa: ANN001 - data_dir: Path | str
-    """Replace a view's regions and commit (the one path of ``PUT …/regions`` and the regions page). With
-    ``reference_latest`` the view's latest frame becomes its reference frame (the camera was moved for good: the
-    regions were drawn on that frame); 409 when the view has no stored frame thumbnail."""
-    if reference_latest:
-        latest = session.scalars(
-            select(Frame).where(Frame.camera_id == cam.id, Frame.thumb_path.is_not(None),
-                                Frame.view.is_(None) if view is None else Frame.view == view)
-            .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(1)).first()
-        if latest is None or not set_reference(data_dir, cam.id, view, latest.thumb_path):
-            raise HTTPException(409, "no stored frame of this view to take as the reference frame")
-        latest.registration = {"state": "reference", "shift": [0.0, 0.0], "response": None}
-    set_view_regions(session, cam, view, [r.model_dump() for r in body.regions])
-    session.commit()
-
-
 @router.put("/{camera_id}/regions", response_model=CameraOut, response_model_exclude_unset=True,
             responses={409: {"model": ErrorOut, "description": "reference=latest without a "
                                                                                      "stored frame of the view"}})
@@ -119,5 +104,15 @@ def put_regions(camera_id: int, body: RegionsIn, request: Request, session: Sess
         v = parse_view(view)
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
-    save_regions(session, cam, body, v, request.app.state.settings.data_dir, reference == "latest")
+    save_regions_and_measure(session, cam, [r.model_dump() for r in body.regions], v, request.app.state.settings,
+                             reference == "latest")
     return camera_out(cam, session, request.app.state.settings)
+
+
+@router.delete("/{camera_id}", response_model=DeletedOut)
+def remove_camera(camera_id: int, request: Request, session: SessionDep, principal: AdminDep) -> dict:
+    """Delete a camera and everything stored for it (admin): frames, estimates, jobs, calibrations, views, models,
+    thumbnails and kept images. Its token stops working at once."""
+    cam = camera_for(session, principal, camera_id)
+    deleted = delete_camera(session, request.app.state.settings.data_dir, cam)
+    return {"camera_id": camera_id, "frame_id": None, "deleted": deleted}

@@ -2,20 +2,25 @@
 
 from __future__ import annotations
 
-import math
 import time
-from datetime import datetime, timezone
+from datetime import datetime
 from pathlib import Path
 
-from fastapi import APIRouter, HTTPException, Query, Request, status
+from fastapi import APIRouter, Header, HTTPException, Query, Request, status
+from fastapi.responses import JSONResponse
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from ...crud import estimate_out
+from ...datafiles import stored_path
 from ...decode import ImageError, decode_frame, sniff_format
-from ...deps import PrincipalDep, SessionDep, camera_for
-from ...estimation import estimate_frame, undo_camera_gains, undo_camera_gains_sd
+from ...deps import AdminDep, PrincipalDep, SessionDep, camera_for
+from ...estimation import current_model, estimate_frame, undo_camera_gains, undo_camera_gains_sd
+from ...idempotency import IDEMPOTENCY_DOC, Claim, fingerprint, form_fingerprint, is_conflict, key_lock, parse_key, replay, stored
+from ...limits import regions_outside
+from ...manage import delete_frame
+from ...pending import keep_original
 from ...proposals import MIN_FRAMES, Thumbnail, make_thumbnail, save_thumbnail
 from ...regions import Region, RegionError, region_stats, response_for
 from ...registration import (
@@ -28,136 +33,30 @@ from ...registration import (
     thumbs_dir,
     view_regions,
 )
-from ...storage import Camera, Estimate, Frame, as_utc
-from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, FrameIngestOut, FrameOut, IsoDateTime, ObservationIn
+from ...storage import Camera, Estimate, Frame, IdempotencyKey, as_utc
+from ...uploads import IMAGE_TYPES, parse_gains, parse_positive, parse_time, read_multipart
+from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, DeletedOut, FrameIngestOut, FrameOut, IsoDateTime, ObservationIn
 
 router = APIRouter(prefix="/v1/cameras", tags=["frames"], responses=ERROR_RESPONSES)
 
 MIN_REGISTER_SIDE = 32
 """Frames smaller than this (pixels, either side) keep no thumbnail and are not registered."""
 
-IMAGE_TYPES = {"image/png", "image/jpeg", "image/jpg", "image/tiff", "application/octet-stream", ""}
-
-
-def parse_time(text: str | None) -> datetime:
-    """ISO 8601 → aware UTC datetime (naive means UTC); now when empty. 422 when malformed."""
-    if not text:
-        return datetime.now(timezone.utc)
-    try:
-        t = datetime.fromisoformat(text.strip().replace("Z", "+00:00"))
-    except ValueError:
-        raise HTTPException(422, f"taken_at {text!r} is not ISO 8601") from None
-    return as_utc(t)
-
-
-MAX_PARTS = 10
-
-
-async def read_multipart(request: Request, limit: int) -> tuple[dict[str, str], dict[str, tuple[str, bytearray]]]:
-    """Parse a ``multipart/form-data`` body in memory: ``(text fields, {name: (content type, contents)})``.
-
-    Streams the body through ``python_multipart`` into memory (Starlette's form parser spools files over 1 MB to
-    disk, one thread-pool hop per chunk: ~50 ms for a 9 MB frame); 413 past ``limit`` (+64 KiB for the other parts),
-    400 for a body that is not valid multipart or has more than :data:`MAX_PARTS` parts.
-    """
-    from python_multipart.multipart import MultipartParser, parse_options_header
-
-    _, params = parse_options_header(request.headers.get("content-type", ""))
-    boundary = params.get(b"boundary")
-    if not boundary:
-        raise HTTPException(400, "multipart body without a boundary parameter")
-    parts: list[dict] = []
-    hdr: dict[str, bytearray] = {"field": bytearray(), "value": bytearray()}
-
-    def on_part_begin() -> None:
-        if len(parts) >= MAX_PARTS:
-            raise HTTPException(400, f"multipart body has more than {MAX_PARTS} parts")
-        parts.append({"headers": {}, "data": bytearray()})
-
-    def on_part_data(data: bytes, start: int, end: int) -> None:
-        parts[-1]["data"] += memoryview(data)[start:end]  # appended without an intermediate copy
-
-    def on_header_field(data: bytes, start: int, end: int) -> None:
-        hdr["field"] += data[start:end]
-
-    def on_header_value(data: bytes, start: int, end: int) -> None:
-        hdr["value"] += data[start:end]
-
-    def on_header_end() -> None:
-        parts[-1]["headers"][bytes(hdr["field"]).decode("latin-1").lower()] = bytes(hdr["value"])
-        hdr["field"].clear()
-        hdr["value"].clear()
-
-    parser = MultipartParser(boundary, {"on_part_begin": on_part_begin, "on_part_data": on_part_data,
-                                        "on_header_field": on_header_field, "on_header_value": on_header_value,
-                                        "on_header_end": on_header_end})
-    total = 0
-    try:
-        async for chunk in request.stream():
-            total += len(chunk)
-            if total > limit + 65536:
-                raise HTTPException(413, f"upload exceeds the limit of {limit} bytes")
-            parser.write(chunk)
-        parser.finalize()
-    except HTTPException:
-        raise
-    except Exception as exc:  # noqa: BLE001 - python_multipart raises several types for malformed bodies
-        raise HTTPException(400, f"malformed multipart body ({type(exc).__name__})") from None
-    fields: dict[str, str] = {}
-    files: dict[str, tuple[str, bytearray]] = {}
-    for part in parts:
-        _, disp = parse_options_header(part["headers"].get("content-disposition", b""))
-        name = disp.get(b"name", b"").decode("utf-8", "replace")
-        if b"filename" in disp:
-            ctype = part["headers"].get("content-type", b"").decode("latin-1").split(";")[0].strip().lower()
-            files[name] = (ctype, part["data"])  # the bytearray itself: a 10 MB frame is not copied again
-        else:
-            try:
-                fields[name] = bytes(part["data"]).decode("utf-8")
-            except UnicodeDecodeError:
-                raise HTTPException(422, f"form field {name!r} is not UTF-8 text") from None
-    return fields, files
-
-
-def parse_gains(text: str | None, field: str = "applied_gains") -> list[float] | None:
-    """``"r,g,b"`` → three positive finite multipliers (``None`` when absent); 422 otherwise."""
-    if text is None or not text.strip():
-        return None
-    try:
-        gains = [float(v) for v in text.split(",")]
-    except ValueError:
-        raise HTTPException(422, f"{field} {text!r}: expected three numbers 'r,g,b'") from None
-    if len(gains) != 3 or not all(math.isfinite(g) and g > 0 for g in gains):
-        raise HTTPException(422, f"{field} {text!r}: expected three positive finite numbers 'r,g,b'")
-    return gains
-
-
-def parse_positive(text: str | None, field: str = "exposure") -> float | None:
-    """A form field holding a positive finite number (``None`` when absent), e.g. the relative exposure; 422
-    otherwise."""
-    if text is None or not text.strip():
-        return None
-    try:
-        value = float(text)
-    except ValueError:
-        raise HTTPException(422, f"{field} {text!r}: expected a positive number") from None
-    if not (math.isfinite(value) and value > 0):
-        raise HTTPException(422, f"{field} {text!r}: expected a positive finite number")
-    return value
-
-
 def _store(
     request: Request, session: Session, cam: Camera, taken_at: datetime, patches: dict, size: tuple[int, int] | None,
     image: bytes | bytearray | None = None, fmt: str | None = None, applied_gains: list[float] | None = None,
     exposure: float | None = None, region_ids: list[str] | None = None, view: str | None = None,
     registration: Registration | None = None, thumb: Thumbnail | None = None, patch_sd: dict | None = None,
-) -> dict:
+    extra_warnings: list[str] | None = None, claim: Claim | None = None,
+) -> dict | JSONResponse:
     """Estimate a frame if a model exists (the camera's applied gains and exposure divided out first), store it
     durably with them, and build the 201 answer.
 
     The estimate comes first (it needs no frame id); the rows are then written through the app's
     :class:`~illumon_service.storage.GroupCommit`, which returns once they are committed (concurrent ingests share
-    one commit), so the answer never precedes durability.
+    one commit), so the answer never precedes durability. With an ``Idempotency-Key`` (``claim``) the key is written
+    first (a key another process stored meanwhile fails there, before any file is written) and keeps the answer; a
+    retry then gets that answer (:mod:`~illumon_service.idempotency`).
     """
     settings = request.app.state.settings
     metrics = request.app.state.metrics
@@ -177,12 +76,24 @@ def _store(
                         "adds nothing to the estimates")
     elif usable < 2:
         warnings.append("only one region was usable: a frame needs two to be estimated")
+    if registration is not None and registration.state == "uncertain":
+        warnings.append(f"registration uncertain: weak correlation peak ({registration.response:.2f}), but the frame "
+                        f"still matches its reference (score {registration.match:.2f}): measured with the regions at "
+                        f"shift {registration.shift[0]:+.0f}, {registration.shift[1]:+.0f} px")
+    warnings += extra_warnings or []
     t0 = time.perf_counter()
     matrix = (cam.response or {}).get("matrix")
-    est = None if usable < 2 else estimate_frame(
-        settings.data_dir, cam.id, "new", taken_at.isoformat(),
-        undo_camera_gains(patches, applied_gains, exposure, matrix), region_ids, view,
-        undo_camera_gains_sd(patch_sd, applied_gains, exposure, matrix))
+    undone = undo_camera_gains(patches, applied_gains, exposure, matrix)
+    undone_sd = undo_camera_gains_sd(patch_sd, applied_gains, exposure, matrix)
+
+    def estimate_with(model: tuple[Path, str] | None) -> dict | None:
+        if model is None or usable < 2:
+            return None
+        return estimate_frame(settings.data_dir, cam.id, "new", taken_at.isoformat(), undone, region_ids, view,
+                              undone_sd, model_file=model[0])
+
+    model = current_model(settings.data_dir, cam.models, cam.id, view)
+    est = estimate_with(model)
     t1 = time.perf_counter()
     metrics.observe("illumon_estimate_seconds", t1 - t0)
     metrics.observe("illumon_ingest_stage_seconds", t1 - t0, labels='stage="estimate"')
@@ -191,6 +102,11 @@ def _store(
     session.close()
 
     def write(session: Session) -> dict:
+        key_row = None
+        if claim is not None:
+            key_row = IdempotencyKey(camera_id=cam.id, key=claim.key, fingerprint=claim.fingerprint)
+            session.add(key_row)
+            session.flush()
         frame = Frame(camera_id=cam.id, taken_at=taken_at, patches=patches,
                       width=size[0] if size else None, height=size[1] if size else None,
                       applied_gains=applied_gains, exposure=exposure, view=view, patch_sd=patch_sd,
@@ -200,20 +116,30 @@ def _store(
         if thumb is not None and thumbnail_due(session, cam.id, view, taken_at, registration):
             path = thumbs_dir(settings.data_dir, cam.id) / f"{frame.id}.png"
             save_thumbnail(path, thumb)
-            frame.thumb_path = str(path)
-            prune_thumbnails(session, cam.id, view)
+            frame.thumb_path = stored_path(settings.data_dir, path)
+            prune_thumbnails(session, cam.id, view, settings.data_dir)
         if image is not None and settings.keep_images:
             folder = Path(settings.data_dir) / "images" / f"camera-{cam.id}"
             folder.mkdir(parents=True, exist_ok=True)
             path = folder / f"{frame.id}.{fmt}"
             path.write_bytes(image)
-            frame.image_path = str(path)
+            frame.image_path = stored_path(settings.data_dir, path)
+        # The model in use now (the frame's insert holds SQLite's write lock; the row lock orders this with a
+        # refit's commit on PostgreSQL): a refit that committed since the estimate above makes it again with the new
+        # model, so no estimate of an old model lands after a refit.
+        models_now = session.execute(select(Camera.models).where(Camera.id == cam.id).with_for_update()).scalar()
+        now = current_model(settings.data_dir, models_now, cam.id, view)
+        use = est if (now and now[1]) == (model and model[1]) else estimate_with(now)
         row = None
-        if est is not None:
-            row = Estimate(frame_id=frame.id, camera_id=cam.id, taken_at=taken_at, **est)
+        if use is not None:
+            row = Estimate(frame_id=frame.id, camera_id=cam.id, taken_at=taken_at, model=now[1] if now else None, **use)
             session.add(row)
-            session.flush()
-        return {
+        else:
+            frame.not_estimated = ("view_change" if registration is not None and registration.state == "view_change"
+                                   else "no_regions" if not region_ids else "too_few_regions" if usable < 2
+                                   else "no_model" if now is None else "estimate_failed")
+        session.flush()
+        answer = {
             "frame_id": frame.id,
             "taken_at": as_utc(frame.taken_at).isoformat(),
             "regions": patches,
@@ -225,8 +151,22 @@ def _store(
             "estimate": estimate_out(row) if row is not None else None,
             "warnings": warnings,
         }
+        if key_row is not None:
+            key_row.frame_id = frame.id
+            key_row.answer = FrameIngestOut.model_validate(answer).model_dump(mode="json")
+        return answer
 
-    out = request.app.state.commits.submit(write)
+    try:
+        out = request.app.state.commits.submit(write)
+    except Exception as exc:
+        if claim is not None and is_conflict(exc):  # a concurrent retry in another process stored the frame first
+            first = stored(request.app.state.sessions, claim)
+            if first is not None:
+                return replay(first, claim)
+        raise
+    if image is not None and not region_ids and fmt:  # measured once the view's regions are confirmed
+        with request.app.state.sessions() as s:
+            keep_original(s, settings.data_dir, cam.id, view, out["frame_id"], image, fmt, settings.pending_max_frames)
     metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t1, labels='stage="commit"')
     metrics.inc("illumon_frames_ingested_total")
     return out
@@ -234,7 +174,9 @@ def _store(
 
 @router.post("/{camera_id}/frames", status_code=status.HTTP_201_CREATED, openapi_extra=FRAME_UPLOAD,
              response_model=FrameIngestOut)
-async def post_frame(camera_id: int, request: Request, session: SessionDep, principal: PrincipalDep) -> dict:
+async def post_frame(camera_id: int, request: Request, session: SessionDep, principal: PrincipalDep,
+                     idempotency_key: str | None = Header(None, max_length=255, description=IDEMPOTENCY_DOC),
+                     ) -> dict | JSONResponse:
     """Ingest one image (multipart ``image``; optional ``taken_at``, ``applied_gains`` "r,g,b" and ``exposure``, which
     the camera applied and the service divides out): robust region means, then an estimate."""
     t_start = time.perf_counter()
@@ -255,6 +197,8 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
         raise HTTPException(415, f"image part has content type {part_type!r}; send PNG, JPEG or TIFF")
     if len(data) > limit:
         raise HTTPException(413, f"image exceeds the upload limit of {limit} bytes")
+    key = parse_key(request)
+    claim = None if key is None else Claim(cam.id, key, form_fingerprint(data, fields))
     taken_at = parse_time(fields.get("taken_at"))
     applied_gains = parse_gains(fields.get("applied_gains"))
     exposure = parse_positive(fields.get("exposure"))
@@ -266,20 +210,29 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
     metrics = request.app.state.metrics
     metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t_start, labels='stage="receive"')
 
-    def work() -> dict:
+    def work() -> dict | JSONResponse:
+        with key_lock(claim):  # retries with the same key wait for the first, then get its answer
+            if claim is not None and (first := stored(request.app.state.sessions, claim)) is not None:
+                return replay(first, claim)
+            return measure()
+
+    def measure() -> dict | JSONResponse:
         try:
             t0 = time.perf_counter()
             regions = [Region(**r) for r in configured]
             frame = decode_frame(data, regions, max_pixels=settings.max_image_pixels,
-                                 max_reduction=settings.jpeg_max_reduction)
+                                 max_reduction=settings.jpeg_max_reduction, max_bytes=settings.max_decoded_bytes)
             t1 = time.perf_counter()
             metrics.observe("illumon_ingest_stage_seconds", t1 - t0, labels='stage="decode"')
             metrics.inc("illumon_ingest_decodes_total", labels=f'scale="1/{frame.scale}"')
             w, h = frame.size
-            for r in configured:  # in the reference frame's pixels, every region lies inside the image
-                if r["x"] + r["width"] > w or r["y"] + r["height"] > h:
-                    raise RegionError(f"region {r['id']!r} ({r['x']},{r['y']} {r['width']}×{r['height']}) lies "
-                                      f"outside the {w}×{h} image")
+            outside = regions_outside(configured, frame.size)  # accepted before any image size was known
+            if configured and len(outside) == len(configured):
+                raise RegionError(f"none of the view's regions lies inside the {w}×{h} image (e.g. "
+                                  f"{outside[0]!r}): is this the camera's own view at its usual resolution? (If the "
+                                  f"regions are wrong, correct them with PUT /v1/cameras/{cam.id}/regions)")
+            extra = [f"region(s) {', '.join(map(repr, outside))} lie outside the {w}×{h} image: stored as missing; "
+                     f"correct them with PUT /v1/cameras/{cam.id}/regions"] if outside else []
             response = response_for(cam.response, frame.full_scale)
             thumb: Thumbnail | None = None
             reg = Registration("ok", (0.0, 0.0), None)
@@ -307,7 +260,7 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
         except RegionError as exc:
             raise HTTPException(422, str(exc)) from None
         return _store(request, session, cam, taken_at, patches, frame.size, data, sniff_format(data), applied_gains,
-                      exposure, [r["id"] for r in configured], view, reg, thumb, patch_sd)
+                      exposure, [r["id"] for r in configured], view, reg, thumb, patch_sd, extra, claim)
 
     out = await run_in_threadpool(work)
     request.app.state.metrics.observe("illumon_ingest_seconds", time.perf_counter() - t_start)
@@ -316,10 +269,23 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
 
 @router.post("/{camera_id}/observations", status_code=status.HTTP_201_CREATED, response_model=FrameIngestOut)
 def post_observations(camera_id: int, body: ObservationIn, request: Request, session: SessionDep,
-                      principal: PrincipalDep) -> dict:
+                      principal: PrincipalDep,
+                      idempotency_key: str | None = Header(None, max_length=255, description=IDEMPOTENCY_DOC),
+                      ) -> dict | JSONResponse:
     """Ingest region means measured by the client (linear values; ``null`` for a missing region; 422 when every
     region is ``null``)."""
     cam = camera_for(session, principal, camera_id)
+    key = parse_key(request)
+    claim = None if key is None else Claim(cam.id, key, fingerprint(body.model_dump_json()))
+    with key_lock(claim):
+        if claim is not None and (first := stored(request.app.state.sessions, claim)) is not None:
+            return replay(first, claim)
+        return _observations(cam, body, request, session, claim)
+
+
+def _observations(cam: Camera, body: ObservationIn, request: Request, session: Session, claim: Claim | None
+                  ) -> dict | JSONResponse:
+    """Check and store client-measured region means (:func:`post_observations`)."""
     known = {r["id"] for r in cam.regions}
     unknown = sorted(set(body.patches) - known)
     if unknown:
@@ -336,7 +302,7 @@ def post_observations(camera_id: int, body: ObservationIn, request: Request, ses
         k: (None if v is None or patches.get(k) is None else [x / body.white_level for x in v]) for k, v in body.sd.items()}
     taken_at = parse_time(body.taken_at.isoformat() if body.taken_at else None)
     return _store(request, session, cam, taken_at, patches, None, applied_gains=body.applied_gains,
-                  exposure=body.exposure, patch_sd=patch_sd)
+                  exposure=body.exposure, patch_sd=patch_sd, claim=claim)
 
 
 @router.get("/{camera_id}/frames", response_model=list[FrameOut])
@@ -351,7 +317,18 @@ def list_frames(camera_id: int, session: SessionDep, principal: PrincipalDep, si
     if until is not None:
         q = q.where(Frame.taken_at <= parse_time(until.isoformat()))
     rows = session.scalars(q.order_by(Frame.taken_at, Frame.id).limit(limit)).all()
+    estimated = set(session.scalars(select(Estimate.frame_id).where(
+        Estimate.frame_id.in_([f.id for f in rows]))).all()) if rows else set()
     return [{"frame_id": f.id, "taken_at": as_utc(f.taken_at).isoformat(), "regions": f.patches,
              "width": f.width, "height": f.height, "applied_gains": f.applied_gains, "exposure": f.exposure,
-             "view": f.view, "registration": f.registration}
+             "view": f.view, "registration": f.registration,
+             "not_estimated": None if f.id in estimated else (f.not_estimated or "pending")}
             for f in rows]
+
+
+@router.delete("/{camera_id}/frames/{frame_id}", response_model=DeletedOut)
+def remove_frame(camera_id: int, frame_id: int, request: Request, session: SessionDep, principal: AdminDep) -> dict:
+    """Delete one stored frame with its estimate and files (admin): e.g. a frame whose values are wrong."""
+    cam = camera_for(session, principal, camera_id)
+    deleted = delete_frame(session, request.app.state.settings.data_dir, cam, frame_id)
+    return {"camera_id": camera_id, "frame_id": frame_id, "deleted": deleted}

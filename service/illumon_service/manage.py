@@ -1,0 +1,137 @@
+"""Managing a camera's stored data: its regions (checked against the view's image), and deleting a frame or a whole
+camera with everything stored for it (admin). Shared by the JSON routes and the regions page, so they cannot differ."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from fastapi import HTTPException
+from sqlalchemy import delete, select
+from sqlalchemy.orm import Session
+
+from .limits import regions_outside
+from .registration import reference_path, set_reference, set_view_regions, thumbs_dir
+from .settings import Settings
+from .storage import Camera, Frame
+
+__all__ = ["view_size", "save_regions", "save_regions_and_measure", "delete_frame", "delete_camera", "camera_files"]
+
+
+def _view_filter(view: str | None):  # noqa: ANN202 - a SQLAlchemy clause
+    return Frame.view.is_(None) if view is None else Frame.view == view
+
+
+def view_size(session: Session, camera_id: int, view: str | None) -> tuple[int, int] | None:
+    """(width, height) of the view's images: those of its latest stored frame that came with an image (``None``
+    when it has none yet, e.g. a camera that sends region means)."""
+    row = session.execute(
+        select(Frame.width, Frame.height).where(Frame.camera_id == camera_id, _view_filter(view),
+                                                Frame.width.is_not(None), Frame.height.is_not(None))
+        .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(1)).first()
+    return None if row is None else (int(row.width), int(row.height))
+
+
+def save_regions(session: Session, cam: Camera, regions: list[dict], view: str | None, data_dir: Path | str,
+                 reference_latest: bool) -> None:
+    """Replace a view's regions and commit (the one path of ``PUT …/regions`` and the regions page).
+
+    Every region must lie inside the view's image (the size of its latest stored frame, when it has one): 422 naming
+    the regions otherwise, so a typo cannot make the camera's later frames unusable. With ``reference_latest`` the
+    view's latest frame becomes its reference frame (the camera was moved for good: the regions were drawn on that
+    frame); 409 when the view has no stored frame thumbnail.
+    """
+    size = view_size(session, cam.id, view)
+    outside = regions_outside(regions, size)
+    if outside:
+        shown = ", ".join(repr(r) for r in outside[:5]) + (" …" if len(outside) > 5 else "")
+        raise HTTPException(422, f"region(s) {shown} lie outside the view's {size[0]}×{size[1]} image: regions are "
+                                 "rectangles in the image's pixels (x + width ≤ image width, y + height ≤ height)")
+    if reference_latest:
+        latest = session.scalars(
+            select(Frame).where(Frame.camera_id == cam.id, Frame.thumb_path.is_not(None), _view_filter(view))
+            .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(1)).first()
+        if latest is None or not set_reference(data_dir, cam.id, view, latest.thumb_path):
+            raise HTTPException(409, "no stored frame of this view to take as the reference frame")
+        latest.registration = {"state": "reference", "shift": [0.0, 0.0], "response": None}
+    set_view_regions(session, cam, view, regions)
+    session.commit()
+
+
+def save_regions_and_measure(session: Session, cam: Camera, regions: list[dict], view: str | None,
+                             settings: Settings, reference_latest: bool) -> int:
+    """:func:`save_regions`, then measure with the new regions the view's frames posted while it had none (their
+    kept originals, :mod:`.pending`). Returns the number of frames measured."""
+    save_regions(session, cam, regions, view, settings.data_dir, reference_latest)
+    from .pending import measure_original, measure_pending
+
+    return measure_pending(session, settings.data_dir, cam.id, view,
+                           lambda data, frame: measure_original(data, regions, cam.response or {}, frame.registration,
+                                                                settings))
+
+
+def _frame_files(data_dir: Path | str, frame: Frame) -> list[Path]:
+    """Files stored for one frame: its thumbnail, its kept image and its kept original (regions not yet confirmed)."""
+    out = []
+    from .datafiles import data_file
+    from .pending import pending_files
+
+    for stored in (frame.thumb_path, frame.image_path):
+        p = data_file(data_dir, stored)  # never a file outside the data directory (a restored copy's original)
+        if p is not None:
+            out.append(p)
+
+    out.extend(pending_files(data_dir, frame.camera_id, frame.id))
+    return out
+
+
+def delete_frame(session: Session, data_dir: Path | str, cam: Camera, frame_id: int) -> dict[str, int]:
+    """Delete one stored frame of ``cam`` with its estimate and files (committed); 404 for a frame of another
+    camera or none. Returns the rows deleted by kind."""
+    frame = session.get(Frame, frame_id) if 0 < frame_id < 2**63 else None
+    if frame is None or frame.camera_id != cam.id:
+        raise HTTPException(404, f"unknown frame {frame_id} of camera {cam.id}")
+    files = _frame_files(data_dir, frame)
+    from .storage import Estimate
+
+    estimates = session.execute(delete(Estimate).where(Estimate.frame_id == frame_id)).rowcount
+    session.delete(frame)
+    session.commit()
+    for f in files:  # after the commit: a failed commit leaves the frame whole
+        f.unlink(missing_ok=True)
+    return {"frames": 1, "estimates": int(estimates or 0)}
+
+
+def camera_files(data_dir: Path | str, camera_id: int) -> list[Path]:
+    """Files and folders stored for a camera: thumbnails and reference frames, kept images and originals, scene
+    models (every view, every version)."""
+    data = Path(data_dir)
+    out = [thumbs_dir(data, camera_id), data / "images" / f"camera-{camera_id}",
+           data / "pending" / f"camera-{camera_id}"]
+    models = data / "models"
+    if models.is_dir():
+        out += sorted(models.glob(f"camera-{camera_id}.*")) + sorted(models.glob(f"camera-{camera_id}-*"))
+    return out
+
+
+def delete_camera(session: Session, data_dir: Path | str, cam: Camera) -> dict:
+    """Delete a camera and everything stored for it: frames, estimates, jobs, calibrations, views (database rows,
+    committed together) and its files. Returns what was deleted (counts)."""
+    from sqlalchemy import func
+
+    from .storage import Calibration, CameraView, Estimate, Job
+
+    counts = {name: int(session.scalar(select(func.count()).select_from(model).where(model.camera_id == cam.id)) or 0)
+              for name, model in (("frames", Frame), ("estimates", Estimate), ("jobs", Job),
+                                  ("calibrations", Calibration))}
+    for model in (Estimate, Frame, Job, Calibration, CameraView):  # explicit: not every database cascades
+        session.execute(delete(model).where(model.camera_id == cam.id))
+    session.delete(cam)
+    session.commit()
+    for path in camera_files(data_dir, cam.id):
+        if path.is_dir():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+    reference_path(data_dir, cam.id, None).unlink(missing_ok=True)
+    return counts

@@ -1,0 +1,136 @@
+"""Frames posted before a view has regions (issue 26, "no installer frame wasted"): their original images are kept,
+at most :attr:`~.settings.Settings.pending_max_frames` per camera view (the oldest dropped first), under
+``<data dir>/pending/camera-<id>/<frame id>.<format>``, and measured with the regions once they are confirmed
+(``PUT …/regions`` or the regions page); their files are deleted then. A frame whose original was dropped stays
+stored without region values (its reason: ``no_regions``)."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from collections.abc import Callable
+from pathlib import Path
+
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from .settings import Settings
+from .storage import Frame
+
+__all__ = ["pending_dir", "pending_files", "keep_original", "measure_pending", "measure_original", "atomic_write"]
+
+
+def atomic_write(path: Path, data: bytes | bytearray) -> None:
+    """Write ``data`` to ``path`` through a private temporary file in the same folder, renamed into place: readers
+    see the old file or the new one, and concurrent writers never share a temporary file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def pending_dir(data_dir: Path | str, camera_id: int) -> Path:
+    """Folder of a camera's kept originals."""
+    return Path(data_dir) / "pending" / f"camera-{camera_id}"
+
+
+def pending_files(data_dir: Path | str, camera_id: int, frame_id: int) -> list[Path]:
+    """The kept original of one frame (a list: empty when none is kept)."""
+    folder = pending_dir(data_dir, camera_id)
+    if not folder.is_dir():
+        return []
+    return [p for p in folder.glob(f"{frame_id}.*") if p.suffix in (".png", ".jpeg", ".tiff")]
+
+
+def keep_original(session: Session, data_dir: Path | str, camera_id: int, view: str | None, frame_id: int,
+                  data: bytes | bytearray, fmt: str, limit: int) -> None:
+    """Keep a frame's original image until its view has regions, and drop the originals of the view's older frames
+    beyond ``limit`` (the files only: the frames stay stored)."""
+    if limit <= 0:
+        return
+    folder = pending_dir(data_dir, camera_id)
+    atomic_write(folder / f"{frame_id}.{fmt}", data)
+    kept = _kept_ids(folder)
+    if len(kept) <= limit:
+        return
+    view_ids = set(session.scalars(select(Frame.id).where(
+        Frame.camera_id == camera_id, Frame.id.in_(kept),
+        Frame.view.is_(None) if view is None else Frame.view == view)).all()) | {frame_id}
+    for old in sorted(view_ids)[: max(0, len(view_ids) - limit)]:
+        for p in pending_files(data_dir, camera_id, old):
+            p.unlink(missing_ok=True)
+
+
+def _kept_ids(folder: Path) -> list[int]:
+    out = []
+    for p in folder.glob("*.*"):
+        stem = p.name.split(".", 1)[0]
+        if stem.isdigit():
+            out.append(int(stem))
+    return sorted(out)
+
+
+def measure_pending(session: Session, data_dir: Path | str, camera_id: int, view: str | None,
+                    measure: Callable[[bytes, Frame], tuple[dict, dict] | None]) -> int:
+    """Measure the view's kept originals with ``measure(image bytes, frame) → (patches, patch_sd)`` (``None``: the
+    image could not be measured), store the values with their frames (committed) and delete the files. Returns the
+    number of frames measured."""
+    folder = pending_dir(data_dir, camera_id)
+    if not folder.is_dir():
+        return 0
+    kept = _kept_ids(folder)
+    if not kept:
+        return 0
+    frames = session.scalars(select(Frame).where(
+        Frame.camera_id == camera_id, Frame.id.in_(kept),
+        Frame.view.is_(None) if view is None else Frame.view == view).order_by(Frame.id)).all()
+    done, files = 0, []
+    for f in frames:
+        paths = pending_files(data_dir, camera_id, f.id)
+        if not paths:
+            continue
+        files += paths
+        if (f.registration or {}).get("state") == "view_change":
+            continue
+        out = measure(paths[0].read_bytes(), f)
+        if out is None:
+            continue
+        f.patches, f.patch_sd = out
+        f.not_estimated = "no_model" if sum(v is not None for v in f.patches.values()) >= 2 else "too_few_regions"
+        done += 1
+    session.commit()
+    for p in files:
+        p.unlink(missing_ok=True)
+    return done
+
+
+def measure_original(data: bytes, regions: list[dict], response: dict, registration: dict | None,
+                     settings: Settings) -> tuple[dict, dict] | None:
+    """Region means and standard errors of a kept original, its regions moved by the frame's stored registration
+    shift (as at ingest); ``None`` when the image no longer decodes."""
+    from .decode import ImageError, decode_frame
+    from .regions import Region, region_stats, response_for
+    from .registration import Registration, shift_regions
+
+    try:
+        frame = decode_frame(data, [Region(**r) for r in regions], max_pixels=settings.max_image_pixels,
+                             max_bytes=settings.max_decoded_bytes)
+    except ImageError:
+        return None
+    reg = registration or {}
+    shift = reg.get("shift") or (0.0, 0.0)
+    moved, outside = shift_regions(regions, Registration(str(reg.get("state") or "ok"), (float(shift[0]),
+                                                                                        float(shift[1])), None),
+                                   frame.size)
+    stats = region_stats(frame.image, moved, response_for(response, frame.full_scale), scale=frame.scale,
+                         size=frame.size, clip_fraction=settings.clip_fraction,
+                         min_fraction=settings.min_region_fraction)
+    stats.update({rid: None for rid in outside})
+    patches = {r["id"]: None if stats[r["id"]] is None else stats[r["id"]][0] for r in regions}
+    sd = {r["id"]: None if stats[r["id"]] is None else stats[r["id"]][1] for r in regions}
+    return patches, sd

@@ -291,6 +291,9 @@ def huynh(quick: bool) -> dict:
 def print_huynh(r: dict) -> None:
     print(f"\nHuynh & Robles-Kelly Table I: RMS error (R G B) of max-normalised sensitivities; ColorChecker under "
           f"{' and '.join(r['illuminants'])}, noise {r['noise']}, leave-one-camera-out priors")
+    print("split: each camera scored with a prior of the other measured cameras (it and any other measurement of it "
+          "left out); the "
+          "paper's cameras, charts and lights (CIE A and D55 for the paper's lamps)")
     print(f"{'camera':<18} {'paper huynh2014':>17} {'ours huynh2014':>17} {'paper jiang2013':>17} {'ours jiang2013':>17}")
     for cam, pub in HUYNH_PUBLISHED.items():
         ours = {m: r["rows"][m].get(cam) for m in ("huynh2014", "jiang2013")}
@@ -343,6 +346,8 @@ def han(quick: bool) -> dict:
 def print_han(r: dict) -> None:
     print("\nHan et al. §6.1: sensitivities from a fluorescent chart under unknown daylight (Granada "
           f"{', '.join(r['daylights'])}); RMSE R G B (mean over the three daylights). Paper: Fig. 4 only.")
+    print("split: the paper's protocol on three measured cameras; daylight recovery's measured basis is in-sample "
+          "(printed as such)")
     for cam, v in r["css_rmse"].items():
         print(f"  {cam:<16} {' '.join(f'{x:5.3f}' for x in v)}   mean {np.mean(v):5.3f}")
     print("Han et al. §6.2: daylight from a ColorChecker with the Canon 5D Mark II's sensitivities (3-vector basis); "
@@ -408,6 +413,8 @@ def kinoshita(quick: bool) -> dict:
 def print_kinoshita(r: dict) -> None:
     print(f"\nKinoshita & Kiya Tables 1–2 and a noise sweep: RMSE of max-normalised spectra (Nikon D5100, D65, "
           f"BabelColor ColorChecker; mean of {r['draws']} noise draws); published in brackets")
+    print("split: camera prior of the other measured cameras (the D5100 left out, with its other measurement if any); "
+          "daylight prior of all Granada spectra (D65 is not among them)")
     quantities = ["illumination", "sensitivity R", "sensitivity G", "sensitivity B"]
     methods = ("least_squares", "jiang2013", "bayes")
     print(f"{'noise σ':>8} {'quantity':<14} " + " ".join(f"{m:>20}" for m in methods))

@@ -189,7 +189,7 @@ def marguier(quick: bool) -> dict:
               "gray_world": ("gray_world", {})}
     rows: list[dict] = []
     summary: dict = {}
-    for scale in ("model", "cie"):
+    for scale in ("model", "cie", "unit"):
         per: dict = {(m, k): [] for m in methods for k in metrics}
         per_table: dict = {}
         floor: list[float] = []
@@ -229,7 +229,8 @@ def marguier(quick: bool) -> dict:
 
 def print_marguier(r: dict) -> None:
     print(f"Marguier & Süsstrunk Tables 1–3 ({r['camera']} for the paper's Canon 350D; ColorChecker patch sets "
-          f"{r['patch_sets']}; noise-free; illuminants at the model's scale ε1 = 1)")
+          f"{r['patch_sets']}; noise-free; illuminants at the model's scale ε1 = 1; the summary adds the CIE scale "
+          "and unit-norm renders)")
     print(f"split: {r['split']}")
     print(f"joint noise-free weights: relative error {r['noise_free_relative_error']:.4f} (the chart's RMS truncation "
           "on the 8-component basis, charts × CIE D40…D100; not chosen on a score)")
@@ -253,7 +254,7 @@ def print_marguier(r: dict) -> None:
     print(f"\n{'median / max (degrees)':<50} {'2 images':>13} {'3 images':>13} {'4 images':>13} {'all':>13}")
     print(f"{'paper (published Δφ)':<50} " + " ".join(
         f"{s['published'][k]['median']:6.2f}/{s['published'][k]['max']:5.1f}" for k in ("1", "2", "3", "all")))
-    for scale, label in (("model", "model scale"), ("cie", "CIE scale")):
+    for scale, label in (("model", "model scale"), ("cie", "CIE scale"), ("unit", "unit norm")):
         for m in MARGUIER_VARIANTS:
             for k in ("srgb", "srgb_d65", "camera"):
                 cells = [s[scale]["by table"][f"{t} {m} {k}"] for t in (1, 2, 3)] + [s[scale][f"{m} {k}"]]

@@ -28,7 +28,9 @@ from illumon.reflectance import colourchecker_reflectances  # noqa: E402
 from illumon.scenarios import measured_daylight_history  # noqa: E402
 from illumon.simulate import simulate_history  # noqa: E402
 
-HELD_OUT = ("Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf", "Phase_One")
+CAMERAS = ("Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf", "Phase_One")
+"""Cameras of the morning → afternoon histories. Not a held-out set: Nikon D5100, Nikon Z6 and Point Grey are
+development cameras (:data:`rawsim.DEV_CAMERAS`); Canon 600D, Pentax K-5 and Phase One are score cameras."""
 
 
 def _score_run(camera: str, frames: int, seed: int) -> tuple[np.ndarray, dict, np.ndarray, np.random.Generator]:
@@ -63,7 +65,7 @@ def _raw_run(camera: str, frames: int, seed: int):
 
 
 def morning_afternoon(histories: int, frames: int, sim: str = "illumon") -> dict:
-    """Fit on the first half of a run of Granada daylight, estimate the second half frame by frame (held-out cameras,
+    """Fit on the first half of a run of Granada daylight, estimate the second half frame by frame (:data:`CAMERAS`,
     10 patches the reflectance basis never saw; the project's simulator's noise and auto-exposure jitter, or the raw
     pipeline of ``rawsim``)."""
     hits: dict[str, list] = {"cct": [], "duv": [], "gain_r": [], "gain_b": []}
@@ -71,11 +73,11 @@ def morning_afternoon(histories: int, frames: int, sim: str = "illumon") -> dict
     half = frames // 2
     for i in range(histories):
         if sim == "rawsim":
-            obs, css, illum, truth = _raw_run(HELD_OUT[i % len(HELD_OUT)], frames, 5000 + i)
+            obs, css, illum, truth = _raw_run(CAMERAS[i % len(CAMERAS)], frames, 5000 + i)
         elif sim == "illumon-same":
-            obs, css, illum, truth = _same_scene_run(HELD_OUT[i % len(HELD_OUT)], frames, 5000 + i)
+            obs, css, illum, truth = _same_scene_run(CAMERAS[i % len(CAMERAS)], frames, 5000 + i)
         else:
-            h = measured_daylight_history(HELD_OUT[i % len(HELD_OUT)], frames=frames, patches=10, seed=5000 + i,
+            h = measured_daylight_history(CAMERAS[i % len(CAMERAS)], frames=frames, patches=10, seed=5000 + i,
                                           contiguous=True)
             obs, css, illum, truth = h.observations, h.sensitivities, h.illuminants, h.true_white
         t = time.perf_counter()
@@ -102,7 +104,9 @@ def morning_afternoon(histories: int, frames: int, sim: str = "illumon") -> dict
 def main() -> None:
     warnings.simplefilter("ignore")
     out_ma = []
-    print("morning → afternoon (fit on the first half, estimate the second; held-out cameras, unseen patches)")
+    print("morning → afternoon (fit on the first half, estimate the second; unseen patches)")
+    print(f"split: cameras {', '.join(CAMERAS)} (development: Nikon D5100, Nikon Z6, Point Grey; score: the rest); "
+          "Granada daylight runs")
     print("sim          histories  fit/est frames  median°   p95°   max°  cover CCT   Duv  gain_r gain_b  fit s")
     for n_hist, frames in ((24, 120), (12, 300)):
         for sim in ("illumon", "illumon-same", "rawsim"):

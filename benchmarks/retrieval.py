@@ -35,9 +35,11 @@ from illumon.simulate import CameraNoise, simulate_history
 from scipy.optimize import least_squares
 
 METHODS = ("joint", "marguier2007", "gray_world")
-HELD_OUT_CAMERAS = (
+CAMERAS = (
     "Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf", "Phase_One",
 )
+"""Cameras of the measured-daylight histories. Not a held-out set: Nikon D5100, Nikon Z6 and Point Grey are
+development cameras (:data:`rawsim.DEV_CAMERAS`); Canon 600D, Pentax K-5 and Phase One are score cameras."""
 
 
 def _stats(err: list[float]) -> dict[str, float]:
@@ -226,9 +228,10 @@ def main() -> int:
             print(f"{name:<36} {v['common_abs_median']:6.1f} / {v['common_abs_max']:5.1f}   {v['within_case_sd_median']:5.2f}")
         print("data-term range over a common ±30 MK⁻¹ shift (median over cases, χ² units at 0.1 % error): "
               + ", ".join(f"{int(t) + 1} images {r:.3g}" for t, r in a["shift_range"].items()))
-    cams = HELD_OUT_CAMERAS[:3] if args.quick else HELD_OUT_CAMERAS
+    cams = CAMERAS[:3] if args.quick else CAMERAS
     seeds = 1 if args.quick else 3
-    print("\nMeasured Granada daylight, unseen reflectances: illumon = the project's simulator (noise + exposure jitter),"
+    print(f"\nsplit: cameras {', '.join(cams)} (development: Nikon D5100, Nikon Z6, Point Grey; score: the rest)")
+    print("Measured Granada daylight, unseen reflectances: illumon = the project's simulator (noise + exposure jitter),"
           " rawsim = the independent raw pipeline (score daylight and surfaces, per-pixel noise, 8/10/12 bits)")
     print(f"{'sim':<12} {'frames×patches':<16} " + " ".join(f"{m + ' med/p95/max':>26}" for m in METHODS)
           + "   s/history (joint)")

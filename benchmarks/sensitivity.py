@@ -149,6 +149,7 @@ def main() -> int:
     for p in protocols:
         print(f"\n{titles[p]}: {len(names)} cameras × {N_DAYLIGHTS} Granada daylights"
               + (f", noise {NOISE}" if p != "rawsim" else ""))
+        print(f"split: {titles[p].split(',')[0].lower()} (the camera or manufacturer scored is in no prior)")
         print(f"{'method':<11} {'R':>7} {'G':>7} {'B':>7} {'mean':>7}  worst camera (mean RMSE)")
         for m, row in rows[p].items():
             r, g, b = row["mean_rgb"]

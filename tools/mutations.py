@@ -94,12 +94,12 @@ MUTATIONS: tuple[Mutation, ...] = (
 )
 
 
-def run(m: Mutation, python: str) -> tuple[str, float]:
-    """Apply ``m``, run its tests, restore; the verdict and the seconds the tests took."""
+def run(m: Mutation, python: str) -> tuple[str, float, str]:
+    """Apply ``m``, run its tests, restore; the verdict, the seconds the tests took and the first failing test."""
     path = ROOT / m.path
     original = path.read_text()
     if original.count(m.old) != 1:
-        return f"pattern not found ({original.count(m.old)}×)", 0.0
+        return f"pattern not found ({original.count(m.old)}×)", 0.0, ""
     t = time.perf_counter()
     try:
         path.write_text(original.replace(m.old, m.new))
@@ -109,11 +109,13 @@ def run(m: Mutation, python: str) -> tuple[str, float]:
     finally:
         path.write_text(original)
     seconds = time.perf_counter() - t
+    failed = next((line.split(" ", 1)[1].split(" - ")[0] for line in proc.stdout.splitlines()
+                   if line.startswith("FAILED ")), "")
     if proc.returncode == 1:
-        return "caught", seconds
+        return "caught", seconds, failed.rsplit("::", 1)[-1]
     if proc.returncode == 0:
-        return "SURVIVED", seconds
-    return f"error (pytest exit {proc.returncode})", seconds
+        return "SURVIVED", seconds, ""
+    return f"error (pytest exit {proc.returncode})", seconds, ""
 
 
 def main() -> int:
@@ -128,11 +130,13 @@ def main() -> int:
         return 0
     python = sys.executable
     rows = []
-    print(f"{'#':>2} {'origin':<6} {'mutation':<58} {'tests':<44} {'verdict':<10} {'s':>6}", flush=True)
+    print(f"{'#':>2} {'origin':<6} {'mutation':<58} {'tests':<44} {'verdict':<10} {'s':>6}  first failing test",
+          flush=True)
     for i, m in enumerate(chosen, 1):
-        verdict, seconds = run(m, python)
+        verdict, seconds, failed = run(m, python)
         rows.append((m, verdict))
-        print(f"{i:>2} {m.origin:<6} {m.name:<58} {' '.join(m.tests):<44} {verdict:<10} {seconds:6.1f}", flush=True)
+        print(f"{i:>2} {m.origin:<6} {m.name:<58} {' '.join(m.tests):<44} {verdict:<10} {seconds:6.1f}  {failed}",
+              flush=True)
     caught = sum(v == "caught" for _, v in rows)
     print(f"\n{caught} of {len(rows)} mutations caught")
     return 0 if caught == len(rows) else 1

@@ -58,13 +58,16 @@ def paper_protocol(
     ``illuminant_scale`` sets each illuminant's brightness, which matters only without noise (the noise model's
     auto-exposure rescales every frame): ``"cie"`` is the CIE normalisation (100 at 560 nm); ``"model"`` is the one
     Marguier & Süsstrunk's model assumes, ``ε1 = 1`` on the θ-curve basis (:func:`illumon.daylight.theta_curve`,
-    built from unit-norm D40…D100), so that eq. (3) compares absolute responses at the scale they were rendered.
+    built from unit-norm D40…D100), so that eq. (3) compares absolute responses at the scale they were rendered;
+    ``"unit"`` is unit norm on the wavelength grid (equal power, the scale ``joint(exposure="shared")`` assumes).
     """
     e = daylight_spectrum(daylight_locus_xy(paper_cct(temps_hundreds)))
     if illuminant_scale == "model":
         e = e / np.linalg.lstsq(theta_curve().basis, e.T, rcond=None)[0][0][:, None]
+    elif illuminant_scale == "unit":
+        e = e / np.linalg.norm(e, axis=1, keepdims=True)
     elif illuminant_scale != "cie":
-        raise ValueError(f"illuminant_scale must be 'cie' or 'model', not {illuminant_scale!r}")
+        raise ValueError(f"illuminant_scale must be 'cie', 'model' or 'unit', not {illuminant_scale!r}")
     _, cc = colourchecker_reflectances("BabelColor Average")
     return simulate_history(datasets.load_camera(camera), e, cc[list(patches)], noise=noise, rng=seed)
 

@@ -30,12 +30,13 @@ REQUIRED = {
     "patch_change": SEEDS,
     "shadow": SEEDS,
     "off_locus_illuminant": SEEDS - 1,
-    "fluorescence": SEEDS - 2,
+    "fluorescence": SEEDS - 1,
 }
 """Histories per effect (of ``SEEDS``) that must be diagnosed correctly, from the rates on the development seeds: the
 bilinear effects ~100 % (the tone curve a little less on 24 × 8 histories), clean ~99 %, off-locus light ~90 %,
 fluorescence ~80 % (65…90 % on batches of 20…50 development histories; only visible against the spectral model,
-whose own error limits it; see the benchmark's figures)."""
+whose own error limits it; see the benchmark's figures). Fluorescence needs 3 of 4 (all 4 are named and located
+today): 2 of 4 let a diagnosis that finds half the fluorescent patches pass."""
 
 
 SIZE = {"off_locus_illuminant": (32, 10), "fluorescence": (32, 10)}
@@ -258,41 +259,52 @@ def test_raw_pipeline_bt709_output_is_named_nonlinear_response(shared_data, seed
     np.testing.assert_allclose(c.values, h.history.linear_output, atol=2e-3)
 
 
-def _raw_score(effect: str, camera: str, seed: int):
-    """A history of the raw pipeline's score split as ``benchmarks/diagnose.py`` draws it (the failures this
-    session's fixes came from)."""
+def _raw_dev(effect: str, seed: int, variant: str | None = None):
+    """A raw-pipeline history of the development split (Nikon and Point Grey cameras, development surfaces and
+    daylight, seeds 3 000…: ``benchmarks/diagnose.py --split dev``). The failures the fixes below came from were seen
+    on the diagnosis benchmark's score split (seeds ≥ 1 000 000); each test reproduces its failure on development
+    seeds instead, so no test pins a score history."""
     import rawsim
 
-    return rawsim.hide_effect_raw(effect, camera, seed, split="score")
+    return rawsim.hide_effect_raw(effect, rawsim.DEV_CAMERAS[seed % len(rawsim.DEV_CAMERAS)], seed, split="dev",
+                                  variant=variant)
 
 
-def test_clean_10bit_history_is_not_an_expanding_tone_curve(shared_data):
-    """A clean 10-bit raw-pipeline history (Canon 500D, ISO 100): its bilinear misfit was fitted by an *expanding*
-    γ = 0.71 at ΔBIC −149. No output encoding expands (``MIN_GAMMA``): the tone test searches γ ≥ 1 only."""
-    h = _raw_score("none", "Canon_500D", 1000003)
+def test_clean_10bit_history_is_not_an_expanding_tone_curve(shared_data, monkeypatch):
+    """A clean 10-bit raw-pipeline history: its bilinear misfit is fitted by an *expanding* γ ≈ 0.3 at ΔBIC −222 when
+    the tone test may search γ < 1 (reproduced here). No output encoding expands (``MIN_GAMMA``): the tone test
+    searches γ ≥ 1 only, and the history is clean."""
+    from illumon.diagnosis import stages
+
+    h = _raw_dev("none", 3126)
+    assert h.parameters["bits"] == 10
     d = diagnose(h.observations, h.sensitivities, reestimate=False)
     tone = next(c for c in d.candidates if c.effect == "nonlinear_response")
     assert d.effect == "none", [(c.effect, round(c.score, 1)) for c in d.candidates]
-    assert tone.parameters["gamma"] >= MIN_GAMMA and tone.score > 0
+    assert tone.parameters["gamma"] >= MIN_GAMMA and tone.score > -NONE_MARGIN["nonlinear_response"] / 2
+    monkeypatch.setattr(stages, "MIN_GAMMA", 0.3)  # the failure without the fix
+    d_old = diagnose(h.observations, h.sensitivities, reestimate=False)
+    assert d_old.effect == "nonlinear_response" and d_old.parameters["gamma"] < 1.0
 
 
 def test_pedestal_absorbed_at_full_rank_is_found(shared_data):
-    """A 10-bit history with pedestals of 4.9 / 1.6 / 2.2 % of white: a rank-4 frame factor absorbs the constant and
-    the alternation from the old starts ended at offsets of 2.5 / 12.9 / 1.4 % (reported ``none``); the start from
-    the rank-3 fit's offsets finds them."""
-    h = _raw_score("black_offset", "Canon_500D", 1002003)
+    """A 10-bit history with pedestals of 2.1 / 3.4 / 5.6 % of white (development split): a rank-4 frame factor can
+    absorb the constant (on a score history the alternation from the old starts ended at offsets of 2.5 / 12.9 / 1.4 %
+    for pedestals of 4.9 / 1.6 / 2.2 %, reported ``none``); the start from the rank-3 fit's offsets finds them."""
+    h = _raw_dev("black_offset", 3002)
+    assert h.parameters["bits"] == 10
     d = diagnose(h.observations, h.sensitivities, reestimate=False)
     assert d.effect == "black_offset"
     np.testing.assert_allclose(d.parameters["offsets"], h.parameters["offsets"], atol=2e-3)
 
 
-@pytest.mark.parametrize(("camera", "seed", "mimic"), [("Phase_One", 1006009, "clipping"),
-                                                        ("Canon_300D", 1006001, "nonlinear_response")])
-def test_lamp_light_that_mimics_a_global_effect_is_named(shared_data, camera, seed, mimic):
-    """A sodium lamp saturates the red channel in its frames (clipping at ΔBIC −320), a fluorescent tube breaks the
-    rank-4 structure (a γ of 1.5 at −198): without the lamp-lit frames no evidence of either is left, so the lamp
-    is named."""
-    h = _raw_score("off_locus_illuminant", camera, seed)
+@pytest.mark.parametrize(("seed", "mimic"), [(3003, "nonlinear_response")])
+def test_lamp_light_that_mimics_a_global_effect_is_named(shared_data, seed, mimic):
+    """A lamp breaks the rank-4 structure of its frames (a tone curve at ΔBIC −190 on this development history):
+    without the lamp-lit frames no evidence of it is left, so the lamp is named. (The score split also had a sodium
+    lamp saturating the red channel, clipping at −320; no development history of seeds 3 000…3 059 reproduces a
+    clipping mimic, so that case has no test.)"""
+    h = _raw_dev("off_locus_illuminant", seed)
     d = diagnose(h.observations, h.sensitivities, reestimate=False)
     scores = {c.effect: c.score for c in d.candidates}
     assert scores[mimic] < -NONE_MARGIN[mimic]  # the bilinear stage alone would name it
@@ -301,10 +313,11 @@ def test_lamp_light_that_mimics_a_global_effect_is_named(shared_data, camera, se
 
 
 def test_sub_code_pedestal_is_not_a_black_offset(shared_data):
-    """An 8-bit ISO 100 history with a fluorescent patch: the offset test found pedestals of 0.0003…0.0011 of white
-    (a quarter of an 8-bit code: the rounding bias of dark regions) at ΔBIC −14; below ``MIN_OFFSET`` it is not
-    reported and the fluorescent patch is."""
-    h = _raw_score("fluorescence", "Canon_20D", 1007000)
+    """An 8-bit ISO 100 history with a fluorescent patch (development split): the offset test finds pedestals below
+    0.001 of white (a quarter of an 8-bit code: the rounding bias of dark regions; on a score history at ΔBIC −14);
+    below ``MIN_OFFSET`` it is not reported and the fluorescent patch is."""
+    h = _raw_dev("fluorescence", 3006)
+    assert h.parameters["bits"] == 8 and h.parameters["iso"] == 100
     d = diagnose(h.observations, h.sensitivities, reestimate=False)
     offset = next(c for c in d.candidates if c.effect == "black_offset")
     assert max(abs(v) for v in offset.parameters["offsets"]) < MIN_OFFSET
@@ -357,17 +370,13 @@ def test_clean_history_rounded_to_codes_is_not_a_tone_curve(shared_data, i):
     assert d.effect == "none" and tone.score > 0, [(c.effect, round(c.score, 1)) for c in d.candidates]
 
 
-@pytest.mark.parametrize(("effect", "camera", "seed"), [("none", "Canon_500D", 1000003),
-                                                        ("fluorescence", "Canon_300D", 1007011),
-                                                        ("off_locus_illuminant", "Canon_40D", 1006012)])
-def test_raw_histories_rounded_to_codes_name_their_effect(shared_data, effect, camera, seed):
+@pytest.mark.parametrize(("effect", "seed"), [("none", 3000), ("fluorescence", 3000), ("off_locus_illuminant", 3000)])
+def test_raw_histories_rounded_to_codes_name_their_effect(shared_data, effect, seed):
     """The outside check's pattern (issue 16: clean, lamp-lit and fluorescent histories all read as
     ``nonlinear_response``), reproduced by the raw pipeline's ``rounded`` variant (region means rounded to 8-bit
-    codes): these three scored ΔBIC −114, −34 and −70 for a tone curve before the rounding entered the tone test's
-    noise; now no tone curve is supported and each history's own effect is named."""
-    import rawsim
-
-    h = rawsim.hide_effect_raw(effect, camera, seed, split="score", variant="rounded")
+    codes): three score histories scored ΔBIC −114, −34 and −70 for a tone curve before the rounding entered the tone
+    test's noise; on these development histories no tone curve is supported and each history's own effect is named."""
+    h = _raw_dev(effect, seed, variant="rounded")
     d = diagnose(h.observations, h.sensitivities, reestimate=False)
     tone = next(c for c in d.candidates if c.effect == "nonlinear_response")
     assert tone.score > -NONE_MARGIN["nonlinear_response"] / 2, tone.score
@@ -380,15 +389,15 @@ def test_tone_curve_whose_misfit_looks_like_lamp_light_stays_a_tone_curve(shared
     """A γ ≈ 2 curve on region means rounded to codes (raw pipeline, ``rounded`` variant): the tone test supports
     it, and its misfit of the spectral model passes the off-locus margin too. Without the top off-locus frames the
     curve's weak evidence is gone, which alone named lamp light; linearised with the fitted curve the frames are
-    daylight again, so the curve explains them and is named."""
-    import rawsim
-
-    h = rawsim.hide_effect_raw("nonlinear_response", "Canon_5DMarkII", 1001005, split="score", variant="rounded")
+    daylight again, so the curve explains them and is named. (Development seed 3001 of the same variant is still
+    named lamp light: the fix does not cover every such history.)"""
+    h = _raw_dev("nonlinear_response", 3003, variant="rounded")
+    assert h.parameters["tone"] == "srgb"
     d = diagnose(h.observations, h.sensitivities, reestimate=False)
     scores = {c.effect: c.score for c in d.candidates}
     assert scores["off_locus_illuminant"] < -NONE_MARGIN["off_locus_illuminant"]
     assert d.effect == "nonlinear_response", [(c.effect, round(c.score, 1)) for c in d.candidates]
-    assert d.parameters["gamma"] == pytest.approx(h.parameters["tone"], rel=0.15)
+    assert d.parameters["curve"] == "srgb"
 
 
 def test_off_locus_light_takes_priority_over_fluorescence(shared_data):

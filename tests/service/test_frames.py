@@ -282,3 +282,25 @@ def test_region_standard_errors_stored(tmp_path):
     noisy = np.array([v for v in sds[1].values()])
     np.testing.assert_allclose(noisy, 0.02 / np.sqrt(n), rtol=0.15)  # σ/√n, rounding to 8 bits adds a little
     assert sds[2] == {"r0": [0.001, 0.002, 0.003]}
+
+
+@pytest.mark.parametrize("mode", ["RGB", "RGBA"])
+def test_decode_image_returns_rgb_in_rgb_order(mode):
+    """Pixels written by Pillow (RGB order in the file, independent of OpenCV's BGR convention) come back as RGB."""
+    import io
+
+    from illumon_service.decode import decode_image
+    from PIL import Image
+
+    rgb = np.zeros((8, 12, 3), np.uint8)
+    rgb[:, :4] = (200, 30, 10)  # red
+    rgb[:, 4:8] = (10, 180, 40)  # green
+    rgb[:, 8:] = (20, 40, 220)  # blue
+    img = Image.fromarray(rgb)
+    if mode == "RGBA":
+        img.putalpha(255)
+    buf = io.BytesIO()
+    img.save(buf, format="PNG")
+    out, full = decode_image(buf.getvalue())
+    assert full == 255.0
+    np.testing.assert_array_equal(out, rgb)

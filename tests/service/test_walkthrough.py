@@ -141,6 +141,8 @@ def test_readme_walkthrough_runs(tmp_path):
         print(f"\nwalkthrough: camera white error median {np.median(err):.2f}°, max {np.max(err):.2f}°; "
               f"alerts {[a['kind'] for a in camera['alerts']]}")
         assert gains["rgb"] == pytest.approx(est[-1]["gains_rgb"])
+        # …and the gains are the true white's (gain_c = white_g / white_c), not only the service's own formula
+        assert gains["rgb"] == pytest.approx(list(truth[-1, 1] / truth[-1]), rel=0.06)
         assert bool(gains["notes"]) == gains["v4l2"]["temperature_clamped"]
     finally:
         server.stop()

@@ -107,6 +107,9 @@ def test_hostile_values_refused_at_the_door_and_refit_survives_stored_ones(tmp_p
             assert r.status_code == 422 and field in r.json()["detail"], (field, r.text)
         job = _refit(c, cid, token)
         assert job["state"] == "done", job
+        for q in ("-1e308,1e308", "0,1e-320"):  # query numbers too: the mapping overflowed to null gains (200)
+            r = c.get(f"/v1/cameras/{cid}/wb-gains", params={"onvif_range": q}, headers=bearer(token))
+            assert r.status_code == 422 and "onvif_range" in r.json()["detail"], r.text
         # rows as an older version stored them
         sessions = app.state.sessions
         with sessions() as s, s.begin():

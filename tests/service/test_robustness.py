@@ -23,6 +23,7 @@ from illumon_service.app import create_app
 from illumon_service.storage import Estimate, Frame, Job, make_engine, make_session_factory, utcnow
 from sqlalchemy import select
 from svc_helpers import SIZE, T0, admin_headers, bearer, camera_body, grid_regions, make_settings, need_data
+from test_faults import pg_url  # noqa: F401 - a throwaway PostgreSQL cluster, or skip
 
 N = 12
 
@@ -466,3 +467,34 @@ def test_frames_before_regions_are_measured_when_confirmed(tmp_path, scene):
         assert cam["warnings"] == job["summary"]["warnings"]
         if cam["warnings"]:
             assert 'id="refit-warnings"' in c.get(f"/cameras/{cid}", headers=admin_headers()).text
+
+
+def test_on_postgresql(tmp_path, history, pg_url):  # noqa: F811 - the fixture imported above
+    """The same guarantees on PostgreSQL: NUL refused (it was a 500 there), a refit switching model and estimates
+    together, deletes (rows of every table), recovery of a job a crash left running."""
+    css, lin = history
+    settings = make_settings(tmp_path, database_url=pg_url)
+    app = create_app(settings)
+    with TestClient(app) as c:
+        body = camera_body(css, grid_regions(lin.shape[1]), name="roof\x00east")
+        r = c.post("/v1/cameras", json=body, headers=admin_headers())
+        assert r.status_code == 422 and "control character" in str(r.json()["detail"]), r.text
+        cid, token = _camera(c, css, lin)
+        v1 = _refit(c, cid, token)["summary"]["version"]
+        r = c.post(f"/v1/cameras/{cid}/observations", json=_observation(lin, 3), headers=bearer(token))
+        assert r.json()["estimate"] is not None and _versions(app.state.sessions, cid) == {v1}
+        v2 = _refit(c, cid, token)["summary"]["version"]
+        assert _versions(app.state.sessions, cid) == {v2}
+        fid = r.json()["frame_id"]
+        assert c.delete(f"/v1/cameras/{cid}/frames/{fid}", headers=admin_headers()).json()["deleted"] == {
+            "frames": 1, "estimates": 1}
+        other, _ = _camera(c, css, lin)
+        with app.state.sessions() as s, s.begin():
+            s.add(Job(id="orphan", camera_id=other, state="running", progress=0.3, heartbeat_at=utcnow()))
+    with TestClient(create_app(settings)) as c:
+        job = c.get("/v1/jobs/orphan", headers=admin_headers()).json()
+        assert job["state"] == "failed" and job["summary"]["interrupted"]
+        assert c.get(f"/v1/jobs/{job['summary']['requeued_as']}", headers=admin_headers()).json()["state"] == "done"
+        r = c.delete(f"/v1/cameras/{cid}", headers=admin_headers())
+        assert r.status_code == 200 and r.json()["deleted"]["frames"] == N, r.text
+        assert [cam["id"] for cam in c.get("/v1/cameras", headers=admin_headers()).json()] == [other]

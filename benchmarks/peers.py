@@ -1,29 +1,39 @@
-"""Single-image white-balance peers against illumon on the same rendered frames (issue 18).
+"""Single-image white-balance peers against illumon on the same rendered frames (issues 18, 30).
 
-Run: ``python benchmarks/peers.py [--quick]``. Prints a table and writes ``benchmarks/results/peers.json``.
+Run: ``python benchmarks/peers.py [--quick] [--seeds N]``. Prints a table per scene and writes
+``benchmarks/results/peers.json``.
 
-Each frame of a fixed-camera history (:func:`illumon.scenarios.measured_daylight_history`: measured Granada daylight,
-patches the reflectance basis never saw, held-out measured cameras) is rendered as an image: the static patches as
-rectangles on a textured background of clutter (random rectangles of measured reflectances, redrawn every frame),
-a fixed per-pixel texture and shading, the camera's sensitivities under the frame's daylight, auto-exposure on the
-99th percentile, shot and read noise, clipping; then encoded as an 8-bit sRGB-curve image (a camera JPEG without
-colour matrix) and, as a second variant, a linear 16-bit image.
+Splits (printed with every table): the score cameras are :data:`SCORE_CAMERAS` (Canon, Hasselblad, Pentax, Phase One:
+:data:`rawsim.SCORE_CAMERAS`, no manufacturer of the development cameras); the static patches are the score surfaces
+(ColorChecker and CIE 1995 TCS, which the reflectance basis never saw: :data:`SCORE_SURFACES`); daylight is measured
+Granada spectra of :data:`rawsim.SCORE_DAYLIGHT`. The unmeasured-camera rows start from a camera prior built from the
+development cameras only (:data:`rawsim.DEV_CAMERAS`), never from the camera under test. No constant was chosen on
+these frames (``NEAR_WHITE``, the censoring level, was set on the Point Grey, a development camera).
 
-Peers (OpenCV contrib ``cv2.xphoto``): gray world (``createGrayworldWB``), SimpleWB (``createSimpleWB``, per-channel
-percentile stretch) and LearningBasedWB (``createLearningBasedWB``; the wheel ships no trained model file: it runs
-with its built-in defaults). A peer's camera white is read off its output: the per-channel median ratio of the
-linearised input to the linearised output over unclipped pixels.
+Each frame of a fixed-camera history is rendered as an image: the static patches as rectangles on a textured
+background of clutter (random rectangles of measured reflectances, redrawn every frame), a fixed per-pixel texture and
+shading, the camera's sensitivities under the frame's daylight, auto-exposure on the 99th percentile, shot and read
+noise, clipping; then encoded as an 8-bit sRGB-curve image (a camera JPEG without colour matrix) and, as a second
+variant, a linear 16-bit image.
+
+Peers, each on the whole 8-bit and 16-bit image, each plain and *snapped to the camera's daylight locus* (the CIE
+daylight whose camera white is nearest in log-chromaticity, which illumon's daylight model also knows):
+
+* gray-world (Buchsbaum 1980), max-RGB (Land's white patch), shades-of-gray with p = 6 (Finlayson & Trezzi 2004) and
+  first-order gray-edge (van de Weijer, Gevers & Gijsenij 2007; Gaussian σ = 2, p = 6): a few lines of numpy (no
+  maintained library provides them), on unclipped pixels of the linearised image;
+* OpenCV contrib ``cv2.xphoto``: ``createGrayworldWB``, ``createSimpleWB`` and ``createLearningBasedWB`` (the wheel
+  ships no trained model file: built-in defaults). Their camera white is read off the output: the per-channel median
+  ratio of the linearised input to the linearised output over unclipped pixels;
+* ``marguier2007`` on the static patches' region means of the scored frames (multi-frame; its descent is O(frames²)).
 
 illumon reads the static patches' region means from the 8-bit frames as the service does (clipped pixels and outliers
-dropped, a mostly clipped region missing for that frame) and runs
+dropped, a mostly clipped region missing for that frame) and runs ``joint`` on the whole history, and the learned
+scene model fitted on the first half (measured sensitivities; or an unmeasured camera, with a grey card held up in the
+first frame or no reference).
 
-* ``joint`` (multi-frame, :func:`illumon.retrieval.retrieve_illuminants`) on the whole history;
-* the learned scene model (:func:`illumon.model.fit_scene_model` on the first half, ``SceneModel.estimate`` per frame)
-  with the camera's measured sensitivities, and for an unmeasured camera (``sensitivities=None``) with a grey card
-  held up in the first frame (``known_reflectances``) or with no reference at all.
-
-Scores are on the second half of every history (frames the scene model never saw): camera-white angular error
-median / p95 / max (degrees) and time per frame.
+Scores are on the second half of every history: camera-white angular error median / p95 / max (degrees) pooled over
+seeds, the median of each seed, and the ratio of the best peer's median to each method's per seed (mean and range).
 """
 
 from __future__ import annotations
@@ -34,6 +44,7 @@ import os
 import sys
 import time
 import warnings
+from functools import lru_cache
 from pathlib import Path
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -43,17 +54,26 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from illumon import datasets  # noqa: E402
 from illumon.camera import ResponseCurve, angular_error_deg, render  # noqa: E402
+from illumon.daylight import daylight_locus_duv, daylight_spectrum, xy_from_cct_duv  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
+from illumon.reflectance import unseen_reflectances  # noqa: E402
 from illumon.retrieval import retrieve_illuminants  # noqa: E402
-from illumon.scenarios import measured_daylight_history  # noqa: E402
+from illumon.sensitivity.prior import build_camera_prior  # noqa: E402
+from illumon.simulate import simulate_history  # noqa: E402
 from illumon_service.regions import Region, region_means  # noqa: E402
+from rawsim import DEV_CAMERAS, SCORE_DAYLIGHT  # noqa: E402
+from rawsim import SCORE_CAMERAS as RAWSIM_SCORE_CAMERAS  # noqa: E402
 from retrieval import _stats  # noqa: E402  (benchmarks/retrieval.py: median, p95, max, n)
 
 RESULTS = Path(__file__).resolve().parent / "results"
 SRGB8 = ResponseCurve(encoding="srgb", white_level=255.0)
-HELD_OUT_CAMERAS = ("Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf",
-                    "Phase_One")
+SCORE_CAMERAS = ("Canon_600D", "Pentax_K-5", "Phase_One", "Canon_5DMarkII", "Hasselblad_H2", "Canon_50D")
+"""Cameras scored here: six of :data:`rawsim.SCORE_CAMERAS` (no Nikon or Point Grey: those are development cameras)."""
+assert set(SCORE_CAMERAS) <= set(RAWSIM_SCORE_CAMERAS) and not set(SCORE_CAMERAS) & set(DEV_CAMERAS)
+SCORE_SURFACES = 38
+"""Static patches are drawn from the first 38 of :func:`illumon.reflectance.unseen_reflectances` (ColorChecker and
+CIE 1995 TCS, never used to build the reflectance basis; the 15 NIST VS chips after them were)."""
 H, W, PATCH = 120, 160, 14
 GREY_CARD = np.full(61, 0.45)
 """A flat grey card (reflectance 0.45), held up in the first frame of every history for the unmeasured-camera case."""
@@ -159,11 +179,67 @@ def peers() -> dict:
             "xphoto SimpleWB": (simple8, simple16), "xphoto LearningBasedWB": (learn8, learn16)}
 
 
+def score_history(camera: str, seed: int, frames: int, patches: int):
+    """A fixed camera under measured Granada daylight with static patches from the score surfaces."""
+    rng = np.random.default_rng(seed)
+    _, day = datasets.load_granada_daylight()
+    day = day[SCORE_DAYLIGHT]
+    e = day[rng.choice(day.shape[0], frames, replace=False)]
+    _, refl = unseen_reflectances()
+    r = refl[:SCORE_SURFACES][rng.choice(SCORE_SURFACES, patches, replace=False)]
+    return simulate_history(datasets.load_camera(camera), e, r, rng=rng)
+
+
+@lru_cache(maxsize=1)
+def dev_camera_prior_mean() -> np.ndarray:
+    """Prior sensitivities of a camera nobody measured, from the development cameras only (61 × 3)."""
+    return build_camera_prior([datasets.load_camera(c) for c in DEV_CAMERAS]).mean
+
+
+class LocusSnap:
+    """Snap a camera white to the camera's daylight locus: the CIE daylight (40…400 MK⁻¹, on the daylight locus)
+    whose camera white is nearest in log(r/g), log(b/g)."""
+
+    def __init__(self, sensitivities: np.ndarray) -> None:
+        mired = np.linspace(40.0, 400.0, 1441)
+        cct = 1e6 / mired
+        whites = daylight_spectrum(xy_from_cct_duv(cct, daylight_locus_duv(cct))) @ sensitivities
+        self.whites = whites / whites[:, 1:2]
+        self.chrom = np.log(self.whites[:, [0, 2]])
+
+    def __call__(self, white: np.ndarray) -> np.ndarray:
+        w = np.asarray(white, dtype=float)
+        c = np.log(np.clip(w[..., [0, 2]] / w[..., 1:2], 1e-9, None))
+        k = np.argmin(((c[..., None, :] - self.chrom) ** 2).sum(-1), axis=-1)
+        return self.whites[k]
+
+
+def numpy_peers(lin: np.ndarray) -> dict[str, np.ndarray]:
+    """Camera whites (3,) of gray-world, max-RGB, shades-of-gray (p = 6) and first-order gray-edge (σ = 2, p = 6)
+    on the unclipped pixels of a linear image (H × W × 3, 0…1)."""
+    ok = np.all((lin > 0.002) & (lin < 0.98), axis=-1)
+    px = lin[ok]
+    out = {"gray-world": px.mean(0), "max-RGB": px.max(0), "shades-of-gray p=6": (px**6).mean(0) ** (1 / 6)}
+    blur = cv2.GaussianBlur(lin.astype(np.float32), (0, 0), 2.0)
+    gx = cv2.Sobel(blur, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(blur, cv2.CV_32F, 0, 1, ksize=3)
+    mag = np.sqrt(gx.astype(float) ** 2 + gy.astype(float) ** 2)
+    near_clip = cv2.dilate((~ok).astype(np.uint8), np.ones((5, 5), np.uint8)) > 0
+    out["gray-edge 1st order"] = (mag[~near_clip] ** 6).mean(0) ** (1 / 6)
+    return {k: v / v[1] for k, v in out.items()}
+
+
+PEERS = ("gray-world", "max-RGB", "shades-of-gray p=6", "gray-edge 1st order", "xphoto gray-world", "xphoto SimpleWB",
+         "xphoto LearningBasedWB")
+"""Single-image peers; each runs on the 8-bit and the 16-bit image, plain and snapped to the daylight locus."""
+
+
 def run_history(camera: str, seed: int, frames: int, patches: int, scene: str) -> dict:
-    h = measured_daylight_history(camera, frames=frames, patches=patches, seed=seed)
+    h = score_history(camera, seed, frames, patches)
     rng = np.random.default_rng(1000 + seed)
     fr = FrameRenderer(h, rng, scene)
     algos = peers()
+    snap = LocusSnap(h.sensitivities)
     test = np.arange(frames // 2, frames)
     errs: dict[str, list[float]] = {}
     secs: dict[str, list[float]] = {}
@@ -179,12 +255,30 @@ def run_history(camera: str, seed: int, frames: int, patches: int, scene: str) -
             grey[0] = v[patches:]
         if f not in test:
             continue
-        for name, (a8, a16) in algos.items():
-            for label, img, algo, bits in ((" 8-bit sRGB", img8, a8, 8), (" 16-bit linear", img16, a16, 16)):
-                w, dt = peer_white(algo, img, bits)
-                errs.setdefault(name + label, []).append(float(angular_error_deg(w, h.true_white[f])))
-                secs.setdefault(name + label, []).append(dt)
+        for label, img, bits in ((" 8-bit sRGB", img8, 8), (" 16-bit linear", img16, 16)):
+            whites, dts = {}, {}
+            t = time.perf_counter()
+            lin_img = decode8(img) if bits == 8 else img / 65535.0
+            for name, w in numpy_peers(lin_img).items():
+                whites[name] = w
+            dt = (time.perf_counter() - t) / 4
+            dts.update({k: dt for k in whites})
+            for name, pair in algos.items():
+                whites[name], dts[name] = peer_white(pair[0] if bits == 8 else pair[1], img, bits)
+            for name, w in whites.items():
+                for suffix, ww in (("", w), (", snapped", snap(w))):
+                    errs.setdefault(name + label + suffix, []).append(float(angular_error_deg(ww, h.true_white[f])))
+                    secs.setdefault(name + label + suffix, []).append(dts[name])
     obs = Observations(h.observations.frames, h.observations.patches, values, h.observations.times)
+    scored = Observations([obs.frames[i] for i in test], obs.patches, values[test], [obs.times[i] for i in test])
+    t = time.perf_counter()
+    try:
+        res_m = retrieve_illuminants(scored, h.sensitivities, method="marguier2007")
+        errs["marguier2007 (multi-frame, scored frames)"] = list(angular_error_deg(res_m.white, h.true_white[test]))
+    except ValueError as exc:  # e.g. a patch clipped in every scored frame
+        print(f"marguier2007 failed on {camera} seed {seed}: {exc}", file=sys.stderr)
+        errs["marguier2007 (multi-frame, scored frames)"] = [float("nan")] * len(test)
+    secs["marguier2007 (multi-frame, scored frames)"] = [(time.perf_counter() - t) / len(test)]
     t = time.perf_counter()
     res = retrieve_illuminants(obs, h.sensitivities, method="joint")
     secs["illumon joint (multi-frame)"] = [(time.perf_counter() - t) / frames]
@@ -203,7 +297,8 @@ def run_history(camera: str, seed: int, frames: int, patches: int, scene: str) -
     for name, (sens, data, known) in variants.items():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            model = fit_scene_model(data, sens, known_reflectances=known)
+            prior = dev_camera_prior_mean() if sens is None else None
+            model = fit_scene_model(data, sens, known_reflectances=known, camera_prior_mean=prior)
             t = time.perf_counter()
             est, _ = model.estimate(held)
         secs[name] = [(time.perf_counter() - t) / len(test)]
@@ -211,39 +306,64 @@ def run_history(camera: str, seed: int, frames: int, patches: int, scene: str) -
     return {"errors": errs, "seconds": secs}
 
 
+def is_peer(name: str) -> bool:
+    """Whether a row is one of the peers (single-image methods and ``marguier2007``), not illumon."""
+    return not name.startswith("illumon")
+
+
 def main() -> int:
     warnings.filterwarnings("ignore")
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("--quick", action="store_true", help="3 cameras, 1 history each, 20 frames")
+    ap.add_argument("--quick", action="store_true", help="3 cameras, 20 frames, 8 patches")
+    ap.add_argument("--seeds", type=int, default=3, help="histories per camera and scene (one per seed; ≥ 3)")
     ap.add_argument("--out", default=str(RESULTS / "peers.json"))
     args = ap.parse_args()
     if datasets.shared_data_dir() is None:
         print("measured data (../shared/data) not found: nothing to benchmark", file=sys.stderr)
         return 1
-    cams = HELD_OUT_CAMERAS[:3] if args.quick else HELD_OUT_CAMERAS
-    seeds, frames, patches = (1, 20, 8) if args.quick else (2, 40, 10)
-    out: dict = {"cameras": list(cams), "histories_per_camera": seeds, "frames": frames, "patches": patches,
-                 "image": [H, W], "scenes": {}}
+    cams = SCORE_CAMERAS[:3] if args.quick else SCORE_CAMERAS
+    frames, patches = (20, 8) if args.quick else (40, 10)
+    seeds = list(range(args.seeds))
+    split = {"score cameras": list(cams), "camera prior of the unmeasured rows": list(DEV_CAMERAS),
+             "static patches": f"score surfaces: first {SCORE_SURFACES} of unseen_reflectances (ColorChecker, CIE TCS)",
+             "daylight": f"Granada spectra {SCORE_DAYLIGHT.start}…{SCORE_DAYLIGHT.stop - 1} (rawsim.SCORE_DAYLIGHT, "
+                         "held out of the measured-daylight model; the CIE prior's N(150, 45²) MK⁻¹ summarises all "
+                         "of Granada)"}
+    out: dict = {"split": split, "seeds": seeds, "frames": frames, "patches": patches, "image": [H, W], "scenes": {}}
     for scene in CLUTTER:
-        errs: dict[str, list[float]] = {}
+        per_seed: dict[int, dict[str, list[float]]] = {}
         secs: dict[str, list[float]] = {}
-        for cam in cams:
-            for seed in range(seeds):
+        for seed in seeds:
+            errs: dict[str, list[float]] = {}
+            for cam in cams:
                 r = run_history(cam, seed, frames, patches, scene)
                 for k, v in r["errors"].items():
                     errs.setdefault(k, []).extend(v)
                 for k, v in r["seconds"].items():
                     secs.setdefault(k, []).extend(v)
-        summ = {k: {**_stats(v), "ms_per_frame": 1e3 * float(np.median(secs[k]))} for k, v in errs.items()}
-        out["scenes"][scene] = summ
-        best_peer = min(v["median"] for k, v in summ.items() if k.startswith("xphoto"))
-        print(f"\n{scene} clutter ({', '.join(CLUTTER[scene])}). Held-out cameras {', '.join(cams)}; {seeds} "
-              f"histories per camera, {frames} frames ({frames // 2} scored), {patches} static patches, {H}×{W} "
-              "frames; camera-white angular error (degrees)")
-        print(f"{'method':<56} {'median':>7} {'p95':>7} {'max':>7} {'ms/frame':>9} {'best peer/median':>17}")
-        for k, s in summ.items():
-            print(f"{k:<56} {s['median']:7.2f} {s['p95']:7.2f} {s['max']:7.2f} {s['ms_per_frame']:9.2f} "
-                  f"{best_peer / s['median']:17.1f}")
+            per_seed[seed] = errs
+        names = list(per_seed[seeds[0]])
+        pooled = {k: [x for s_ in seeds for x in per_seed[s_][k]] for k in names}
+        summ = {k: {**_stats([x for x in v if np.isfinite(x)]), "ms_per_frame": 1e3 * float(np.median(secs[k])),
+                    "seed_medians": [float(np.nanmedian(per_seed[s_][k])) for s_ in seeds]} for k, v in pooled.items()}
+        best = min((k for k in names if is_peer(k)), key=lambda k: summ[k]["median"])
+        for k in names:
+            ratios = [summ[best]["seed_medians"][i] / summ[k]["seed_medians"][i] for i in range(len(seeds))]
+            summ[k]["ratio_to_best_peer"] = {"mean": float(np.mean(ratios)), "min": float(np.min(ratios)),
+                                             "max": float(np.max(ratios))}
+        out["scenes"][scene] = {"best_peer": best, "methods": summ}
+        print(f"\n{scene} clutter ({', '.join(CLUTTER[scene])}); {len(seeds)} seeds × {len(cams)} cameras, {frames} "
+              f"frames ({frames // 2} scored), {patches} static patches, {H}×{W} frames")
+        print("split: " + "; ".join(f"{k}: {v if isinstance(v, str) else ', '.join(v)}" for k, v in split.items()))
+        print(f"camera-white angular error (degrees), pooled over seeds; best peer: {best}")
+        print(f"{'method':<58} {'median':>7} {'p95':>6} {'max':>6} {'ms/fr':>7}  {'seed medians':<18} "
+              f"{'best peer ÷ method (range)':<26}")
+        for k in names:
+            s_ = summ[k]
+            rr = s_["ratio_to_best_peer"]
+            print(f"{k:<58} {s_['median']:7.2f} {s_['p95']:6.2f} {s_['max']:6.2f} {s_['ms_per_frame']:7.2f}  "
+                  f"{' '.join(f'{m:5.2f}' for m in s_['seed_medians']):<18} "
+                  f"{rr['mean']:5.2f}× ({rr['min']:.2f}–{rr['max']:.2f})")
         sys.stdout.flush()
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(out, indent=1))

@@ -20,6 +20,14 @@ single-image raw-data", IEEE TIP 17(10), 2008):
 6. A region's value is the mean of its ``pixels`` encoded pixels (and its spread the pixels' standard deviation), as
    the service measures a region of a frame.
 
+Rendered output (:func:`rendering`, from the real photographs of ``benchmarks/real.py``): the simulators had assumed
+that a processed camera delivers its sensor RGB through fixed white-balance gains and at most a mild matrix (imgsim's
+output-profile boost). Real IP, surveillance and phone cameras deliver **sRGB primaries**: a white-preserving matrix
+from the sensor to linear sRGB (off-diagonal terms of −0.3…−1, so saturated patches go negative and are clipped at 0
+by the pipeline), after a white balance that is either a daylight preset or the camera's own automatic balance that
+changes every frame. That assumption hid why illumon's raw-sensor prior did worse than doing nothing on a phone's
+output (issue 26); :func:`rendering` gives the matrix and gains to pass to :func:`simulate_raw_history`.
+
 Data splits (module constants) are used by every benchmark that scores on this simulator: development cameras,
 reflectances and daylight for choosing methods and margins, score sets for the figures.
 """
@@ -49,6 +57,7 @@ __all__ = [
     "camera_profile",
     "RawHistory",
     "simulate_raw_history",
+    "rendering",
     "encode_tone",
     "decode_tone",
     "PIPELINE_VARIANTS",
@@ -567,6 +576,43 @@ def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score"
         css, lit, r, rng=vr, read_noise_e=prof["read_noise_e"], black_level=prof["black_level"],
         full_well_e=prof["full_well_e"], adc_bits=prof["adc_bits"], radiance=rad, **sim, **kw)
     return RawHiddenEffect(effect, patch, frame, params, h, css)
+
+
+def rendering(css: ArrayLike, illuminants: ArrayLike, scene: ArrayLike, white_balance: str = "preset",
+              ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
+    """A rendered camera's pipeline (module docstring): the colour matrix to linear sRGB primaries and the white-balance
+    gains, for :func:`simulate_raw_history` (``matrix``, ``applied_gains``).
+
+    Parameters
+    ----------
+    css
+        Camera sensitivities (61 × 3).
+    illuminants
+        Spectrum lighting each frame (F × 61).
+    scene
+        Reflectances of the scene the camera's automatic balance sees (P × 61).
+    white_balance
+        ``"preset"``: the matrix's own daylight balance (a fixed preset, no per-frame gains); ``"auto"``: per frame,
+        gray-world gains on the raw scene mean (green 1), so every frame's scene mean looks as under the run's mean
+        light — a phone's or an IP camera's automatic white balance.
+
+    Returns
+    -------
+    tuple
+        The 3 × 3 matrix (output = M · raw) and the per-frame gains (F × 3), or None for the preset.
+    """
+    from illumon.camera.primaries import srgb_matrix_for
+
+    css, e, scene = (np.asarray(a, dtype=float) for a in (css, illuminants, scene))
+    matrix = srgb_matrix_for(css).T
+    if white_balance == "preset":
+        return matrix, None
+    if white_balance != "auto":
+        raise ValueError(f"white_balance must be 'preset' or 'auto', got {white_balance!r}")
+    raw_gw = np.einsum("fl,pl,lc->fc", e, scene, css)
+    mean_gw = np.einsum("l,pl,lc->c", e.mean(axis=0), scene, css)
+    gains = mean_gw / raw_gw
+    return matrix, gains / gains[:, 1:2]
 
 
 def render_chart(css: ArrayLike, illuminant: ArrayLike, reflectances: ArrayLike, noise: float | None = None,

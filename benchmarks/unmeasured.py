@@ -48,7 +48,6 @@ import rawsim  # noqa: E402
 from illumon import datasets  # noqa: E402
 from illumon.camera import angular_error_deg, camera_white, colorchecker_references, grey_card_reference  # noqa: E402
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
-from illumon.camera.primaries import srgb_matrix_for  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
 from illumon.retrieval.common import gray_world  # noqa: E402
@@ -80,12 +79,7 @@ def render(sim: str, camera: str, case: str, seed: int) -> tuple[Observations, n
     rendered = case.endswith(("rendered", "awb"))
     gains = None
     if rendered:
-        matrix = srgb_matrix_for(css).T  # output = M · raw
-        if case.endswith("awb"):  # gray-world gains on raw: every frame's scene mean looks as under the run's mean light
-            raw_gw = np.einsum("fl,pl,lc->fc", e, scene, css)
-            d65_gw = np.einsum("l,pl,lc->c", e.mean(axis=0), scene, css)
-            gains = d65_gw / raw_gw
-            gains = gains / gains[:, 1:2]
+        matrix, gains = rawsim.rendering(css, e, scene, "auto" if case.endswith("awb") else "preset")
     if sim == "rawsim":
         prof = rawsim.camera_profile(camera, rng=rng)
         h = rawsim.simulate_raw_history(

@@ -17,8 +17,10 @@ from sqlalchemy.exc import DataError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from .api.routes import calibration, cameras, estimates, frames, gains, health, jobs, pages, proposals
+from .datafiles import relativize_paths
 from .jobs import JobRunner
 from .metrics import Metrics
+from .retention import Housekeeper
 from .settings import Settings
 from .storage import GroupCommit, hash_token, make_engine, make_session_factory, new_token
 
@@ -79,17 +81,21 @@ def allowed_methods(app: FastAPI, scope: dict) -> str:
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the service: database (tables created), admin token, job runner, routes and error handlers."""
     settings = settings or Settings()
-    Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
+    Path(settings.data_dir).mkdir(parents=True, exist_ok=True, mode=0o700)  # a new data dir: its owner's only
     engine = make_engine(settings.resolved_database_url)
+    relativize_paths(engine, settings.data_dir)  # databases of older versions stored absolute file paths
     sessions = make_session_factory(engine)
     metrics = Metrics(settings.metrics_dir)
     runner = JobRunner(sessions, settings, metrics)
+    housekeeper = Housekeeper(sessions, settings)  # retention, expired idempotency keys and login sessions
 
     @asynccontextmanager
     async def lifespan(_app: FastAPI) -> AsyncIterator[None]:
         runner.start_recovery()  # jobs a crash left running or queued
         runner.start_schedule()
+        housekeeper.start()
         yield
+        housekeeper.stop()
         runner.shutdown()
         engine.dispose()
 
@@ -102,6 +108,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.commits = GroupCommit(sessions, lambda n: metrics.observe("illumon_ingest_commit_frames", n))
     app.state.metrics = metrics
     app.state.jobs = runner
+    app.state.housekeeper = housekeeper
     app.state.admin_token_hash = hash_token(admin_token(settings))
 
     @app.exception_handler(RequestValidationError)

@@ -1,4 +1,5 @@
-"""``illumon serve`` and ``illumon refit``, registered on the core CLI by :func:`add_serve_command`."""
+"""``illumon serve``, ``illumon refit``, ``illumon backup`` / ``restore`` and ``illumon prune``, registered on the core
+CLI by :func:`add_serve_command`."""
 
 from __future__ import annotations
 
@@ -76,8 +77,54 @@ def _cmd_refit(args: argparse.Namespace) -> int:
     return 1 if any("error" in r for r in results) else 0
 
 
+def _cmd_backup(args: argparse.Namespace) -> int:
+    from .backup import backup, one_line_errors
+
+    with one_line_errors("backup"):
+        print(json.dumps(backup(_settings(args), Path(args.dest)), sort_keys=True))
+    return 0
+
+
+def _cmd_restore(args: argparse.Namespace) -> int:
+    from .backup import one_line_errors, restore
+
+    with one_line_errors("restore"):
+        print(json.dumps(restore(_settings(args), Path(args.src), force=args.force), sort_keys=True))
+    return 0
+
+
+def _cmd_prune(args: argparse.Namespace) -> int:
+    from .backup import one_line_errors
+    from .retention import prune_once
+
+    if args.retain_days is not None and not args.retain_days >= 0:
+        raise ValueError(f"--retain-days {args.retain_days}: expected a number of days ≥ 0 (0 keeps everything)")
+    settings = _settings(args)
+    if args.retain_days is not None:
+        settings = settings.model_copy(update={"retain_days": args.retain_days})
+    with one_line_errors("prune"):
+        print(json.dumps(prune_once(settings), sort_keys=True))
+    return 0
+
+
+def _add_operations_commands(subparsers: argparse._SubParsersAction) -> None:
+    """``backup``, ``restore`` and ``prune`` (:mod:`.backup`, :mod:`.retention`)."""
+    bk = subparsers.add_parser("backup", help="back up the database and data directory (while the service runs)")
+    bk.add_argument("dest", help="new folder to write the backup to")
+    rs = subparsers.add_parser("restore", help="restore a backup into an empty data directory (service stopped)")
+    rs.add_argument("src", help="backup folder written by `illumon backup`")
+    rs.add_argument("--force", action="store_true", help="replace the database and files already there")
+    pr = subparsers.add_parser("prune", help="delete frames and estimates older than the retention period")
+    pr.add_argument("--retain-days", type=float, help="days of frames to keep (ILLUMON_RETAIN_DAYS; 0 = keep all)")
+    for p, func in ((bk, _cmd_backup), (rs, _cmd_restore), (pr, _cmd_prune)):
+        p.add_argument("--data-dir", help="service data folder (./var)")
+        p.add_argument("--database-url", help="SQLAlchemy URL (SQLite under the data dir by default)")
+        p.set_defaults(func=func)
+
+
 def add_serve_command(subparsers: argparse._SubParsersAction) -> None:
-    """Register ``serve`` (the HTTP service) and ``refit`` (batch re-estimation) on the ``illumon`` command."""
+    """Register ``serve`` (the HTTP service), ``refit`` (batch re-estimation), ``backup``, ``restore`` and ``prune``
+    on the ``illumon`` command."""
     serve = subparsers.add_parser("serve", help="run the HTTP service")
     serve.add_argument("--host", default="127.0.0.1", help="address to bind (127.0.0.1)")
     serve.add_argument("--port", type=int, default=8000, help="port (8000)")
@@ -97,3 +144,4 @@ def add_serve_command(subparsers: argparse._SubParsersAction) -> None:
     refit.add_argument("--dask-scheduler", help="address of a Dask scheduler (a LocalCluster by default)")
     refit.add_argument("--workers", type=int, help="LocalCluster worker processes (usable CPUs); 1 refits serially")
     refit.set_defaults(func=_cmd_refit)
+    _add_operations_commands(subparsers)

@@ -14,6 +14,13 @@ from .storage import Estimate, as_utc
 __all__ = ["estimate_out", "nearest_estimate", "estimates_between"]
 
 
+def estimate_non_daylight(e: Estimate) -> float | None:
+    """The estimate's ``non_daylight`` (posterior probability that its light is not daylight,
+    :mod:`illumon.model.lamps`), stored with its intervals; ``None`` for estimates made without it."""
+    v = (e.intervals or {}).get("non_daylight")
+    return float(v) if isinstance(v, (int, float)) else None
+
+
 def estimate_out(e: Estimate) -> dict:
     """The public fields of an estimate."""
     return {
@@ -25,6 +32,7 @@ def estimate_out(e: Estimate) -> dict:
         "white_rgb": e.white_rgb,
         "gains_rgb": e.gains_rgb,
         "confidence": e.confidence,
+        "non_daylight": estimate_non_daylight(e),
         "source": e.source,
     }
 

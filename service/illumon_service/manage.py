@@ -73,11 +73,13 @@ def save_regions_and_measure(session: Session, cam: Camera, regions: list[dict],
 def _frame_files(data_dir: Path | str, frame: Frame) -> list[Path]:
     """Files stored for one frame: its thumbnail, its kept image and its kept original (regions not yet confirmed)."""
     out = []
-    for stored in (frame.thumb_path, frame.image_path):
-        if stored:
-            p = Path(stored)
-            out.append(p if p.is_absolute() else Path(data_dir) / p)
+    from .datafiles import data_file
     from .pending import pending_files
+
+    for stored in (frame.thumb_path, frame.image_path):
+        p = data_file(data_dir, stored)  # never a file outside the data directory (a restored copy's original)
+        if p is not None:
+            out.append(p)
 
     out.extend(pending_files(data_dir, frame.camera_id, frame.id))
     return out

@@ -30,6 +30,7 @@ from numpy.typing import NDArray
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from .datafiles import data_file
 from .proposals import KEEP_RECENT, Thumbnail, load_thumbnail, save_thumbnail, thumbnail_grey
 from .regions import Region
 from .storage import Camera, CameraView, Frame, as_utc
@@ -280,14 +281,16 @@ def _claim_reference(path: Path, thumb: Thumbnail) -> bool:
 
 
 def set_reference(data_dir: Path | str, camera_id: int, view: str | None, thumb_file: str | None) -> bool:
-    """Make a stored frame's thumbnail the view's reference frame (after the camera was moved for good)."""
-    if not thumb_file or not Path(thumb_file).is_file():
+    """Make a stored frame's thumbnail (``thumb_file``, its stored path) the view's reference frame (after the camera
+    was moved for good)."""
+    source = data_file(data_dir, thumb_file)
+    if source is None or not source.is_file():
         return False
     path = reference_path(data_dir, camera_id, view)
     path.parent.mkdir(parents=True, exist_ok=True)
     from .pending import atomic_write
 
-    atomic_write(path, Path(thumb_file).read_bytes())
+    atomic_write(path, source.read_bytes())
     return True
 
 
@@ -323,9 +326,9 @@ def thumbnail_due(session: Session, camera_id: int, view: str | None, taken_at: 
     return abs(taken_at - as_utc(last.taken_at)) >= THUMB_EVERY
 
 
-def prune_thumbnails(session: Session, camera_id: int, view: str | None) -> None:
+def prune_thumbnails(session: Session, camera_id: int, view: str | None, data_dir: Path | str) -> None:
     """Keep a view's :data:`~.proposals.KEEP_RECENT` most recent thumbnails and the latest one of every hour of the
-    day (UTC); delete the others' files and forget their paths (not committed)."""
+    day (UTC); delete the others' files (under ``data_dir``) and forget their paths (not committed)."""
     rows = session.scalars(
         select(Frame).where(Frame.camera_id == camera_id, Frame.thumb_path.is_not(None),
                             Frame.view.is_(None) if view is None else Frame.view == view)
@@ -337,13 +340,16 @@ def prune_thumbnails(session: Session, camera_id: int, view: str | None) -> None
         if i < KEEP_RECENT or hour not in hours:
             hours.add(hour)
             continue
-        Path(f.thumb_path).unlink(missing_ok=True)
+        old = data_file(data_dir, f.thumb_path)
+        if old is not None:
+            old.unlink(missing_ok=True)
         f.thumb_path = None
 
 
-def view_thumbnails(session: Session, cam: Camera, view: str | None, limit: int = 32) -> tuple[list[Thumbnail], list[Frame]]:
-    """The kept thumbnails of a view's registered frames (newest first, at most ``limit``), each moved back by its
-    stored shift into the reference frame's pixels, and their frames."""
+def view_thumbnails(session: Session, cam: Camera, view: str | None, data_dir: Path | str, limit: int = 32
+                    ) -> tuple[list[Thumbnail], list[Frame]]:
+    """The kept thumbnails (under ``data_dir``) of a view's registered frames (newest first, at most ``limit``), each
+    moved back by its stored shift into the reference frame's pixels, and their frames."""
     from .proposals import shifted
 
     rows = session.scalars(
@@ -356,7 +362,8 @@ def view_thumbnails(session: Session, cam: Camera, view: str | None, limit: int 
         reg = f.registration or {}
         if reg.get("state") == "view_change" or not f.width:
             continue
-        t = load_thumbnail(f.thumb_path, f.width)
+        path = data_file(data_dir, f.thumb_path)
+        t = None if path is None else load_thumbnail(path, f.width)
         if t is None or (thumbs and t.unclipped.shape != thumbs[0].unclipped.shape):
             continue
         dx, dy = reg.get("shift") or (0.0, 0.0)

@@ -64,7 +64,15 @@ class Settings(BaseSettings):
     decoded pixels per side; region edges that cut decoded pixels are weighted by coverage. 1 (default): always full
     size. 2 decodes 1920×1080 ~35 % faster; the region means then average codes over 2×2 pixels before linearising:
     ~0.04 % (median) from the full decode's on smooth regions, ~0.2 % (p95 0.6 %) on finely textured ones, and the
-    white up to ~0.06° (README, *Ingest speed*)."""
+    white up to ~0.06° (docs/service.md, *Ingest speed*)."""
+
+    retain_days: float = Field(default=0.0, ge=0.0)
+    """Delete frames (with their estimates, thumbnails and kept images) taken more than this many days ago, and
+    finished refit jobs as old; checked every hour by the service (and by ``illumon prune``). 0 (default): keep
+    everything."""
+    metrics: Literal["public", "admin", "off"] = "public"
+    """``/metrics``: ``public`` (default: anyone who reaches the port; the figures hold counts and timings, no camera
+    data, names or tokens), ``admin`` (``Authorization: Bearer`` with the admin token) or ``off`` (404)."""
 
     @field_validator("jpeg_max_reduction")
     @classmethod

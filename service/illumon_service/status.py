@@ -11,8 +11,9 @@ function of an :class:`AlertContext` (the camera, its recent frames and its late
 * ``regions_missing`` — regions without a value (mostly occluded, shadowed or clipped pixels, or not sent) in at
   least a quarter (and at least 3) of the recent frames: something covers, shadows or changed those static patches;
 * ``clipping`` — region values at or above the clip level (``ILLUMON_CLIP_FRACTION`` of white) in recent frames;
-* ``non_daylight`` — the latest estimate is more than 0.02 in Duv off the Planckian locus: not daylight (or a
-  wrong camera set-up);
+* ``non_daylight`` — the latest estimate's ``non_daylight`` (posterior probability that its light is not daylight,
+  :mod:`illumon.model.lamps`) is at least 0.5; for an estimate without it, more than 0.02 in Duv off the Planckian
+  locus: not daylight (or a wrong camera set-up);
 * ``low_confidence`` — the latest estimate's confidence is below 0.5;
 * ``no_estimate`` — frames are stored but none is estimated yet (no refit has run);
 * ``refit_warning`` — a warning of the latest refit, e.g. a stored history that still looks non-linear for the
@@ -42,7 +43,7 @@ from datetime import datetime
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from .crud import estimate_out
+from .crud import estimate_non_daylight, estimate_out
 from .deps import Principal
 from .settings import Settings
 from .storage import Calibration, Camera, Estimate, Frame, Job, as_utc, refit_warnings
@@ -54,6 +55,7 @@ __all__ = [
     "CameraStatus",
     "RECENT_FRAMES",
     "NON_DAYLIGHT_DUV",
+    "NON_DAYLIGHT_PROBABILITY",
     "LOW_CONFIDENCE",
     "MISSING_FRACTION",
     "MISSING_MIN_FRAMES",
@@ -68,7 +70,9 @@ __all__ = [
 RECENT_FRAMES = 12
 """Alerts look at this many of a camera's most recent frames."""
 NON_DAYLIGHT_DUV = 0.02
-"""|Duv| above this is reported as non-daylight light."""
+"""|Duv| above this is reported as non-daylight light (estimates without ``non_daylight``)."""
+NON_DAYLIGHT_PROBABILITY = 0.5
+"""``non_daylight`` alert: the latest estimate's posterior probability of non-daylight light at or above this."""
 LOW_CONFIDENCE = 0.5
 """Confidence below this is reported."""
 MISSING_FRACTION = 0.25
@@ -145,7 +149,15 @@ def _clipping(ctx: AlertContext) -> list[Alert]:
 
 def _non_daylight(ctx: AlertContext) -> list[Alert]:
     e = ctx.latest
-    if e is None or abs(e.duv) <= NON_DAYLIGHT_DUV:
+    if e is None:
+        return []
+    p = estimate_non_daylight(e)
+    if p is not None:  # the model's posterior (issue 28); the Duv rule for estimates made without it
+        if p < NON_DAYLIGHT_PROBABILITY:
+            return []
+        return [Alert("non_daylight", "Non-daylight light",
+                      f"the latest frame's light is not daylight with probability {p:.2f}")]
+    if abs(e.duv) <= NON_DAYLIGHT_DUV:
         return []
     return [Alert("non_daylight", "Non-daylight light",
                   f"latest Duv {e.duv:+.4f} is more than {NON_DAYLIGHT_DUV} off the Planckian locus")]

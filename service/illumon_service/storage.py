@@ -8,13 +8,15 @@ Arrays are stored as JSON lists (small: 61 samples at most).
 from __future__ import annotations
 
 import hashlib
+import os
 import secrets
 import threading
 from collections.abc import Callable
 from datetime import datetime, timezone
+from pathlib import Path
 from typing import TypeVar
 
-from sqlalchemy import JSON, DateTime, Float, ForeignKey, Integer, String, create_engine, event, select
+from sqlalchemy import JSON, DateTime, Float, ForeignKey, Integer, String, UniqueConstraint, create_engine, event, select
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
 
@@ -35,6 +37,9 @@ __all__ = [
     "camera_by_token",
     "refit_warnings",
     "GroupCommit",
+    "IdempotencyKey",
+    "LoginSession",
+    "private_sqlite_file",
 ]
 
 T = TypeVar("T")
@@ -187,9 +192,57 @@ class Job(Base):
     """1 for a job as submitted, 2 for its re-run after a crash (``None``: 1)."""
 
 
+class IdempotencyKey(Base):
+    """An ``Idempotency-Key`` a camera sent with a frame (:mod:`.idempotency`): unique per camera; the frame it
+    stored, a fingerprint of the request and the answer given, returned again to a retry with the same key."""
+
+    __tablename__ = "idempotency_keys"
+    __table_args__ = (UniqueConstraint("camera_id", "key", name="uq_idempotency_camera_key"),)
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"), index=True)
+    key: Mapped[str] = mapped_column(String(255))
+    fingerprint: Mapped[str] = mapped_column(String(64))
+    frame_id: Mapped[int | None] = mapped_column(ForeignKey("frames.id", ondelete="CASCADE"), nullable=True, index=True)
+    answer: Mapped[dict | None] = mapped_column(JSON, nullable=True)
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow, index=True)
+
+
+class LoginSession(Base):
+    """A status-page login (:mod:`.sessions`): the SHA-256 of the random session id the cookie holds, and the hash
+    of the token that logged in (a session ends when that token no longer authenticates)."""
+
+    __tablename__ = "login_sessions"
+    id_hash: Mapped[str] = mapped_column(String(64), primary_key=True)
+    token_hash: Mapped[str] = mapped_column(String(64))
+    created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    expires_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), index=True)
+
+
+def private_sqlite_file(url: str) -> Path | None:
+    """For a file-backed SQLite URL: create the database file readable and writable by its owner only (0600) when
+    it does not exist yet, and take group and other permissions away from an existing one and its ``-wal`` /
+    ``-shm`` files (SQLite gives those the main file's mode). Returns the file, ``None`` for other URLs."""
+    from sqlalchemy.engine import make_url
+
+    u = make_url(url)
+    if not u.drivername.startswith("sqlite") or not u.database or u.database == ":memory:" or u.database.startswith("file:"):
+        return None
+    path = Path(u.database)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    os.close(os.open(path, os.O_RDWR | os.O_CREAT, 0o600))
+    for f in (path, Path(f"{path}-wal"), Path(f"{path}-shm")):
+        try:
+            if f.stat().st_mode & 0o077:
+                f.chmod(0o600)
+        except FileNotFoundError:
+            pass
+    return path
+
+
 def make_engine(url: str) -> Engine:
     """An engine for ``url`` with the tables created; SQLite gets WAL, ``synchronous=FULL`` and a busy timeout."""
     if url.startswith("sqlite"):
+        private_sqlite_file(url)
         engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
 
         @event.listens_for(engine, "connect")

@@ -64,3 +64,32 @@ def test_jpeg_like_rounding_moves_block_means_to_the_dc_step():
         # block means on the DC grid, up to the per-pixel rounding back to codes (≤ half a code in the mean)
         assert np.max(np.abs(m - np.round(m))) <= 0.25 + 1e-9
     assert np.all(np.abs(out * 255 - np.round(out * 255)) < 1e-9)
+
+
+def test_rendering_to_srgb_primaries():
+    """A rendered camera (issue 26): the preset's matrix keeps CIE D65 grey, saturated patches leave the gamut (the
+    pipeline clips them at 0), and automatic balance makes every frame's scene mean the same colour."""
+    import colour
+    from illumon.reflectance import colourchecker_reflectances
+    from illumon.spectra import GRID
+
+    css = datasets.load_camera(CAM)
+    rng = np.random.default_rng(3)
+    e = rawsim.daylight_run("dev", 6, rng)
+    scene = rawsim.draw_reflectances("dev", 8, rng)
+    m, gains = rawsim.rendering(css, e, scene, "preset")
+    assert gains is None
+    d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(GRID).values
+    white = m @ (d65 @ css)
+    assert np.ptp(white / white.mean()) < 1e-6
+    _, chart = colourchecker_reflectances("BabelColor Average")
+    out = (d65 * chart) @ css @ m.T
+    assert (out < 0).any()  # a real matrix to sRGB takes saturated patches out of gamut
+    m2, gains = rawsim.rendering(css, e, scene, "auto")
+    np.testing.assert_allclose(m2, m)
+    means = np.einsum("fl,pl,lc->fc", e, scene, css) * gains
+    chroma = means / means[:, 1:2]
+    np.testing.assert_allclose(chroma, np.broadcast_to(chroma[0], chroma.shape), rtol=1e-9)
+    assert np.ptp(gains[:, 0]) > 0.01  # the light changed, so the gains did
+    with pytest.raises(ValueError, match="white_balance"):
+        rawsim.rendering(css, e, scene, "daylight")

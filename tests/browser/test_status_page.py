@@ -125,7 +125,7 @@ def test_admin_sees_both_cameras_with_api_values(browser, fleet: Fleet, tmp_path
     assert page.locator(".error").inner_text() == "Unknown token."
     _login(page, fleet, fleet.admin)
     assert page.url == fleet.base + "/"
-    cookie = next(c for c in ctx.cookies() if c["name"] == "illumon_token")
+    cookie = next(c for c in ctx.cookies() if c["name"] == "illumon_session")
     assert cookie["httpOnly"] and cookie["sameSite"] == "Strict"
     assert page.evaluate("document.cookie") == ""  # not readable by scripts
     assert page.locator("#cameras tbody tr").count() == 2

@@ -162,3 +162,11 @@ def test_calibrated_model_round_trips_and_needs_scene_in_reference_frame(shared_
         _fit(Observations(obs.frames, obs.patches, lonely, obs.times), known, prior)
     with pytest.raises(ValueError, match="never observed"):
         _fit(obs, {"elsewhere": np.full(61, 0.5)}, prior)
+
+
+def test_angular_error_is_in_degrees():
+    from illumon.camera import angular_error_deg
+
+    a = [[1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [2.0, 2.0, 2.0]]
+    got = angular_error_deg(a, [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    np.testing.assert_allclose(got, [90.0, 45.0, 0.0], atol=1e-6)

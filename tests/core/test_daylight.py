@@ -74,3 +74,14 @@ def test_history_prior_independent_and_hierarchical():
         dm.history_prior_cost(params + shift) - dm.history_prior_cost(params))
     with pytest.raises(ValueError):
         daylight.CIEDaylight(mired_between=45.0)
+
+
+def test_planck_locus_matches_colour_blackbody():
+    # Independent truth: colour-science's blackbody (its own c₂) through the same observer, at tabulated mireds.
+    loc = daylight.planck_locus()
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    for mired in (500.0, 250.0, 150.0, 100.0):
+        xyz = colour.sd_to_XYZ(colour.sd_blackbody(1e6 / mired, cmfs.shape), cmfs, method="Integration")
+        uv = colour.xy_to_UCS_uv(colour.XYZ_to_xy(xyz))
+        i = int(np.argmin(np.abs(loc.mired - mired)))
+        assert np.max(np.abs(loc.uv[i] - uv)) < 1e-8, (mired, loc.uv[i], uv)

@@ -389,3 +389,34 @@ def test_tone_curve_whose_misfit_looks_like_lamp_light_stays_a_tone_curve(shared
     assert scores["off_locus_illuminant"] < -NONE_MARGIN["off_locus_illuminant"]
     assert d.effect == "nonlinear_response", [(c.effect, round(c.score, 1)) for c in d.candidates]
     assert d.parameters["gamma"] == pytest.approx(h.parameters["tone"], rel=0.15)
+
+
+def test_off_locus_light_takes_priority_over_fluorescence(shared_data):
+    """A lamp-lit development history (raw pipeline, Nikon development camera, development surfaces and daylight) in
+    which both spectral effects pass their margins: the lamp's misfit makes a patch look fluorescent, not the
+    reverse, so the off-locus light is named."""
+    import rawsim
+
+    seed = 3007
+    h = rawsim.hide_effect_raw("off_locus_illuminant", rawsim.DEV_CAMERAS[seed % len(rawsim.DEV_CAMERAS)], seed,
+                               split="dev")
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    scores = {c.effect: c.score for c in d.candidates}
+    assert scores["fluorescence"] < -NONE_MARGIN["fluorescence"]  # the fluorescence stage alone would name a patch
+    assert scores["off_locus_illuminant"] < -NONE_MARGIN["off_locus_illuminant"]
+    assert d.effect == "off_locus_illuminant"
+    assert len(set(d.parameters["frame_indices"]) & set(h.parameters["frames"])) >= 2
+
+
+def test_clean_history_with_a_tone_misfit_below_the_margin_is_clean(shared_data):
+    """A clean development history of the raw pipeline (Nikon development camera, development surfaces and
+    daylight) whose bilinear misfit a tone curve fits at ΔBIC −16: within the margin the tone test was given for
+    exactly such histories (``NONE_MARGIN``), so nothing is reported."""
+    import rawsim
+
+    seed = 3031
+    h = rawsim.hide_effect_raw("none", rawsim.DEV_CAMERAS[seed % len(rawsim.DEV_CAMERAS)], seed, split="dev")
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    tone = next(c for c in d.candidates if c.effect == "nonlinear_response")
+    assert tone.score < -10.0, tone.score  # a misfit that a looser margin would report
+    assert d.effect == "none", [(c.effect, round(c.score, 1)) for c in d.candidates]

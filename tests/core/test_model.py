@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import time
 import warnings
 
 import numpy as np
@@ -60,9 +59,18 @@ def test_save_load_roundtrip(day: dict) -> None:
 def test_per_frame_accuracy(day: dict) -> None:
     res, extra = SceneModel.load(day["path"]).estimate(day["rest"])
     ae = angular_error_deg(res.white, day["white"])
+    print(f"scene model: median {np.median(ae):.2f}°")
     assert np.median(ae) <= 1.0
-    assert np.all(extra["cct_lo"] < res.cct) and np.all(res.cct < extra["cct_hi"])
-    assert np.all((extra["confidence"] >= 0) & (extra["confidence"] <= 1))
+    # the limit fails gray-world on the same frames and a constant white (the history's mean camera white)
+    rest = day["rest"].values
+    gray_world = np.array([np.nanmean(v, axis=0) for v in rest])
+    assert np.median(angular_error_deg(gray_world, day["white"])) > 1.0
+    constant = np.tile(day["white"].mean(axis=0), (len(rest), 1))
+    assert np.median(angular_error_deg(constant, day["white"])) > 1.0
+    # the 95 % CCT intervals cover the true CCT of most frames (truth: the rendered spectra)
+    true_cct, _ = cct_duv_from_xy(spectrum_to_xy(day["e"]))
+    covered = (extra["cct_lo"] <= true_cct) & (true_cct <= extra["cct_hi"])
+    assert covered.mean() > 0.8, covered.mean()
 
 
 HELD_OUT = ("Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf", "Phase_One")
@@ -108,17 +116,16 @@ def test_missing_patches_and_partial_overlap(day: dict) -> None:
         m.estimate(Observations(rest.frames, ["a", "b"], rest.values[:, :2]))
 
 
-def test_per_frame_latency(day: dict) -> None:
+def test_per_frame_solver_runs_frame_by_frame(day: dict) -> None:
+    # Per-frame latency (target < 1 ms) is measured by benchmarks/online.py, not asserted here.
     m = day["model"]
     solver = m.solver()
     y = day["rest"].values / m.noise["scale"]
     present = np.all(np.isfinite(y), axis=-1)
-    times = []
-    for i in range(200):
-        t = time.perf_counter()
-        solver.solve(y[i : i + 1], present[i : i + 1])
-        times.append(time.perf_counter() - t)
-    assert np.median(times) < 2e-3  # target < 1 ms (benchmarks/online.py); slack for a loaded shared machine
+    batch, _, _ = solver.solve(y[:20], present[:20])
+    one = np.concatenate([solver.solve(y[i : i + 1], present[i : i + 1])[0] for i in range(20)])
+    np.testing.assert_allclose(one, batch, rtol=1e-6, atol=1e-6)  # frames are independent
+    assert np.all(np.isfinite(batch))
 
 
 def test_identifiability_warning_for_constant_illuminant() -> None:

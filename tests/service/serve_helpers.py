@@ -51,8 +51,10 @@ class Server:
 
 
 def start_server(data_dir: Path, *, port: int | None = None, env: dict[str, str] | None = None,
-                 log_level: str = "info", database_url: str | None = None, timeout: float = 60) -> Server:
-    """Start ``illumon serve`` and wait until ``/healthz`` answers (AssertionError with the log otherwise)."""
+                 log_level: str = "info", database_url: str | None = None, timeout: float = 60,
+                 workers: int = 1) -> Server:
+    """Start ``illumon serve`` (``workers`` processes) and wait until ``/healthz`` answers (AssertionError with the
+    log otherwise)."""
     port = port or free_port()
     full_env = {k: v for k, v in os.environ.items() if not k.startswith("ILLUMON_")}
     full_env.update(env or {})
@@ -62,6 +64,8 @@ def start_server(data_dir: Path, *, port: int | None = None, env: dict[str, str]
            "--log-level", log_level]
     if database_url:
         cmd += ["--database-url", database_url]
+    if workers > 1:
+        cmd += ["--workers", str(workers)]
     with open(log_path, "ab") as fh:
         proc = subprocess.Popen(cmd, env=full_env, stdout=fh, stderr=subprocess.STDOUT)
     server = Server(proc, port, data_dir, log_path, full_env)

@@ -26,6 +26,10 @@ pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None,
                                 reason="measured data (../shared/data or $ILLUMON_SHARED_DATA) not available")
 
 
+LIMIT = 1.0
+"""Median angular error limit (degrees) of the estimates against the rendered truth."""
+
+
 def _round6(v: np.ndarray) -> np.ndarray:
     return np.array([[[float(f"{x:.6g}") for x in rgb] for rgb in frame] for frame in v])
 
@@ -95,3 +99,17 @@ def test_http_estimates_match_cli(tmp_path):
     _compare(http_hist, _read(tmp_path / "history-est.csv"))
     assert new is not None and new["source"] == "model"
     _compare([new], _read(tmp_path / "last-est.csv"))
+    # Agreement alone would pass two equally wrong paths: both are checked against the rendered truth too, with a
+    # limit that gray-world on the same observations and a constant D65 white fail.
+    from illumon.camera import angular_error_deg
+    from illumon.daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum
+    from illumon.retrieval import retrieve_illuminants
+
+    truth = hist.true_white
+    err = angular_error_deg(np.array([h["white_rgb"] for h in http_hist] + [new["white_rgb"]]), truth)
+    print(f"HTTP = CLI estimates: median {np.median(err):.2f}°, max {err.max():.2f}°")
+    assert np.median(err) < LIMIT
+    gw = retrieve_illuminants(obs, css, method="gray_world").white
+    d65 = css.T @ daylight_spectrum(daylight_locus_xy(cie_d_cct(6500)))
+    for trivial in (gw, np.tile(d65, (len(truth), 1))):
+        assert np.median(angular_error_deg(trivial, truth)) >= LIMIT

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from illumon import datasets
 from illumon.camera import angular_error_deg, camera_white, render
+from illumon.daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum
 from serve_helpers import start_server
 from svc_helpers import camera_body, encode_png, render_image
 
@@ -26,6 +27,9 @@ pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None,
 
 ADMIN = "e2e-admin-token-0123456789abcdef"
 N_FRAMES = 24
+MEDIAN_LIMIT, MAX_LIMIT = 0.35, 0.6
+"""Angular error limits (degrees) of the refit's estimates; measured 0.16 / 0.23. Gray-world on this scene's region
+means scores 0.49 median (Munsell chips on grey average to nearly grey) and a constant D65 white more: both fail."""
 T0 = datetime(2025, 6, 21, 5, 0, tzinfo=timezone.utc)
 
 
@@ -115,12 +119,23 @@ def test_measured_camera_day_through_real_server(tmp_path):
         white = np.array([e["white_rgb"] for e in est])
         err = angular_error_deg(white, truth)
         print(f"e2e angular error (deg): median {np.median(err):.2f}, max {err.max():.2f}")
-        assert np.median(err) < 2.0 and err.max() < 4.0
-        for e in est:
+        assert np.median(err) < MEDIAN_LIMIT and err.max() < MAX_LIMIT
+        # The limits mean something on this scene: gray-world on the same stored region means and a constant D65
+        # white both fail them.
+        means = np.array([[v for v in f["regions"].values() if v is not None] for f in stored], dtype=object)
+        gray_world = np.array([np.mean(np.array(list(m), dtype=float), axis=0) for m in means])
+        d65 = camera_white(css, daylight_spectrum(daylight_locus_xy(cie_d_cct(6500)))[None])[0]
+        for trivial in (gray_world, np.tile(d65, (N_FRAMES, 1))):
+            e_trivial = angular_error_deg(trivial, truth)
+            assert np.median(e_trivial) >= MEDIAN_LIMIT, np.median(e_trivial)
+        true_gains = truth[:, 1:2] / truth
+        for i, e in enumerate(est):
             assert 0 <= e["confidence"] <= 1
             g = http.get(f"/v1/cameras/{cam}/wb-gains", params={"at": e["taken_at"]}, headers=auth).json()
             assert g["frame_id"] == e["frame_id"]
             check_conventions(g, e["gains_rgb"], e["cct_k"])
+            # against the rendered truth (independent of the service's gains formula): gain_c = white_g / white_c
+            np.testing.assert_allclose(g["rgb"], true_gains[i], rtol=0.02)
         ranged = http.get(f"/v1/cameras/{cam}/wb-gains", params={"onvif_range": "0,255"}, headers=auth).json()
         assert all(0 <= ranged["onvif"][k] <= 255 for k in ("CrGain", "CbGain"))
 

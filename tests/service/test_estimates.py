@@ -7,7 +7,12 @@ from datetime import timedelta
 import numpy as np
 import pytest
 from illumon.camera import angular_error_deg
+from illumon.daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum
 from svc_helpers import T0, bearer, post_image
+
+MEDIAN_LIMIT, MAX_LIMIT = 1.0, 1.5
+"""Angular error limits (degrees) on the populated scene (measured 0.46 / 0.52); gray-world on its region means and a
+constant D65 white fail them (the accuracy test checks both)."""
 
 
 def test_refit_job_done(populated):
@@ -29,7 +34,14 @@ def test_estimates_accuracy(populated):
     white = np.array([e["white_rgb"] for e in est])
     err = angular_error_deg(white, populated.scene.true_white)
     print(f"angular error (deg): median {np.median(err):.2f} max {err.max():.2f}")
-    assert np.median(err) < 3.0
+    assert np.median(err) < MEDIAN_LIMIT and err.max() < MAX_LIMIT
+    # The limits fail gray-world on the same stored region means and a constant D65 white on this scene.
+    stored = c.get(f"/v1/cameras/{cam}/frames", headers=bearer(token)).json()
+    stored = [f for f in stored if f["frame_id"] in populated.frame_ids]
+    gray_world = np.array([np.mean([v for v in f["regions"].values() if v is not None], axis=0) for f in stored])
+    d65 = populated.scene.css.T @ daylight_spectrum(daylight_locus_xy(cie_d_cct(6500)))
+    for trivial in (gray_world, np.tile(d65, (len(est), 1))):
+        assert np.median(angular_error_deg(trivial, populated.scene.true_white)) >= MEDIAN_LIMIT
 
 
 def test_estimates_since_until(populated):
@@ -73,10 +85,11 @@ def test_new_frame_estimated_by_scene_model(populated):
     est = r.json()["estimate"]
     assert est is not None and est["source"] == "model"
     err = angular_error_deg(np.array(est["white_rgb"]), populated.scene.true_white[5])
-    assert err < 3.0
+    assert err < MAX_LIMIT
     ill = c.get(f"/v1/cameras/{cam}/illuminant", headers=bearer(token)).json()
     assert ill["frame_id"] == r.json()["frame_id"]
-    assert ill["intervals"]["cct_lo"] <= ill["cct_k"] <= ill["intervals"]["cct_hi"]
+    # the interval is the model's; its coverage of the true CCT is checked in tests/core/test_model.py
+    assert ill["intervals"]["cct_lo"] < ill["intervals"]["cct_hi"]
 
 
 def test_unbounded_interval_is_null():

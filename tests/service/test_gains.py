@@ -31,6 +31,12 @@ def test_wb_gains_every_frame(populated):
         assert g["taken_at"] == e["taken_at"] and g["confidence"] == e["confidence"]
         _check(g, e["gains_rgb"])
         assert g["libcamera"]["ColourTemperature"] == round(e["cct_k"])
+    # against the rendered truth, not the service's own formula: gain_c = white_g / white_c of the true white
+    truth = populated.scene.true_white[:, 1:2] / populated.scene.true_white
+    by_id = {e["frame_id"]: e for e in est}
+    for i, fid in enumerate(populated.frame_ids):
+        g = c.get(f"/v1/cameras/{cam}/wb-gains", params={"at": by_id[fid]["taken_at"]}, headers=bearer(token)).json()
+        np.testing.assert_allclose(g["rgb"], truth[i], rtol=0.03)
 
 
 def test_onvif_range(populated):

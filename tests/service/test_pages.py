@@ -67,9 +67,9 @@ def test_unauthenticated_pages_redirect_to_login(day: Day) -> None:
     assert r.status_code == 303 and r.headers["location"] == f"/login?next=/cameras/{day.ids['roof']}%3Flimit%3D5"
     r = c.get("/login?next=/cameras/1")
     assert r.status_code == 200 and 'name="token"' in r.text and 'value="/cameras/1"' in r.text
-    c.cookies.set("illumon_token", "stale")
+    c.cookies.set("illumon_session", "stale")
     r = c.get("/", follow_redirects=False)  # an invalid cookie is dropped
-    assert r.status_code == 303 and 'illumon_token=""' in r.headers["set-cookie"]
+    assert r.status_code == 303 and 'illumon_session=""' in r.headers["set-cookie"]
 
 
 def test_login_sets_http_only_strict_cookie(day: Day) -> None:
@@ -77,11 +77,16 @@ def test_login_sets_http_only_strict_cookie(day: Day) -> None:
     r = _login(c, ADMIN, f"/cameras/{day.ids['yard']}")
     assert r.status_code == 303 and r.headers["location"] == f"/cameras/{day.ids['yard']}"
     cookie = r.headers["set-cookie"]
-    assert cookie.startswith(f"illumon_token={ADMIN};")
+    sid = cookie.split(";")[0].removeprefix("illumon_session=")
+    assert cookie.startswith("illumon_session=") and len(sid) >= 43 and ADMIN not in cookie  # a session id, not the token
     assert "HttpOnly" in cookie and "SameSite=strict" in cookie and "Path=/" in cookie and "Secure" not in cookie
     assert c.get("/").status_code == 200
     r = c.post("/logout", follow_redirects=False)
     assert r.status_code == 303 and r.headers["location"] == "/login"
+    assert c.get("/", follow_redirects=False).status_code == 303
+    c.cookies.set("illumon_session", sid)  # the logged-out session id no longer logs in
+    assert c.get("/", follow_redirects=False).status_code == 303
+    c.cookies.set("illumon_session", ADMIN)  # nor does the token itself as a cookie
     assert c.get("/", follow_redirects=False).status_code == 303
 
 
@@ -96,7 +101,7 @@ def test_login_rejects_unknown_token_and_foreign_next(day: Day) -> None:
     r = c.post("/login", data={"token": ADMIN}, headers={"Origin": "https://evil.example"}, follow_redirects=False)
     assert r.status_code == 403 and "set-cookie" not in r.headers
     r = c.post("/login", data={"token": ADMIN}, headers={"Origin": "http://testserver"}, follow_redirects=False)
-    assert r.status_code == 303 and "illumon_token=" in r.headers["set-cookie"]
+    assert r.status_code == 303 and "illumon_session=" in r.headers["set-cookie"]
     assert c.post("/logout", headers={"Origin": "https://evil.example"}, follow_redirects=False).status_code == 403
     proxied = {"Origin": "https://cams.example", "X-Forwarded-Host": "cams.example"}
     assert c.post("/login", data={"token": ADMIN}, headers=proxied, follow_redirects=False).status_code == 303

@@ -38,6 +38,7 @@ from .formation import angular_error_deg
 from .references import neutral_references, references_kind
 
 __all__ = [
+    "CAMERA_MIRED_SD",
     "CAMERA_WHITE_SD",
     "CameraCalibration",
     "prior_sensitivities",
@@ -50,6 +51,24 @@ CAMERA_WHITE_SD = {"measured": 0.0, "grey": 0.005, "chart": 0.015, "none": 0.11}
 leaves uncertain, added to every estimate's intervals and confidence. ``none``: the spread of the measured cameras'
 daylight whites around the mean camera's (see :func:`prior_white_spread`); ``grey`` and ``chart``: what a reference
 leaves, measured on development cameras (``python benchmarks/unmeasured.py``)."""
+
+
+CAMERA_MIRED_SD = {"measured": 0.0, "chart": 13.0, "grey": 21.0, "none": 12.0}
+"""Standard deviation (MK⁻¹) of the light's reciprocal temperature that an unmeasured camera leaves uncertain, added
+to the CCT intervals (not to the white's: a reference pins the white, not the temperature — a redder camera under bluer
+light shows the same chart). Chosen on the development cameras (``python tools/camera_mired_spread.py --seeds 2``:
+CIE D65 in frame 0, Granada runs after it, the prior without the camera's maker): the RMS mired error over all frames
+was 16.0 (chart), 22.9 (grey card) and 14.8 (none) against a stated 8.3, 95 % intervals held 82 %, 78 % and 85 % of
+the truths; these are the values that bring the z-scores' RMS to 1. A grey card pins the camera's channel scales
+under one light, which the history's static patches cannot tell from a shift of every frame's temperature: its CCT is
+the least certain of the three. Rendered (``srgb``) output: see :data:`SRGB_CAMERA_MIRED_SD`."""
+
+SRGB_CAMERA_MIRED_SD = {"measured": 0.0, "chart": 6.5, "grey": 6.0, "none": 3.5}
+"""As :data:`CAMERA_MIRED_SD` for rendered (``srgb``) output, where the temperature is read with the sRGB functions
+before the reference moves the camera (``mired_offset`` in :func:`calibrate_scene_model`). Development cameras
+rendered through their white-preserving matrix to sRGB (``python tools/camera_mired_spread.py --seeds 2 --primaries
+srgb``): RMS mired error over all frames 10.3 (chart), 10.4 (grey card), 9.4 (none) against a stated 8.1–8.3 (before
+the offset: 45.1 and 50.6 with a reference)."""
 
 
 SRGB_CAMERA_WHITE_SD = 0.018
@@ -328,6 +347,7 @@ def calibrate_scene_model(
     ids = [p for p in obs.patches if p in known]
     scene = obs.select_patches([p for p in obs.patches if p not in known]) if ids else obs
     model, theta = fit(scene, base)
+    theta_first = np.array(theta, dtype=float, copy=True)
     change, it = 0.0, 0
     if ids:
         values = np.asarray(obs.values, dtype=float)[:, [obs.patches.index(p) for p in ids]]
@@ -364,7 +384,18 @@ def calibrate_scene_model(
     # functions away from the card's light (a chart's 3 × 3 does).
     white_sd = SRGB_CAMERA_WHITE_SD if (kind in ("none", "grey") and primaries == "srgb") else CAMERA_WHITE_SD[kind]
     model.camera["white_sd_log"] = white_sd
-    model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=white_sd)
+    mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)[
+        "measured" if sensitivities is not None else kind]
+    model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=white_sd,
+                                      camera_mired=mired_sd)
+    if ids and primaries == "srgb":
+        # Rendered output: the history's common level is anchored to the camera's own balance as the effective
+        # sensitivities see it (:func:`illumon.model.fit._anchor_common_level`), which moves with T, so the
+        # iterations let T and the common temperature chase each other along the direction a reference cannot see
+        # (on development cameras the CCT ends 34–38 MK⁻¹ RMS off, though the whites gain from the iterations). The
+        # temperature is read as the sRGB functions saw it before the reference moved the camera: the shift common
+        # to every frame between the first fit and the last is kept as a reporting offset (CCT, Duv, spectrum).
+        model.noise["mired_offset"] = float(np.nanmedian(theta_first[:, 0] - theta[:, 0]))
     model.history_estimate = model.estimate(scene)  # with the camera's uncertainty in its intervals
     if ids:
         _reference_frames_white(model.history_estimate, values, spectra, neutral, base @ t)

@@ -1,9 +1,9 @@
 """The ``illumon`` command: one module per subcommand, over the library (nothing in the library imports it).
 
 Subcommands: ``estimate`` (:mod:`.estimate`), ``fit`` (:mod:`.fit`), ``sensitivity`` (:mod:`.sensitivity`), ``report
-daylight`` (:mod:`.report`), ``diagnose`` (:mod:`.diagnose`), and ``serve`` / ``refit`` from the service package where it
-is installed. Errors in the user's input print one line ``illumon: error: …`` naming the file, row and problem, and exit
-with status 2; nothing prints a traceback.
+daylight`` (:mod:`.report`), ``diagnose`` (:mod:`.diagnose`), and ``serve`` / ``refit`` / ``backup`` / ``restore`` /
+``prune`` from the service package where it is installed. Errors in the user's input print one line
+``illumon: error: …`` naming the file, row and problem, and exit with status 2; nothing prints a traceback.
 """
 
 from __future__ import annotations
@@ -30,11 +30,12 @@ def _service_missing(args: argparse.Namespace) -> int:
 
 
 def _add_service_commands(sub: argparse._SubParsersAction) -> None:
-    """``serve`` and ``refit`` from the service package, or stand-ins that say which extra to install."""
+    """``serve``, ``refit``, ``backup``, ``restore`` and ``prune`` from the service package, or stand-ins that say
+    which extra to install."""
     try:
         from illumon_service.cli import add_serve_command
     except ImportError:
-        for name in ("serve", "refit"):
+        for name in ("serve", "refit", "backup", "restore", "prune"):
             p = sub.add_parser(name, help=f"{name} (needs the service extra)", add_help=False)
             p.set_defaults(func=_service_missing)
         return

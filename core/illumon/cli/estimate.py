@@ -27,6 +27,8 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
 
     obs = read_observations(args.observations, white_level=args.white_level)
     known = read_known(args, obs)
+    if args.exposure == "shared" and (args.model or known or not args.sensitivities or args.method != "joint"):
+        raise UsageError("--exposure shared goes with --method joint and --sensitivities (no --model, no references)")
     if args.model and (known or args.sensitivities):
         raise UsageError("--model already holds the camera; --sensitivities and --known-reflectances go with `illumon fit`")
     if args.model:
@@ -51,6 +53,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
         kwargs = {}
         if args.method == "joint":
             kwargs["daylight"] = args.daylight_model
+            kwargs["exposure"] = args.exposure.replace("-", "_")
         if args.model_effects == "auto":
             from ..diagnosis.fit import estimate_with_effect
             from .diagnose import run_diagnosis
@@ -62,7 +65,9 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
                   file=sys.stderr)
         else:
             result = retrieve_illuminants(obs, css, method=args.method, **kwargs)
-        extra = None
+        from ..model.lamps import non_daylight_column
+
+        extra = {"non_daylight": non_daylight_column(obs, css)}
     write_estimates(args.out, result, extra)
     if args.reflectances:
         write_reflectances(args.reflectances, result)
@@ -95,6 +100,9 @@ def add_estimate_command(sub: Any) -> None:
     est.add_argument("--out", required=True, help="ESTIMATES.csv to write")
     est.add_argument("--method", default="joint", choices=["joint", "marguier2007", "gray_world"])
     est.add_argument("--daylight-model", default="cie", choices=["cie", "measured"])
+    est.add_argument("--exposure", default="per-frame", choices=["per-frame", "shared"],
+                     help="joint: fit every frame's exposure (default: auto-exposure, clouds) or one for all frames "
+                          "(locked exposure under daylight of equal power, Marguier & Süsstrunk's assumption)")
     add_white_level(est)
     add_primaries(est)
     est.add_argument("--reflectances", help="also write the recovered patch reflectances to this CSV")

@@ -29,14 +29,10 @@ from numpy.typing import NDArray
 __all__ = [
     "LowRankFit",
     "wals",
-    "fit_gamma",
     "fit_offset",
     "fit_clipping",
     "scan_patch_effects",
     "MIN_SHADOW_FRAMES",
-    "fit_patch_change",
-    "fit_shadow",
-    "fit_off_locus",
 ]
 
 
@@ -86,7 +82,6 @@ def wals(
     rank: int,
     *,
     U: NDArray[np.float64] | None = None,
-    extra_rows: NDArray[np.bool_] | None = None,
     iters: int = 80,
     tol: float = 1e-7,
 ) -> LowRankFit:
@@ -99,34 +94,21 @@ def wals(
     rank
         Rank ``r``.
     U
-        Start for the frame factors (F × r, or F × (r+1) with ``extra_rows``).
-    extra_rows
-        If given, one extra component that only these rows use (off-locus frames: ``U_f V + m_f v'``).
+        Start for the frame factors (F × r).
     iters, tol
         Iteration cap and relative-decrease stopping rule.
     """
     y0 = np.where(w > 0, np.nan_to_num(y), 0.0)
-    r = rank + (1 if extra_rows is not None else 0)
     if U is None:
         U = _init(y0, w, rank)
-    if extra_rows is not None and U.shape[1] == rank:
-        V0 = _solve(np.einsum("fj,fa,fb->jab", w, U, U), np.einsum("fj,fa->ja", w * y0, U)).T
-        res = np.where(w > 0, y0 - U @ V0, 0.0)
-        U = np.column_stack([U, np.where(extra_rows, np.sqrt((res**2).sum(1)), 0.0)])
     U = U.copy()
     wy = w * y0
     last = np.inf
-    V = np.zeros((r, y.shape[1]))
+    V = np.zeros((rank, y.shape[1]))
     for _ in range(iters):
         V = _solve(np.einsum("fj,fa,fb->jab", w, U, U), np.einsum("fj,fa->ja", wy, U)).T
         g = np.einsum("fj,aj,bj->fab", w, V, V)
         b = np.einsum("fj,aj->fa", wy, V)
-        if extra_rows is not None:
-            off = ~extra_rows
-            g[off, -1, :] = 0.0
-            g[off, :, -1] = 0.0
-            g[off, -1, -1] = 1.0
-            b[off, -1] = 0.0
         U = _solve(g, b)
         pred = U @ V
         wrss = float((w * (y0 - pred) ** 2).sum())
@@ -137,33 +119,7 @@ def wals(
     wrss = float((w * (y0 - pred) ** 2).sum())
     f, m = y.shape
     k = rank * (f + m - rank)
-    if extra_rows is not None:
-        k += int(extra_rows.sum()) + m - 1
     return LowRankFit(U, V, wrss, int((w > 0).sum()), k, pred)
-
-
-def fit_gamma(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: NDArray[np.float64]) -> tuple[LowRankFit, float]:
-    """Tone curve ``y = x^(1/γ)``: the low-rank fit of ``y^γ`` with weights carried through the curve; γ by a bounded
-    scalar search. Returns the fit (its ``pred`` in the observed domain) and γ."""
-    from scipy.optimize import minimize_scalar
-
-    yc = np.clip(np.nan_to_num(y), 1e-3, None)
-    state = {"U": U0}
-
-    def fit(lg: float) -> LowRankFit:
-        g = float(np.exp(lg))
-        wt = w / (g**2 * yc ** (2 * g - 2))
-        res = wals(yc**g, wt, rank, U=state["U"], iters=40)
-        state["U"] = res.U
-        return res
-
-    opt = minimize_scalar(lambda lg: fit(lg).wrss, bounds=(np.log(0.3), np.log(4.0)), method="bounded",
-                          options={"xatol": 2e-3})
-    g = float(np.exp(opt.x))
-    res = fit(opt.x)
-    res.pred = np.clip(res.pred, 0, None) ** (1.0 / g)
-    res.k += 1
-    return res, g
 
 
 def fit_offset(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: NDArray[np.float64],
@@ -344,85 +300,3 @@ def scan_patch_effects(y: NDArray[np.float64], w: NDArray[np.float64], U: NDArra
     out["shadow_run"] = np.stack([t0[best], t1[best]], axis=1)
     out["shadow_variant"] = np.asarray(["kries", "sky"])[which[best, np.arange(p)]]
     return out
-
-
-def _split_patch(y: NDArray[np.float64], w: NDArray[np.float64], patch: int, onset: int):
-    cols = slice(3 * patch, 3 * patch + 3)
-    y2 = np.concatenate([y, np.full((y.shape[0], 3), np.nan)], axis=1)
-    w2 = np.concatenate([w, np.zeros((w.shape[0], 3))], axis=1)
-    y2[onset:, -3:] = y[onset:, cols]
-    w2[onset:, -3:] = w[onset:, cols]
-    w2[onset:, cols] = 0.0
-    return y2, w2
-
-
-def fit_patch_change(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: NDArray[np.float64],
-                     patch: int, onset: int) -> LowRankFit:
-    """Patch change: the patch's columns from ``onset`` on become a new patch (full re-fit)."""
-    y2, w2 = _split_patch(y, w, patch, onset)
-    fit = wals(y2, w2, rank, U=U0)
-    fit.k += 2  # which patch, which onset
-    return fit
-
-
-def fit_shadow(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: NDArray[np.float64],
-               patch: int, run: tuple[int, int], variant: str = "kries") -> tuple[LowRankFit, NDArray[np.float64]]:
-    """Shadow: the patch's values in frames ``run[0] … run[1]−1`` are ``s_c · (U_f V_p)_c`` (``"kries"``, s ≤ 1: the
-    frame's daylight filtered per channel) or ``s_c · (U_f V_p)_g`` (``"sky"``: a fixed skylight colour that follows
-    the frame's brightness). The shaded values are left out of the factorisation, then ``s`` is fitted in closed form."""
-    y0 = np.where(w > 0, np.nan_to_num(y), 0.0)
-    cols = np.arange(3 * patch, 3 * patch + 3)
-    rows = np.arange(run[0], run[1])
-    w_out = w.copy()
-    w_out[np.ix_(rows, cols)] = 0.0
-    fit = wals(y0, w_out, rank, U=U0)
-    # the patch's column factors from its unshaded frames, under the column prior
-    U = fit.U
-    lam = np.diag(column_prior(fit.V))
-    for j in cols:
-        g = (U * w_out[:, j : j + 1]).T @ U + lam
-        fit.V[:, j] = np.linalg.solve(g, (U * (w_out[:, j] * y0[:, j])[:, None]).sum(0))
-    fit.pred = U @ fit.V
-    pr = fit.pred[np.ix_(rows, cols)]
-    if variant == "sky":
-        pr = np.repeat(pr[:, 1:2], 3, axis=1)
-    ww = w[np.ix_(rows, cols)]
-    yy = y0[np.ix_(rows, cols)]
-    s = (ww * yy * pr).sum(0) / np.maximum((ww * pr**2).sum(0), 1e-300)
-    s = np.clip(s, 0.0, 1.0 if variant == "kries" else None)
-    pred = fit.pred.copy()
-    pred[np.ix_(rows, cols)] = pr * s[None, :]
-    fit.pred = pred
-    fit.wrss = float((w * (y0 - pred) ** 2).sum())
-    fit.n = int((w > 0).sum())
-    fit.k += 3 + 4  # s, and which patch / start / end / variant
-    return fit, s
-
-
-def fit_off_locus(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, base: LowRankFit,
-                  max_frames: int | None = None) -> tuple[LowRankFit, NDArray[np.bool_], list[tuple[int, float]]]:
-    """Off-locus light: frames lit by a lamp get one more component (the lamp's patch responses, shared).
-
-    Frames are added in order of their excess residual under the base fit; each set is re-fitted and scored by BIC
-    (each frame's membership counts as a parameter). Returns the best fit, its frame mask and the path
-    ``[(n_frames, bic), …]``.
-    """
-    y0 = np.where(w > 0, np.nan_to_num(y), 0.0)
-    per_frame = (w * (y0 - base.pred) ** 2).sum(1) / np.maximum((w > 0).sum(1), 1)
-    order = np.argsort(-per_frame)
-    f = y.shape[0]
-    max_frames = max_frames or max(3, f // 3)
-    n = base.n
-    best = None
-    path = []
-    for k in range(1, max_frames + 1):
-        mask = np.zeros(f, bool)
-        mask[order[:k]] = True
-        fit = wals(y0, w, rank, U=base.U, extra_rows=mask, iters=60)
-        fit.k += k
-        bic = n * np.log(fit.wrss / n) + fit.k * np.log(n)
-        path.append((k, float(bic)))
-        if best is None or bic < best[0]:
-            best = (bic, fit, mask)
-    assert best is not None
-    return best[1], best[2], path

@@ -31,6 +31,7 @@ from ..retrieval.common import RetrievalResult, censored, gray_world_mired, imag
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
 from .intervals import MODEL_ERROR
+from .lamps import apply_lamps, history_lamps
 from .scene import SceneModel
 from .solver import FrameSolver
 
@@ -116,13 +117,29 @@ def fit_scene_model(
         sensitivities = to_srgb_primaries(np.asarray(sensitivities, dtype=float))
     if sensitivities is None and camera_prior_mean is None and primaries == "srgb":
         camera_prior_mean = srgb_sensitivities()
-    if sensitivities is None or known:
-        model = calibrate_scene_model(obs, sensitivities, known, lambda o, c: _fit_fixed_camera(o, c, **kwargs),
+
+    def fit_once(o: Observations) -> SceneModel:
+        if sensitivities is None or known:
+            m = calibrate_scene_model(o, sensitivities, known, lambda oo, c: _fit_fixed_camera(oo, c, **kwargs),
                                       prior_mean=camera_prior_mean, primaries=primaries)
-    else:
-        model, _ = _fit_fixed_camera(obs, np.asarray(sensitivities, dtype=float), **kwargs)
-        model.camera = {"calibration": "measured"}
-    model.camera["primaries"] = primaries
+        else:
+            m, _ = _fit_fixed_camera(o, np.asarray(sensitivities, dtype=float), **kwargs)
+            m.camera = {"calibration": "measured"}
+        m.camera["primaries"] = primaries
+        return m
+
+    model = fit_once(obs)
+    if not known:
+        # Light that is not daylight (:mod:`.lamps`): lamp-lit frames are left out of the reflectance fit when
+        # enough daylight frames remain to learn every patch; every frame is then judged against the refitted scene.
+        lamp = history_lamps(model, obs) > 0.5
+        day = obs.subset(np.flatnonzero(~lamp))
+        if lamp.any() and (~lamp).sum() >= 2 and np.all(day.present.any(axis=0)):
+            model = fit_once(day)
+            model.history_estimate = model.estimate(obs)
+    scene = obs.select_patches([p for p in obs.patches if p not in known]) if known else obs
+    history_lamps(model, scene)
+    apply_lamps(model, scene, *model.history_estimate)
     res = model.history_estimate[0] if model.history_estimate else None
     msg = self_balance_warning(obs.times, 1e6 / np.asarray(res.cct, dtype=float)) if res is not None else None
     if msg:

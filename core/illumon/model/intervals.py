@@ -3,7 +3,8 @@
 The Laplace covariance of each frame's ``(mired, δ, log k)`` (:mod:`.solver`) is widened by what the model itself
 leaves uncertain (:data:`MODEL_ERROR`): the CIE D-series' mismatch to measured daylight, the shift common to the whole
 history that static patches cannot see, and an unmeasured camera's own uncertainty
-(:data:`illumon.camera.calibration.CAMERA_WHITE_SD`), then propagated to 95 % intervals of CCT, Duv and the gains.
+(:data:`illumon.camera.calibration.CAMERA_WHITE_SD`, and for the CCT
+:data:`illumon.camera.calibration.CAMERA_MIRED_SD`), then propagated to 95 % intervals of CCT, Duv and the gains.
 
 ``confidence`` (0…1) is the posterior probability that the estimated camera white lies within 1° (angular error) of
 the true one, from that covariance approximated as an isotropic Gaussian on the tangent plane (Rayleigh).
@@ -55,15 +56,19 @@ def assemble_estimates(
     patches (``few``) are NaN."""
     dm = solver.daylight
     mired, delta = theta[:, 0], theta[:, 1]
-    cct = 1e6 / mired
-    locus = solver.table.lookup(mired)[:, 4]
-    duv = locus + delta
+    # the light's temperature as reported (a rendered camera's reference moves T, not the light: see
+    # illumon.camera.calibration.calibrate_scene_model); white and gains come from θ itself
+    shown = theta[:, :2].copy()
+    shown[:, 0] = mired + noise.get("mired_offset", 0.0)
+    cct = 1e6 / shown[:, 0]
+    locus_shown = solver.table.lookup(shown[:, 0])[:, 4]
+    duv = locus_shown + delta
     xy = xy_from_cct_duv(cct, duv)
     a0 = solver.table.weights(mired, delta)
     white = a0 @ solver.w
     white = white / white[:, 1:2]
     res = RetrievalResult(
-        frames=list(obs.frames), patches=list(obs.patches), spectra=dm.spectra(theta[:, :2]), xy=xy, cct=cct,
+        frames=list(obs.frames), patches=list(obs.patches), spectra=dm.spectra(shown), xy=xy, cct=cct,
         duv=duv, white=white, gains=gains_from_white(white), exposures=np.exp(theta[:, 2]) / noise["scale"],
         reflectances=reflectances,
         method="model", times=list(obs.times),
@@ -76,11 +81,12 @@ def assemble_estimates(
     # A reference of known reflectance (grey card, chart) pins the camera white of its frame: a shift common to every
     # frame's daylight then moves the camera transform with it, not the whites and gains (the CCT stays uncertain).
     white_cov = frame_cov if camera.get("calibration") in ("grey", "chart") else cov
-    sm = np.sqrt(np.clip(cov[:, 0, 0], 0, None) + me["mired"] ** 2)
-    cct_lo = 1e6 / np.clip(mired + Z95 * sm, 1e-3, None)
-    cct_hi = 1e6 / np.clip(mired - Z95 * sm, 1e-3, None)
-    cct_hi = np.where(mired - Z95 * sm > 0, cct_hi, np.inf)
-    dlocus = (solver.table.lookup(mired + 0.5)[:, 4] - solver.table.lookup(mired - 0.5)[:, 4]) / 1.0
+    # an unmeasured camera's own reading of the light's temperature (a reference pins its white, not its CCT)
+    sm = np.sqrt(np.clip(cov[:, 0, 0], 0, None) + me["mired"] ** 2 + me.get("camera_mired", 0.0) ** 2)
+    cct_lo = 1e6 / np.clip(shown[:, 0] + Z95 * sm, 1e-3, None)
+    cct_hi = 1e6 / np.clip(shown[:, 0] - Z95 * sm, 1e-3, None)
+    cct_hi = np.where(shown[:, 0] - Z95 * sm > 0, cct_hi, np.inf)
+    dlocus = (solver.table.lookup(shown[:, 0] + 0.5)[:, 4] - solver.table.lookup(shown[:, 0] - 0.5)[:, 4]) / 1.0
     g = np.stack([dlocus, np.ones_like(dlocus)], axis=1)
     sduv = np.sqrt(np.clip(np.einsum("fi,fij,fj->f", g, cov[:, :2, :2], g), 0, None) + me["duv"] ** 2)
     # white, gains and their sensitivities to (mired, δ)
@@ -126,9 +132,12 @@ def assemble_estimates(
 
 def interval_columns(result: RetrievalResult, extra: dict[str, NDArray[np.float64]]) -> dict[str, NDArray[np.float64]]:
     """The ESTIMATES.csv interval columns of :meth:`SceneModel.estimate`'s output: ``cct_lo, cct_hi, duv_lo, duv_hi,
-    confidence`` then ``gain_r_lo, gain_r_hi, gain_b_lo, gain_b_hi`` (95 % intervals; the green gain is 1)."""
-    out = dict(extra)
+    confidence`` then ``gain_r_lo, gain_r_hi, gain_b_lo, gain_b_hi`` (95 % intervals; the green gain is 1), then
+    ``non_daylight`` when the model judged its frames (:mod:`illumon.model.lamps`)."""
+    out = {k: v for k, v in extra.items() if k != "non_daylight"}
     for c, name in ((0, "r"), (2, "b")):
         out[f"gain_{name}_lo"] = result.info["gain_lo"][:, c]
         out[f"gain_{name}_hi"] = result.info["gain_hi"][:, c]
+    if "non_daylight" in extra:  # last: the column issue 28 added (:mod:`illumon.model.lamps`)
+        out["non_daylight"] = extra["non_daylight"]
     return out

@@ -71,6 +71,10 @@ class SceneModel:
     history_estimate
         After :func:`fit_scene_model`: :meth:`estimate` of the whole history it was fitted on (computed anyway for
         ``training``), so a refit need not estimate the same frames twice; not saved, ``None`` on a loaded model.
+    lamps
+        The history's posterior of its scene-average colour (:func:`illumon.model.lamps.history_lamps`), with which
+        every estimate adds ``non_daylight`` and follows a lamp's light (:func:`illumon.model.lamps.apply_lamps`);
+        ``None`` for a model saved before it.
     """
 
     patches: list[str]
@@ -86,6 +90,7 @@ class SceneModel:
     version: int = MODEL_VERSION
     camera: dict = field(default_factory=lambda: {"calibration": "measured"})
     history_estimate: tuple[RetrievalResult, dict] | None = field(default=None, repr=False, compare=False)
+    lamps: dict | None = None
 
     # -- serialisation --
     def to_dict(self) -> dict:
@@ -99,6 +104,7 @@ class SceneModel:
             "training": self.training,
             "identifiability": self.identifiability,
             "camera": self.camera,
+            **({"lamps": self.lamps} if self.lamps else {}),
             "patches": list(self.patches),
             "reflectance_coefficients": {p: self.coefficients[i].tolist() for i, p in enumerate(self.patches)},
             "reflectance_covariance": {p: self.covariance[i].tolist() for i, p in enumerate(self.patches)},
@@ -129,6 +135,7 @@ class SceneModel:
                 basis=basis, daylight=dict(d["daylight"]), noise=dict(d["noise"]), training=dict(d.get("training", {})),
                 identifiability=dict(d.get("identifiability", {})), version=int(d["version"]),
                 camera=dict(d.get("camera", {"calibration": "measured"})),
+                lamps=dict(d["lamps"]) if d.get("lamps") else None,
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise ValueError(f"{source}: malformed scene model ({exc})") from None
@@ -199,8 +206,13 @@ class SceneModel:
             raise ValueError("no frame has two or more of the model's patches")
         extra = None if obs.sd is None else obs.extra_variance()[:, oj] / self.noise["scale"] ** 2
         theta, cov, cost = solver.solve(y, present, extra)
-        return assemble_estimates(obs, self.noise, self.camera, theta, cov, few, solver, cost, len(shared),
-                                  _patch_reflectances(self, obs.patches))
+        res, cols = assemble_estimates(obs, self.noise, self.camera, theta, cov, few, solver, cost, len(shared),
+                                       _patch_reflectances(self, obs.patches))
+        if self.lamps:
+            from .lamps import apply_lamps
+
+            apply_lamps(self, obs, res, cols)
+        return res, cols
 
 
 def _patch_reflectances(model: SceneModel, patches: list[str]) -> NDArray[np.float64]:

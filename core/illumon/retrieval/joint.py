@@ -29,7 +29,10 @@ from ..observations import Observations
 from ..reflectance import ReflectanceBasis, reflectance_basis
 from .common import RetrievalResult, censored, gray_world_mired, imaging_operators, make_result, white_level
 
-__all__ = ["illuminant_retrieval_joint", "JointProblem"]
+__all__ = ["EXPOSURE_MODES", "illuminant_retrieval_joint", "JointProblem"]
+
+EXPOSURE_MODES = ("per_frame", "shared")
+"""Exposure models of :func:`illuminant_retrieval_joint`: one exposure per frame (default) or one for all."""
 
 
 class JointProblem:
@@ -55,6 +58,19 @@ class JointProblem:
         relative part also absorbs model error (basis truncation of reflectances and daylight).
     bound_weight
         Weight of the hinge residuals that keep reflectances within 0…1.
+    exposure
+        ``"per_frame"``: each frame has its own exposure and the illuminant is scaled to a camera white of
+        ``white_g = 1``, so only its chromaticity is read (an auto-exposed camera). ``"shared"``: one exposure for every
+        frame (a fixed camera with locked exposure under illuminants of equal power, the assumption of Marguier &
+        Süsstrunk's eq. 3): each illuminant is scaled to unit norm on the wavelength grid, so a frame's brightness
+        carries information on its illuminant too.
+
+    References
+    ----------
+    .. [1] J. Marguier and S. Süsstrunk, "Illuminant retrieval for fixed location cameras", IS&T/SID 15th Color
+       Imaging Conference, 2007.
+    .. [2] Y. Kinoshita and H. Kiya, Bayesian estimation of spectral sensitivity and illumination (Gaussian priors on
+       the spectral coefficients).
     """
 
     def __init__(
@@ -67,7 +83,11 @@ class JointProblem:
         relative_error: float = 0.02,
         absolute_error: float = 0.002,
         bound_weight: float = 20.0,
+        exposure: str = "per_frame",
     ) -> None:
+        if exposure not in EXPOSURE_MODES:
+            raise ValueError(f"exposure must be one of {', '.join(EXPOSURE_MODES)}, not {exposure!r}")
+        self.shared = exposure == "shared"
         self.model = model
         self.rb = reflectance
         self.K, self.w = imaging_operators(sensitivities, model.basis, reflectance)
@@ -88,23 +108,40 @@ class JointProblem:
         self.mu = reflectance.prior_mean
         self.present = present
         self.np = model.n_params
-        self.nf = self.np + 1
+        self.nf = self.np + (0 if self.shared else 1)  # a log exposure per frame unless it is shared
+        basis = np.asarray(model.basis, dtype=float)
+        self.gram = basis.T @ basis  # ‖E‖² = aᵀ G a for E = basis @ a
         self.bound_weight = bound_weight
         self.gauge_weight = 100.0
         self.logk_ref: float | None = None
 
-    # x = [frame params (F × nf: model params…, log exposure)] + [reflectance coefficients (P × K)]
+    # x = [frame params (F × nf: model params…, log exposure unless shared)] + [reflectance coefficients (P × K)]
+    def frame_split(self, fr: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Daylight parameters (F × n) and log exposures (F,) from the frame block (F × nf)."""
+        if self.shared:
+            ref = 0.0 if self.logk_ref is None else self.logk_ref
+            return fr[:, : self.np], np.full(fr.shape[0], ref)
+        return fr[:, : self.np], fr[:, self.np]
+
     def split(self, x: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Daylight parameters (F × n), log exposures (F,) and reflectance coefficients (P × K) from ``x``."""
         fr = x[: self.F * self.nf].reshape(self.F, self.nf)
         sigma = x[self.F * self.nf :].reshape(self.P, self.nk)
-        return fr[:, : self.np], fr[:, self.np], sigma
+        params, logk = self.frame_split(fr)
+        return params, logk, sigma
 
     def operators(self, params: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Per-frame response matrices (F × 3 × K) for unit exposure, with the illuminant scaled to white_g = 1."""
+        """Per-frame response matrices (F × 3 × K) for unit exposure, and the unscaled camera whites (F × 3).
+
+        The illuminant is scaled to ``white_g = 1`` with per-frame exposures, to unit norm when the exposure is
+        shared."""
         a = self.model.weights(params)
         white = a @ self.w
-        m = np.einsum("fk,kcj->fcj", a, self.K) / white[:, 1, None, None]
+        if self.shared:
+            norm = np.sqrt(np.einsum("fk,kl,fl->f", a, self.gram, a))
+        else:
+            norm = white[:, 1]
+        m = np.einsum("fk,kcj->fcj", a, self.K) / norm[:, None, None]
         return m, white
 
     def residuals(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -118,20 +155,21 @@ class JointProblem:
         hinge = self.bound_weight * (np.clip(-refl, 0, None) + np.clip(refl - 1.0, 0, None))
         # Gauge: reflectance scale and exposure trade off exactly; pin the mean log exposure to its start value so the
         # reflectance prior cannot buy a lower cost by darkening every patch.
-        gauge = np.atleast_1d(self.gauge_weight * (np.mean(logk) - self.logk_ref))
+        # A shared exposure is held at its start value: the gauge is then exact and has no residual.
+        gauge = np.atleast_1d(self.gauge_weight * (np.mean(logk) - self.logk_ref))[: 0 if self.shared else 1]
         return np.concatenate(
             [data.ravel(), prior.ravel(), self.model.prior_residuals(params).ravel(), hinge.ravel(), gauge]
         )
 
     def projected_residuals(self, xf: NDArray[np.float64]) -> NDArray[np.float64]:
         """Residuals with the reflectances eliminated (variable projection): frame parameters only (F·nf,)."""
-        fr = xf.reshape(self.F, self.nf)
-        sigma = self.solve_reflectances(fr[:, : self.np], fr[:, self.np])
+        sigma = self.solve_reflectances(*self.frame_split(xf.reshape(self.F, self.nf)))
         return self.residuals(np.concatenate([xf, sigma.ravel()]))
 
     def frame_scale(self) -> NDArray[np.float64]:
         """Characteristic scale of each frame parameter (for the trust region): 10 MK⁻¹, model units, 0.1 in log k."""
-        return np.tile(np.append(self.model.scale(), 0.1), self.F)
+        scale = np.asarray(self.model.scale(), dtype=float)
+        return np.tile(scale if self.shared else np.append(scale, 0.1), self.F)
 
     def sparsity(self) -> sparse.csr_matrix:
         """Jacobian sparsity pattern of :meth:`residuals`."""
@@ -164,9 +202,10 @@ class JointProblem:
             rows.append(rh.ravel())
             cols.append((f * nf + np.arange(p)[:, None] * nk + j + 0 * rh).ravel())
         off += p * nl
-        rows.append(np.full(f, off))
-        cols.append(np.arange(f) * nf + self.np)
-        n_rows = off + 1
+        if not self.shared:
+            rows.append(np.full(f, off))
+            cols.append(np.arange(f) * nf + self.np)
+        n_rows = off + (0 if self.shared else 1)
         rows_a, cols_a = np.concatenate(rows), np.concatenate(cols)
         return sparse.csr_matrix((np.ones(rows_a.size), (rows_a, cols_a)), shape=(n_rows, f * nf + p * nk))
 
@@ -193,12 +232,13 @@ class JointProblem:
                 rows.append(rr)
                 cols.append(np.full(rr.size, col))
                 data.append(dr[rr] / step)
-        # The gauge row couples every frame's exposure; its derivative is known exactly.
-        gauge_row = pattern.shape[0] - 1
-        keep = [rr != gauge_row for rr in rows]
-        rows = [rr[k] for rr, k in zip(rows, keep, strict=True)] + [np.full(f, gauge_row)]
-        data = [d[k] for d, k in zip(data, keep, strict=True)] + [np.full(f, self.gauge_weight / f)]
-        cols = [cc[k] for cc, k in zip(cols, keep, strict=True)] + [np.arange(f) * nf + self.np]
+        if not self.shared:
+            # The gauge row couples every frame's exposure; its derivative is known exactly.
+            gauge_row = pattern.shape[0] - 1
+            keep = [rr != gauge_row for rr in rows]
+            rows = [rr[k] for rr, k in zip(rows, keep, strict=True)] + [np.full(f, gauge_row)]
+            data = [d[k] for d, k in zip(data, keep, strict=True)] + [np.full(f, self.gauge_weight / f)]
+            cols = [cc[k] for cc, k in zip(cols, keep, strict=True)] + [np.arange(f) * nf + self.np]
         jac = sparse.csr_matrix(
             (np.concatenate(data), (np.concatenate(rows), np.concatenate(cols))), shape=pattern.shape
         )
@@ -207,8 +247,10 @@ class JointProblem:
     def bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Bounds of the full parameter vector."""
         lo, hi = self.model.bounds()
-        lo = np.concatenate([np.tile(np.append(lo, -np.inf), self.F), np.full(self.P * self.nk, -np.inf)])
-        hi = np.concatenate([np.tile(np.append(hi, np.inf), self.F), np.full(self.P * self.nk, np.inf)])
+        if not self.shared:
+            lo, hi = np.append(lo, -np.inf), np.append(hi, np.inf)
+        lo = np.concatenate([np.tile(lo, self.F), np.full(self.P * self.nk, -np.inf)])
+        hi = np.concatenate([np.tile(hi, self.F), np.full(self.P * self.nk, np.inf)])
         return lo, hi
 
     def solve_reflectances(self, params: NDArray[np.float64], logk: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -232,6 +274,9 @@ class JointProblem:
         logk = np.log(np.maximum(level, 1e-6) / np.maximum(typical[:, 1], 1e-9))
         if self.logk_ref is None:
             self.logk_ref = float(np.mean(logk))
+        if self.shared:
+            logk = np.full(self.F, self.logk_ref)
+            return np.concatenate([params.ravel(), self.solve_reflectances(params, logk).ravel()])
         sigma = self.solve_reflectances(params, logk)
         return np.concatenate([np.concatenate([params, logk[:, None]], axis=1).ravel(), sigma.ravel()])
 
@@ -248,6 +293,7 @@ def illuminant_retrieval_joint(
     start_offsets: tuple[float, ...] = (0.0, -40.0, 40.0),
     max_nfev: int = 200,
     polish_max_frames: int = 400,
+    exposure: str = "per_frame",
 ) -> RetrievalResult:
     """Retrieve every frame's illuminant and the patches' reflectances by a joint bounded least-squares fit.
 
@@ -275,6 +321,11 @@ def illuminant_retrieval_joint(
     polish_max_frames
         Histories up to this size get the final all-unknowns polish (dense Jacobian); longer ones keep the projected
         solution.
+    exposure
+        ``"per_frame"`` (default): every frame's exposure is fitted, so only the illuminants' chromaticities are
+        read (auto-exposure, clouds); ``"shared"``: one exposure for all frames, the paper's assumption (a fixed
+        camera with locked exposure under illuminants of equal power, unit norm on the grid), which also reads each
+        frame's brightness. See :class:`JointProblem`.
 
     Returns
     -------
@@ -285,7 +336,9 @@ def illuminant_retrieval_joint(
     c = np.asarray(sensitivities, dtype=float)
     if len(obs.frames) < 2:
         raise ValueError("joint retrieval needs at least two frames")
-    prob = JointProblem(obs, c, model, rb, relative_error=relative_error, absolute_error=absolute_error)
+    prob = JointProblem(
+        obs, c, model, rb, relative_error=relative_error, absolute_error=absolute_error, exposure=exposure
+    )
     lo, hi = prob.bounds()
     nfr = prob.F * prob.nf
     base = gray_world_mired(obs, c)
@@ -302,8 +355,7 @@ def illuminant_retrieval_joint(
         if best is None or sol.cost < best.cost:
             best = sol
     assert best is not None
-    fr = best.x.reshape(prob.F, prob.nf)
-    sigma0 = prob.solve_reflectances(fr[:, : prob.np], fr[:, prob.np])
+    sigma0 = prob.solve_reflectances(*prob.frame_split(best.x.reshape(prob.F, prob.nf)))
     # Stage 2: polish all unknowns together, so the reflectances honour their 0…1 bounds exactly.
     x1 = np.concatenate([best.x, sigma0.ravel()])
     if prob.F <= polish_max_frames:
@@ -326,6 +378,7 @@ def illuminant_retrieval_joint(
         "nfev": int(best.nfev),
         "reflectance_out_of_range": float(np.mean((refl < -0.02) | (refl > 1.02))),
         "scale": prob.scale,
+        "exposure": exposure,
     }
     return make_result(
         obs,

@@ -233,6 +233,9 @@ class EstimateOut(BaseModel):
     white_rgb: list[float | None]
     gains_rgb: list[float | None]
     confidence: float | None
+    non_daylight: float | None = None
+    """Posterior probability that the frame's light is not daylight (``null`` where the estimate was made without
+    the test: retrieval methods, models saved before it)."""
     source: str
 
 

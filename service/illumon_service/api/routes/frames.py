@@ -6,15 +6,18 @@ import time
 from datetime import datetime
 from pathlib import Path
 
-from fastapi import APIRouter, HTTPException, Query, Request, status
+from fastapi import APIRouter, Header, HTTPException, Query, Request, status
+from fastapi.responses import JSONResponse
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
 from ...crud import estimate_out
+from ...datafiles import stored_path
 from ...decode import ImageError, decode_frame, sniff_format
 from ...deps import AdminDep, PrincipalDep, SessionDep, camera_for
 from ...estimation import current_model, estimate_frame, undo_camera_gains, undo_camera_gains_sd
+from ...idempotency import IDEMPOTENCY_DOC, Claim, fingerprint, form_fingerprint, is_conflict, key_lock, parse_key, replay, stored
 from ...limits import regions_outside
 from ...manage import delete_frame
 from ...pending import keep_original
@@ -30,7 +33,7 @@ from ...registration import (
     thumbs_dir,
     view_regions,
 )
-from ...storage import Camera, Estimate, Frame, as_utc
+from ...storage import Camera, Estimate, Frame, IdempotencyKey, as_utc
 from ...uploads import IMAGE_TYPES, parse_gains, parse_positive, parse_time, read_multipart
 from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, DeletedOut, FrameIngestOut, FrameOut, IsoDateTime, ObservationIn
 
@@ -44,14 +47,16 @@ def _store(
     image: bytes | bytearray | None = None, fmt: str | None = None, applied_gains: list[float] | None = None,
     exposure: float | None = None, region_ids: list[str] | None = None, view: str | None = None,
     registration: Registration | None = None, thumb: Thumbnail | None = None, patch_sd: dict | None = None,
-    extra_warnings: list[str] | None = None,
-) -> dict:
+    extra_warnings: list[str] | None = None, claim: Claim | None = None,
+) -> dict | JSONResponse:
     """Estimate a frame if a model exists (the camera's applied gains and exposure divided out first), store it
     durably with them, and build the 201 answer.
 
     The estimate comes first (it needs no frame id); the rows are then written through the app's
     :class:`~illumon_service.storage.GroupCommit`, which returns once they are committed (concurrent ingests share
-    one commit), so the answer never precedes durability.
+    one commit), so the answer never precedes durability. With an ``Idempotency-Key`` (``claim``) the key is written
+    first (a key another process stored meanwhile fails there, before any file is written) and keeps the answer; a
+    retry then gets that answer (:mod:`~illumon_service.idempotency`).
     """
     settings = request.app.state.settings
     metrics = request.app.state.metrics
@@ -97,6 +102,11 @@ def _store(
     session.close()
 
     def write(session: Session) -> dict:
+        key_row = None
+        if claim is not None:
+            key_row = IdempotencyKey(camera_id=cam.id, key=claim.key, fingerprint=claim.fingerprint)
+            session.add(key_row)
+            session.flush()
         frame = Frame(camera_id=cam.id, taken_at=taken_at, patches=patches,
                       width=size[0] if size else None, height=size[1] if size else None,
                       applied_gains=applied_gains, exposure=exposure, view=view, patch_sd=patch_sd,
@@ -106,14 +116,14 @@ def _store(
         if thumb is not None and thumbnail_due(session, cam.id, view, taken_at, registration):
             path = thumbs_dir(settings.data_dir, cam.id) / f"{frame.id}.png"
             save_thumbnail(path, thumb)
-            frame.thumb_path = str(path)
-            prune_thumbnails(session, cam.id, view)
+            frame.thumb_path = stored_path(settings.data_dir, path)
+            prune_thumbnails(session, cam.id, view, settings.data_dir)
         if image is not None and settings.keep_images:
             folder = Path(settings.data_dir) / "images" / f"camera-{cam.id}"
             folder.mkdir(parents=True, exist_ok=True)
             path = folder / f"{frame.id}.{fmt}"
             path.write_bytes(image)
-            frame.image_path = str(path)
+            frame.image_path = stored_path(settings.data_dir, path)
         # The model in use now (the frame's insert holds SQLite's write lock; the row lock orders this with a
         # refit's commit on PostgreSQL): a refit that committed since the estimate above makes it again with the new
         # model, so no estimate of an old model lands after a refit.
@@ -129,7 +139,7 @@ def _store(
                                    else "no_regions" if not region_ids else "too_few_regions" if usable < 2
                                    else "no_model" if now is None else "estimate_failed")
         session.flush()
-        return {
+        answer = {
             "frame_id": frame.id,
             "taken_at": as_utc(frame.taken_at).isoformat(),
             "regions": patches,
@@ -141,8 +151,19 @@ def _store(
             "estimate": estimate_out(row) if row is not None else None,
             "warnings": warnings,
         }
+        if key_row is not None:
+            key_row.frame_id = frame.id
+            key_row.answer = FrameIngestOut.model_validate(answer).model_dump(mode="json")
+        return answer
 
-    out = request.app.state.commits.submit(write)
+    try:
+        out = request.app.state.commits.submit(write)
+    except Exception as exc:
+        if claim is not None and is_conflict(exc):  # a concurrent retry in another process stored the frame first
+            first = stored(request.app.state.sessions, claim)
+            if first is not None:
+                return replay(first, claim)
+        raise
     if image is not None and not region_ids and fmt:  # measured once the view's regions are confirmed
         with request.app.state.sessions() as s:
             keep_original(s, settings.data_dir, cam.id, view, out["frame_id"], image, fmt, settings.pending_max_frames)
@@ -153,7 +174,9 @@ def _store(
 
 @router.post("/{camera_id}/frames", status_code=status.HTTP_201_CREATED, openapi_extra=FRAME_UPLOAD,
              response_model=FrameIngestOut)
-async def post_frame(camera_id: int, request: Request, session: SessionDep, principal: PrincipalDep) -> dict:
+async def post_frame(camera_id: int, request: Request, session: SessionDep, principal: PrincipalDep,
+                     idempotency_key: str | None = Header(None, max_length=255, description=IDEMPOTENCY_DOC),
+                     ) -> dict | JSONResponse:
     """Ingest one image (multipart ``image``; optional ``taken_at``, ``applied_gains`` "r,g,b" and ``exposure``, which
     the camera applied and the service divides out): robust region means, then an estimate."""
     t_start = time.perf_counter()
@@ -174,6 +197,8 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
         raise HTTPException(415, f"image part has content type {part_type!r}; send PNG, JPEG or TIFF")
     if len(data) > limit:
         raise HTTPException(413, f"image exceeds the upload limit of {limit} bytes")
+    key = parse_key(request)
+    claim = None if key is None else Claim(cam.id, key, form_fingerprint(data, fields))
     taken_at = parse_time(fields.get("taken_at"))
     applied_gains = parse_gains(fields.get("applied_gains"))
     exposure = parse_positive(fields.get("exposure"))
@@ -185,7 +210,13 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
     metrics = request.app.state.metrics
     metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t_start, labels='stage="receive"')
 
-    def work() -> dict:
+    def work() -> dict | JSONResponse:
+        with key_lock(claim):  # retries with the same key wait for the first, then get its answer
+            if claim is not None and (first := stored(request.app.state.sessions, claim)) is not None:
+                return replay(first, claim)
+            return measure()
+
+    def measure() -> dict | JSONResponse:
         try:
             t0 = time.perf_counter()
             regions = [Region(**r) for r in configured]
@@ -229,7 +260,7 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
         except RegionError as exc:
             raise HTTPException(422, str(exc)) from None
         return _store(request, session, cam, taken_at, patches, frame.size, data, sniff_format(data), applied_gains,
-                      exposure, [r["id"] for r in configured], view, reg, thumb, patch_sd, extra)
+                      exposure, [r["id"] for r in configured], view, reg, thumb, patch_sd, extra, claim)
 
     out = await run_in_threadpool(work)
     request.app.state.metrics.observe("illumon_ingest_seconds", time.perf_counter() - t_start)
@@ -238,10 +269,23 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
 
 @router.post("/{camera_id}/observations", status_code=status.HTTP_201_CREATED, response_model=FrameIngestOut)
 def post_observations(camera_id: int, body: ObservationIn, request: Request, session: SessionDep,
-                      principal: PrincipalDep) -> dict:
+                      principal: PrincipalDep,
+                      idempotency_key: str | None = Header(None, max_length=255, description=IDEMPOTENCY_DOC),
+                      ) -> dict | JSONResponse:
     """Ingest region means measured by the client (linear values; ``null`` for a missing region; 422 when every
     region is ``null``)."""
     cam = camera_for(session, principal, camera_id)
+    key = parse_key(request)
+    claim = None if key is None else Claim(cam.id, key, fingerprint(body.model_dump_json()))
+    with key_lock(claim):
+        if claim is not None and (first := stored(request.app.state.sessions, claim)) is not None:
+            return replay(first, claim)
+        return _observations(cam, body, request, session, claim)
+
+
+def _observations(cam: Camera, body: ObservationIn, request: Request, session: Session, claim: Claim | None
+                  ) -> dict | JSONResponse:
+    """Check and store client-measured region means (:func:`post_observations`)."""
     known = {r["id"] for r in cam.regions}
     unknown = sorted(set(body.patches) - known)
     if unknown:
@@ -258,7 +302,7 @@ def post_observations(camera_id: int, body: ObservationIn, request: Request, ses
         k: (None if v is None or patches.get(k) is None else [x / body.white_level for x in v]) for k, v in body.sd.items()}
     taken_at = parse_time(body.taken_at.isoformat() if body.taken_at else None)
     return _store(request, session, cam, taken_at, patches, None, applied_gains=body.applied_gains,
-                  exposure=body.exposure, patch_sd=patch_sd)
+                  exposure=body.exposure, patch_sd=patch_sd, claim=claim)
 
 
 @router.get("/{camera_id}/frames", response_model=list[FrameOut])

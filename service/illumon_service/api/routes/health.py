@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, Request
+from fastapi import APIRouter, HTTPException, Request
 from fastapi.responses import PlainTextResponse
 from sqlalchemy import text
 
-from ...deps import SessionDep
+from ...deps import SessionDep, get_principal, require_admin
 from ..schemas import HealthOut
 
 router = APIRouter(tags=["health"])
@@ -20,6 +20,14 @@ def healthz(session: SessionDep) -> dict:
 
 
 @router.get("/metrics", response_class=PlainTextResponse)
-def metrics(request: Request) -> PlainTextResponse:
-    """Prometheus text: frames ingested, estimate and ingest latency, refit durations and outcomes, errors."""
+def metrics(request: Request, session: SessionDep) -> PlainTextResponse:
+    """Prometheus text: frames ingested, estimate and ingest latency, refit durations and outcomes, errors.
+
+    As ``ILLUMON_METRICS`` says: ``public`` (default), ``admin`` (the admin bearer token; 401 / 403 otherwise) or
+    ``off`` (404)."""
+    mode = request.app.state.settings.metrics
+    if mode == "off":
+        raise HTTPException(404, "metrics are off (ILLUMON_METRICS=off)")
+    if mode == "admin":
+        require_admin(get_principal(request, session))
     return PlainTextResponse(request.app.state.metrics.render(), media_type="text/plain; version=0.0.4")

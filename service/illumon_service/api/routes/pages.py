@@ -5,11 +5,11 @@ Server-rendered HTML (Jinja2 templates in ``illumon_service/templates``), one lo
 build step, nothing fetched from elsewhere.
 
 Authentication is that of the JSON API. ``Authorization: Bearer <token>`` works as there; a browser logs in at
-``/login`` with the admin token or a camera token, which is kept in an HTTP-only, ``SameSite=Strict`` cookie (``Secure``
-when the page is served over HTTPS) and checked on every request like a bearer token, by its SHA-256 against the stored
-hashes. The admin sees every camera; a camera token sees only its own camera, and another camera's page answers 404 as
-an unknown one would. Without a valid token a page redirects to the login form. Login and logout forms sent from
-another site (by their ``Origin``) are refused.
+``/login`` with the admin token or a camera token and gets an HTTP-only, ``SameSite=Strict`` cookie (``Secure`` when the
+page is served over HTTPS) holding a random session id, not the token (:mod:`illumon_service.logins`: the server keeps
+the id's SHA-256, the token's hash and an expiry; logout deletes it). The admin sees every camera; a camera token sees
+only its own camera, and another camera's page answers 404 as an unknown one would. Without a valid token a page
+redirects to the login form. Login and logout forms sent from another site (by their ``Origin``) are refused.
 """
 
 from __future__ import annotations
@@ -30,6 +30,8 @@ from starlette.concurrency import run_in_threadpool
 from ...charts import Series, time_chart
 from ...deps import Principal, SessionDep, principal_from_token
 from ...estimation import camera_primaries
+from ...logins import MAX_AGE as LOGIN_MAX_AGE
+from ...logins import create_login, end_login, principal_from_login
 from ...manage import save_regions_and_measure
 from ...proposals import MAX_FRAMES, preview_jpeg
 from ...registration import parse_view, view_regions, view_thumbnails
@@ -43,9 +45,9 @@ __all__ = ["router", "install", "COOKIE"]
 PACKAGE = Path(__file__).resolve().parents[2]
 TEMPLATES = Jinja2Templates(directory=str(PACKAGE / "templates"))
 STATIC = PACKAGE / "static"
-COOKIE = "illumon_token"
-"""Name of the login cookie (it carries the token; the server only ever compares its hash)."""
-COOKIE_MAX_AGE = 7 * 24 * 3600
+COOKIE = "illumon_session"
+"""Name of the login cookie (a random session id, :mod:`illumon_service.logins`; never the token)."""
+COOKIE_MAX_AGE = int(LOGIN_MAX_AGE.total_seconds())
 HEADERS = {
     "Cache-Control": "no-store",
     "Content-Security-Policy": "default-src 'none'; style-src 'self'; img-src 'self' data:; form-action 'self'; "
@@ -75,7 +77,7 @@ def _principal(request: Request, session: Session) -> Principal | None:
     scheme, _, token = request.headers.get("authorization", "").partition(" ")
     if scheme.lower() == "bearer" and token.strip():
         return principal_from_token(request, session, token)
-    return principal_from_token(request, session, request.cookies.get(COOKIE, ""))
+    return principal_from_login(request, session, request.cookies.get(COOKIE, ""))
 
 
 def _safe_next(target: str | None) -> str:
@@ -127,16 +129,17 @@ def login(request: Request, session: SessionDep, token: str = Form(""),
         return _render(request, "login.html", {"next": _safe_next(next_), "error": "Unknown token.", "principal": None},
                        status_code=401)
     resp = RedirectResponse(_safe_next(next_), status_code=303)
-    resp.set_cookie(COOKIE, token.strip(), max_age=COOKIE_MAX_AGE, path="/", httponly=True, samesite="strict",
+    resp.set_cookie(COOKIE, create_login(session, token), max_age=COOKIE_MAX_AGE, path="/", httponly=True, samesite="strict",
                     secure=request.url.scheme == "https")
     return resp
 
 
 @router.post("/logout")
-def logout(request: Request) -> Response:
-    """Forget the login cookie (forms from other sites: 403)."""
+def logout(request: Request, session: SessionDep) -> Response:
+    """End the login session and forget its cookie (forms from other sites: 403)."""
     if not _same_origin(request):
         return Response("cross-site logout refused", status_code=403, headers=HEADERS)
+    end_login(session, request.cookies.get(COOKIE, ""))
     resp = RedirectResponse("/login", status_code=303)
     resp.delete_cookie(COOKIE, path="/")
     return resp
@@ -226,9 +229,9 @@ def _view_arg(view: str | None) -> str | None:
         return None
 
 
-def _regions_context(session: Session, cam: Camera, view: str | None) -> dict:
+def _regions_context(session: Session, cam: Camera, view: str | None, data_dir: Path) -> dict:
     """What the regions page shows: the view's regions, the latest frame's size and time, and proposals."""
-    thumbs, frames = view_thumbnails(session, cam, view, MAX_FRAMES)
+    thumbs, frames = view_thumbnails(session, cam, view, data_dir, MAX_FRAMES)
     ctx: dict = {"cam": cam, "view": view, "regions": view_regions(session, cam, view), "proposals": [],
                  "frames_used": 0, "proposal_error": None, "size": None, "latest_at": None, "view_changed": False,
                  "error": None, "saved": False, "keep_score": 0.0}
@@ -240,7 +243,7 @@ def _regions_context(session: Session, cam: Camera, view: str | None) -> dict:
                              .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(1)).first()
     ctx["view_changed"] = bool(latest is not None and (latest.registration or {}).get("state") == "view_change")
     try:
-        out = proposals_for(session, cam, view, 12)
+        out = proposals_for(session, cam, view, 12, data_dir)
         ctx["proposals"], ctx["frames_used"] = out["proposals"], out["frames_used"]
         ctx["keep_score"] = round(ticked_score(out["proposals"]), 2)
     except HTTPException as exc:
@@ -266,7 +269,7 @@ def regions_page(camera_id: int, request: Request, session: SessionDep, view: st
         return _to_login(request)
     if cam is None:
         return _render(request, "not_found.html", {"camera_id": camera_id, "principal": principal}, status_code=404)
-    ctx = _regions_context(session, cam, _view_arg(view))
+    ctx = _regions_context(session, cam, _view_arg(view), request.app.state.settings.data_dir)
     ctx.update({"principal": principal, "saved": bool(saved)})
     return _render(request, "regions.html", ctx)
 
@@ -277,7 +280,7 @@ def latest_frame_jpeg(camera_id: int, request: Request, session: SessionDep, vie
     principal, cam = _page_camera(request, session, camera_id)
     if cam is None:
         return Response(status_code=401 if principal is None else 404, headers=HEADERS)
-    thumbs, _ = view_thumbnails(session, cam, _view_arg(view), 1)
+    thumbs, _ = view_thumbnails(session, cam, _view_arg(view), request.app.state.settings.data_dir, 1)
     if not thumbs:
         return Response(status_code=404, headers=HEADERS)
     return Response(preview_jpeg(thumbs[0]), media_type="image/jpeg", headers=HEADERS)
@@ -325,7 +328,7 @@ async def save_regions_form(camera_id: int, request: Request, session: SessionDe
         except HTTPException as exc:
             error = str(exc.detail)
         if error is not None:
-            ctx = _regions_context(session, cam, v)
+            ctx = _regions_context(session, cam, v, request.app.state.settings.data_dir)
             ctx.update({"principal": principal, "error": f"Not saved: {error}"})
             return _render(request, "regions.html", ctx, status_code=422)
         q = f"?view={quote(v)}&saved=1" if v else "?saved=1"

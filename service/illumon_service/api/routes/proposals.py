@@ -15,9 +15,10 @@ MIN_HOURS = 3
 """Proposals from frames covering fewer hours of the day (UTC) than this carry a warning."""
 
 
-def proposals_for(session, cam, view: str | None, count: int) -> dict:  # noqa: ANN001 - Session, Camera
-    """``{"frames_used", "view", "proposals"}`` of a camera's view; ``HTTPException`` 409 with too few frames."""
-    thumbs, frames = view_thumbnails(session, cam, view, MAX_FRAMES)
+def proposals_for(session, cam, view: str | None, count: int, data_dir) -> dict:  # noqa: ANN001 - Session, Camera, Path
+    """``{"frames_used", "view", "proposals"}`` of a camera's view (thumbnails under ``data_dir``); ``HTTPException``
+    409 with too few frames."""
+    thumbs, frames = view_thumbnails(session, cam, view, data_dir, MAX_FRAMES)
     if len(thumbs) < MIN_FRAMES:
         raise HTTPException(409, f"{len(thumbs)} frame(s) of this view stored; region proposals need at least "
                                  f"{MIN_FRAMES}, spread over the day (post frames to /v1/cameras/{cam.id}/frames)")
@@ -43,4 +44,4 @@ def region_proposals(camera_id: int, request: Request, session: SessionDep, prin
         v = parse_view(view)
     except ValueError as exc:
         raise HTTPException(422, str(exc)) from None
-    return proposals_for(session, cam, v, count)
+    return proposals_for(session, cam, v, count, request.app.state.settings.data_dir)

@@ -1,0 +1,146 @@
+"""Real lamp-lit scenes: illumon's camera white without a reference against gray-world, and ``non_daylight`` per frame.
+
+The MIMO lab set of ``../shared/data/real/mimo-lab`` (Beigpour et al. 2014): four table-top scenes, each seen by a fixed
+camera under up to six combinations of two lamps (white, red or blue filters), 16-bit linear, with the illuminant's
+chromaticity measured at every pixel. Per scene, static regions are chosen once from the images alone (12 × 12-pixel
+blocks valid in every frame's mask, free of clipped pixels, in the brighter half, the most uniform 16 by their largest
+coefficient of variation over the frames); each region's mean is an observation, its truth the mean of its
+ground-truth chromaticities, a frame's truth the mean of its regions' (the two lamps light the scene unevenly, so one
+white per frame is scored against the regions' average light). The scene model is fitted without sensitivities or a
+reference (``--primaries srgb`` by default: raw-converted linear output; ``--primaries camera`` to read it as sensor RGB) and
+every frame's camera white compared with gray-world over the same regions (angular error, degrees).
+
+Split, fixed before any parameter was chosen: **development** ``bmug``, ``diff`` (used with the daylight chart sets
+of ``benchmarks/real.py`` to choose :data:`illumon.model.lamps.LAMP_PRIOR`), **score** ``lion``, ``spdif`` (held out).
+The daylight side: the ``sony-dolp`` chart sets of ``benchmarks/real.py`` (must not be flagged).
+
+``python benchmarks/lamps.py`` prints the table and writes ``benchmarks/results/lamps.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "core"), str(ROOT / "service"), str(ROOT / "benchmarks")]
+
+DEVELOPMENT = ("bmug", "diff")
+SCORE = ("lion", "spdif")
+BLOCK = 12
+REGIONS = 16
+
+
+def _read(path: Path) -> NDArray:
+    import cv2
+
+    im = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if im is None:
+        raise FileNotFoundError(path)
+    return im[..., ::-1] if im.ndim == 3 else im
+
+
+def load_scene(folder: Path, scene: str):
+    """Observations (regions × frames, linear 0…1 of 65535) and each frame's truth (F × 3, the regions' mean
+    ground-truth chromaticity) of one MIMO scene."""
+    from illumon.observations import Observations
+
+    names = sorted(p.stem for p in (folder / "img").glob(f"{scene}_*.png"))
+    imgs = [_read(folder / "img" / f"{n}.png").astype(float) for n in names]
+    gts = [_read(folder / "groundtruth" / f"{n}.png").astype(float) for n in names]
+    masks = [_read(folder / "masks" / f"{n}.png") > 0 for n in names]
+    valid = np.all(masks, axis=0) & np.all([g.sum(-1) > 0 for g in gts], axis=0)
+    h, w = imgs[0].shape[:2]
+    cands = []
+    for y in range(0, h - BLOCK + 1, BLOCK):
+        for x in range(0, w - BLOCK + 1, BLOCK):
+            if not valid[y:y + BLOCK, x:x + BLOCK].all():
+                continue
+            blocks = [im[y:y + BLOCK, x:x + BLOCK] for im in imgs]
+            if any((b >= 0.98 * 65535).any() for b in blocks):
+                continue
+            lum = [b.sum(-1) for b in blocks]
+            cands.append((min(v.mean() for v in lum), max(v.std() / max(v.mean(), 1e-9) for v in lum), y, x))
+    c = np.array(cands)
+    c = c[c[:, 0] >= np.median(c[:, 0])]
+    c = c[np.argsort(c[:, 1])][:REGIONS]
+    vals = np.empty((len(names), len(c), 3))
+    truth = np.empty_like(vals)
+    for j, (_, _, y, x) in enumerate(c):
+        y, x = int(y), int(x)
+        for f in range(len(names)):
+            vals[f, j] = imgs[f][y:y + BLOCK, x:x + BLOCK].reshape(-1, 3).mean(0) / 65535.0
+            g = gts[f][y:y + BLOCK, x:x + BLOCK].reshape(-1, 3)
+            truth[f, j] = (g / g.sum(1, keepdims=True)).mean(0)
+    obs = Observations([n.split("_", 1)[1] for n in names], [f"y{int(y)}x{int(x)}" for _, _, y, x in c], vals)
+    return obs, truth.mean(axis=1)
+
+
+def run(obs, primaries: str):
+    """illumon's whites and ``non_daylight`` (no sensitivities, no reference)."""
+    from illumon.model import fit_scene_model
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = fit_scene_model(obs, None, primaries=primaries)
+    res, extra = model.history_estimate
+    return np.asarray(res.white, dtype=float), np.asarray(extra.get("non_daylight", np.zeros(len(res.white))))
+
+
+def main(argv: list[str] | None = None) -> int:
+    from real import angular, isp_sets, shared_data, sony_raw  # benchmarks/real.py
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "lamps.json"))
+    ap.add_argument("--primaries", default="srgb", choices=["srgb", "camera"])
+    ap.add_argument("--no-daylight", action="store_true", help="skip the daylight chart sets")
+    args = ap.parse_args(argv)
+    data = shared_data()
+    folder = data / "real" / "mimo-lab"
+    if not folder.is_dir():
+        print(f"lamps.py: skipped: {folder} is absent (../shared/data or $ILLUMON_SHARED_DATA)")
+        return 0
+    report = {"development": list(DEVELOPMENT), "score": list(SCORE), "primaries": args.primaries, "scenes": {},
+              "daylight_sets": {}}
+    print(f"development scenes: {', '.join(DEVELOPMENT)}; score (held out): {', '.join(SCORE)}; primaries {args.primaries}")
+    print(f"{'scene':<8} {'split':<12} {'illumon °':>9} {'gray-world °':>12} {'ratio':>6}  non_daylight per frame")
+    for scene in DEVELOPMENT + SCORE:
+        obs, truth = load_scene(folder, scene)
+        white, nd = run(obs, args.primaries)
+        gw = np.nanmean(np.asarray(obs.values), axis=1)
+        e, eg = angular(white, truth), angular(gw, truth)
+        split = "development" if scene in DEVELOPMENT else "score"
+        report["scenes"][scene] = {
+            "split": split, "frames": obs.frames, "errors_deg": e.tolist(), "gray_world_deg": eg.tolist(),
+            "median_deg": float(np.median(e)), "gray_world_median_deg": float(np.median(eg)),
+            "ratio": float(np.median(e) / np.median(eg)), "non_daylight": nd.tolist(),
+            "flagged_fraction": float(np.mean(nd >= 0.5)),
+        }
+        r = report["scenes"][scene]
+        print(f"{scene:<8} {split:<12} {r['median_deg']:9.2f} {r['gray_world_median_deg']:12.2f} {r['ratio']:6.2f}  "
+              + " ".join(f"{f}:{v:.2f}" for f, v in zip(obs.frames, nd, strict=True)))
+    if not args.no_daylight and (data / "real" / "sony-dolp").is_dir():
+        raw = sony_raw(data)
+        for s in [raw, *isp_sets(raw)]:
+            from real import _observations
+
+            white, nd = run(_observations(s, []), s.primaries)
+            e = angular(white, s.truth)
+            report["daylight_sets"][s.name] = {"non_daylight": nd.tolist(), "median_deg": float(np.median(e)),
+                                               "flagged_fraction": float(np.mean(nd >= 0.5))}
+            print(f"{s.name:<16} daylight (development) illumon {np.median(e):.2f}°  non_daylight "
+                  + " ".join(f"{v:.2f}" for v in nd))
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(report, indent=1))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,300 @@
+"""Light that is not daylight: each frame's posterior probability ``non_daylight`` and a general-illuminant white.
+
+The scene model explains every frame by a daylight (:mod:`.fit`). Frames lit wholly or partly by lamps — street lamps
+at dusk, car parks, lit signs, a ceiling light beside a window — are not daylight, and forcing them onto the daylight
+locus moves their white by many degrees and bends the reflectances learned from them. This module compares, for every
+frame, two hypotheses about its camera white ``u`` (log r/g, log b/g):
+
+* **daylight** (``D``): ``u`` is the white of a CIE daylight through the camera, reciprocal temperature and offset from
+  the locus under the model's own prior (:class:`illumon.daylight.CIEDaylight`);
+* **not daylight** (``L``): ``u`` is the white of a lamp — the CIE fluorescent, high-pressure and LED illuminants and
+  CIE A (incandescent), alone or mixed half and half with daylight — through the same camera.
+
+The data that speak to ``u`` without any daylight assumption are the frame's scene average: a static scene's average
+colour is common to every frame, so ``u_f = log chroma(mean of frame f's patches) − a`` with one unknown offset ``a``
+for the whole history (gray-world made Bayesian, Buchsbaum 1980). ``a`` has a Gaussian prior: achromatic on average,
+spread :data:`SCENE_OFFSET_SD` (plus the camera's own white uncertainty for a camera nobody measured). The posterior
+over ``a`` (a grid) given every frame's two-hypothesis mixture gives each frame's posterior ``non_daylight`` and, for
+lamp-lit frames, the general-illuminant white ``log chroma(mean) − â``: the differences between frames are the data's,
+the common level the scene average's — in a history with daylight frames those pin ``a``, so a lamp-lit frame's white
+follows from the scene as the daylight frames saw it. The estimate of a frame is the posterior mixture of the daylight
+fit and the general white (in log chroma).
+
+References
+----------
+.. [1] G. Buchsbaum, "A spatial processor model for object colour perception", J. Franklin Inst. 310(1), 1980.
+.. [2] CIE 015:2018, *Colorimetry*, 4th ed.: illuminant A and the F, HP and LED illuminant tables (via colour-science).
+.. [3] J. Marguier, S. Süsstrunk, "Illuminant retrieval for fixed location cameras", IS&T/SID CIC 2007 (the daylight
+   model this module tests frames against).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..daylight import CIEDaylight
+
+__all__ = [
+    "LAMP_PRIOR",
+    "SCENE_OFFSET_SD",
+    "FRAME_SD",
+    "LampPosterior",
+    "lamp_posterior",
+    "lamp_population",
+    "history_lamps",
+    "apply_lamps",
+    "non_daylight_column",
+]
+
+LAMP_PRIOR = 0.3
+"""Prior probability that a frame's light is not daylight (chosen on the development sets of
+``benchmarks/lamps.py``: the MIMO scenes ``bmug``, ``diff`` and the ``sony-dolp`` chart sets)."""
+
+SCENE_OFFSET_SD = 0.155
+"""Standard deviation (log r/g and b/g) of a scene's average colour about grey under the same light
+(:data:`illumon.camera.calibration.SCENE_AVERAGE_SD`: 280 development scenes of ten measured surfaces)."""
+
+FRAME_SD = 0.02
+"""Per-frame scatter (log units) of a frame's scene-average chroma about ``u + a``: measurement noise, parts of the
+scene whose light differs from the frame's (shade, reflections) and the CIE model's departure from a measured sky."""
+
+_LAMPS = (
+    "A", "FL1", "FL2", "FL3", "FL4", "FL5", "FL6", "FL7", "FL8", "FL9", "FL10", "FL11", "FL12",
+    "FL3.1", "FL3.2", "FL3.3", "FL3.4", "FL3.5", "FL3.6", "FL3.7", "FL3.8", "FL3.9", "FL3.10", "FL3.11", "FL3.12",
+    "FL3.13", "FL3.14", "FL3.15", "HP1", "HP2", "HP3", "HP4", "HP5",
+    "LED-B1", "LED-B2", "LED-B3", "LED-B4", "LED-B5", "LED-BH1", "LED-RGB1", "LED-V1", "LED-V2",
+)
+_MIX = (1.0, 0.5)  # lamp share of the light: the lamp alone, or half and half with daylight
+_LAMP_SD = 0.03  # spread of a lamp type's white (manufacturing, ageing; log units)
+
+
+@lru_cache(maxsize=1)
+def _lamp_spectra() -> NDArray[np.float64]:
+    """Every lamp of :data:`_LAMPS` on the grid (N × 61), 100 at 560 nm."""
+    import colour
+
+    from ..spectra import GRID, resample_columns
+
+    out = []
+    for name in _LAMPS:
+        sd = colour.SDS_ILLUMINANTS[name]
+        v = resample_columns(sd.wavelengths, np.asarray(sd.values, dtype=float)[:, None], GRID)[:, 0]
+        out.append(100.0 * v / v[32])
+    return np.array(out)
+
+
+def _log_chroma(white: NDArray[np.float64]) -> NDArray[np.float64]:
+    w = np.clip(np.asarray(white, dtype=float), 1e-12, None)
+    return np.log(w[..., [0, 2]] / w[..., 1:2])
+
+
+def _daylight_grid(dm: CIEDaylight) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """(mired, δ) grid over the model's bounds and its normalised log prior weights."""
+    lo, hi = dm.bounds()
+    mired = np.arange(lo[0], hi[0] + 1e-9, 4.0)
+    deltas = np.array([-2.0, -1.0, 0.0, 1.0, 2.0]) * dm.duv_sigma
+    m, d = np.meshgrid(mired, deltas, indexing="ij")
+    theta = np.stack([m.ravel(), d.ravel()], axis=1)
+    logw = -0.5 * ((theta[:, 0] - dm.mired_mean) / dm.mired_sigma) ** 2 - 0.5 * (theta[:, 1] / max(dm.duv_sigma, 1e-9)) ** 2
+    return theta, logw - np.logaddexp.reduce(logw)
+
+
+def lamp_population(
+    sensitivities: NDArray[np.float64], daylight: CIEDaylight | None = None,
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The two hypotheses' whites through a camera, as log chroma (r/g, b/g).
+
+    Returns the daylight whites (N × 2) with their log prior weights (N,), and the lamp whites (M × 2) with theirs:
+    every lamp of the CIE tables alone and half and half with daylight at the prior's mean temperature (equal weights).
+    """
+    dm = daylight or CIEDaylight()
+    css = np.asarray(sensitivities, dtype=float)
+    theta, logw_d = _daylight_grid(dm)
+    day = dm.spectra(theta)
+    u_d = _log_chroma(day @ css)
+    lamps = _lamp_spectra()
+    d_mean = dm.spectra(np.array([[dm.mired_mean, 0.0]]))[0]
+    rows = []
+    for share in _MIX:
+        # equal luminance-like weight at 560 nm: both spectra are 100 there
+        rows.append(share * lamps + (1.0 - share) * d_mean[None, :] * 100.0 / d_mean[32])
+    u_l = _log_chroma(np.concatenate(rows) @ css)
+    logw_l = np.full(len(u_l), -math.log(len(u_l)))
+    return u_d, logw_d, u_l, logw_l
+
+
+@dataclass
+class LampPosterior:
+    """Per-frame result of :func:`lamp_posterior`.
+
+    Attributes
+    ----------
+    non_daylight
+        Posterior probability (F,) that the frame's light is not daylight.
+    white
+        General-illuminant camera white of every frame (F × 3, green = 1): the frame's scene average over the
+        history's scene-average colour.
+    offset, offset_sd
+        Posterior mean and standard deviation (log r/g, b/g) of the scene's average colour relative to the light.
+    """
+
+    non_daylight: NDArray[np.float64]
+    white: NDArray[np.float64]
+    offset: NDArray[np.float64]
+    offset_sd: NDArray[np.float64]
+
+
+def _mixture_loglik(u: NDArray[np.float64], centres: NDArray[np.float64], logw: NDArray[np.float64],
+                    sd: float) -> NDArray[np.float64]:
+    """log Σ_j w_j N(u; c_j, sd² I) for u (… × 2)."""
+    shape = u.shape[:-1]
+    uu = u.reshape(-1, 2)
+    out = np.empty(len(uu))
+    norm = -math.log(2 * math.pi * sd**2)
+    for i in range(0, len(uu), 4096):
+        d2 = ((uu[i:i + 4096, None, :] - centres[None]) ** 2).sum(-1)
+        out[i:i + 4096] = np.logaddexp.reduce(logw[None] - 0.5 * d2 / sd**2, axis=1) + norm
+    return out.reshape(shape)
+
+
+def lamp_posterior(
+    means: NDArray[np.float64],
+    sensitivities: NDArray[np.float64],
+    daylight: CIEDaylight | None = None,
+    *,
+    camera_sd: float = 0.0,
+    prior: float = LAMP_PRIOR,
+    offset_prior: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
+    grid: int = 41,
+) -> LampPosterior:
+    """Posterior ``non_daylight`` of every frame and its general-illuminant white (module docstring).
+
+    Parameters
+    ----------
+    means
+        Each frame's scene average (F × 3, linear; the same patches in every frame, missing ones filled from the
+        model), NaN for frames without one.
+    sensitivities
+        The camera's (effective) sensitivities, 61 × 3, in the observations' output space.
+    daylight
+        The daylight model and prior the frames are tested against.
+    camera_sd
+        The camera white's own uncertainty (log units; an unmeasured camera's spread), common to every frame.
+    prior
+        Prior probability that a frame is not daylight.
+    offset_prior
+        Mean and standard deviation (2,) of the scene-average offset ``a``; default grey ± :data:`SCENE_OFFSET_SD`
+        widened by ``camera_sd``. A model fitted on a history passes the history's posterior here to judge new frames.
+    grid
+        Points per axis of the grid over ``a`` (±4 prior standard deviations).
+    """
+    dm = daylight or CIEDaylight()
+    means = np.asarray(means, dtype=float)
+    f = len(means)
+    ok = np.all(np.isfinite(means), axis=1) & np.all(means > 0, axis=1)
+    g = np.full((f, 2), np.nan)
+    g[ok] = _log_chroma(means[ok])
+    if offset_prior is None:
+        s = math.hypot(SCENE_OFFSET_SD, camera_sd)
+        mu, sd = np.zeros(2), np.array([s, s])
+    else:
+        mu, sd = (np.asarray(v, dtype=float) for v in offset_prior)
+    u_d, logw_d, u_l, logw_l = lamp_population(sensitivities, dm)
+    ax = [np.linspace(mu[i] - 4 * sd[i], mu[i] + 4 * sd[i], grid) for i in range(2)]
+    aa = np.stack(np.meshgrid(ax[0], ax[1], indexing="ij"), axis=-1).reshape(-1, 2)  # A × 2
+    log_prior_a = -0.5 * (((aa - mu) / sd) ** 2).sum(1)
+    nd = np.full(f, np.nan)
+    white = np.full((f, 3), np.nan)
+    if not ok.any():
+        return LampPosterior(nd, white, mu, sd)
+    u = g[ok][:, None, :] - aa[None, :, :]  # F' × A × 2
+    ld = _mixture_loglik(u, u_d, logw_d, FRAME_SD) + math.log(1 - prior)
+    ll = _mixture_loglik(u, u_l, logw_l, math.hypot(FRAME_SD, _LAMP_SD)) + math.log(prior)
+    both = np.logaddexp(ld, ll)  # F' × A
+    log_post = log_prior_a + both.sum(0)
+    post = np.exp(log_post - log_post.max())
+    post /= post.sum()
+    nd[ok] = (post[None, :] * np.exp(ll - both)).sum(1)
+    a_hat = post @ aa
+    a_sd = np.sqrt(np.clip(post @ (aa - a_hat) ** 2, 0, None))
+    ug = g[ok] - a_hat
+    w = np.ones((int(ok.sum()), 3))
+    w[:, 0], w[:, 2] = np.exp(ug[:, 0]), np.exp(ug[:, 1])
+    white[ok] = w
+    return LampPosterior(nd, white, a_hat, a_sd)
+
+
+def _frame_means(model, obs, theta: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Each frame's average over the model's patches (F × 3, the model's scale), a missing patch filled with the
+    model's prediction under the frame's fitted daylight (so every frame averages the same scene)."""
+    index = {p: i for i, p in enumerate(model.patches)}
+    shared = [(j, index[p]) for j, p in enumerate(obs.patches) if p in index]
+    oj, mi = [s[0] for s in shared], [s[1] for s in shared]
+    solver = model.solver(mi)
+    y = np.asarray(obs.values, dtype=float)[:, oj] / model.noise["scale"]
+    th = np.where(np.isfinite(theta), theta, 0.0)
+    b = solver._b(th[:, 0], th[:, 1], th[:, 2])
+    pred = np.einsum("pck,fk->fpc", solver.G, b)
+    present = np.all(np.isfinite(y), axis=-1)
+    filled = np.where(present[..., None], y, pred)
+    out = filled.mean(axis=1)
+    # a scene average needs most of the scene: frames showing fewer than half the model's patches have none
+    out[(present.sum(axis=1) < 2) | (present.sum(axis=1) < 0.5 * len(model.patches))] = np.nan
+    return out
+
+
+def history_lamps(model, obs) -> NDArray[np.float64]:
+    """Judge every frame of the history ``obs`` a fitted :class:`~.scene.SceneModel` was fitted on: store the
+    posterior of the scene-average offset in ``model.lamps`` and return each frame's ``non_daylight``."""
+    res = model.history_estimate[0] if model.history_estimate is not None else model.estimate(obs)[0]
+    means = _frame_means(model, obs, np.asarray(res.info["theta"], dtype=float))
+    lp = lamp_posterior(means, model.sensitivities, model.daylight_model(),
+                        camera_sd=float(model.camera.get("white_sd_log", 0.0) or 0.0))
+    model.lamps = {"offset": lp.offset.tolist(), "offset_sd": lp.offset_sd.tolist(), "prior": LAMP_PRIOR}
+    return lp.non_daylight
+
+
+def apply_lamps(model, obs, result, extra: dict) -> None:
+    """Add ``non_daylight`` to a scene model's per-frame estimate of ``obs`` (in place) and, for frames more likely lit by a lamp
+    than by daylight, replace the white and gains by the general-illuminant white (the frame's scene average over
+    the history's scene-average colour), its ``confidence`` from that colour's posterior spread. CCT and Duv stay the
+    nearest daylight's. Without ``model.lamps`` (a model saved before it) nothing is added."""
+    lamps = getattr(model, "lamps", None)
+    if not lamps:
+        return
+    means = _frame_means(model, obs, np.asarray(result.info["theta"], dtype=float))
+    lp = lamp_posterior(means, model.sensitivities, model.daylight_model(),
+                        prior=float(lamps.get("prior", LAMP_PRIOR)),
+                        offset_prior=(np.asarray(lamps["offset"]), np.maximum(np.asarray(lamps["offset_sd"]), 0.01)))
+    nd = np.where(np.isfinite(lp.non_daylight), lp.non_daylight, float(lamps.get("prior", LAMP_PRIOR)))
+    extra["non_daylight"] = nd
+    lamp = (nd > 0.5) & np.all(np.isfinite(lp.white), axis=1)
+    if not lamp.any():
+        return
+    result.white[lamp] = lp.white[lamp]
+    result.gains[lamp] = 1.0 / lp.white[lamp]
+    var = float(np.sum(np.asarray(lamps["offset_sd"]) ** 2)) + 2 * FRAME_SD**2  # angular variance (rad² ≈ log²)
+    extra["confidence"][lamp] = 1.0 - math.exp(-(math.radians(1.0) ** 2) / var)
+    half = 1.959963984540054 * math.sqrt(var / 2) * result.gains[lamp]
+    result.info["gain_lo"][lamp] = result.gains[lamp] - half
+    result.info["gain_hi"][lamp] = result.gains[lamp] + half
+
+
+
+def non_daylight_column(obs, sensitivities: NDArray[np.float64], daylight: CIEDaylight | None = None) -> NDArray[np.float64]:
+    """``non_daylight`` of every frame of ``obs`` for a measured camera without a scene model (``illumon estimate``'s
+    multi-frame retrieval): the frames' averages over the patches seen in every frame (all patches where fewer than
+    two are), judged with the default priors (:func:`lamp_posterior`). 0 where a frame has no average."""
+    v = np.asarray(obs.values, dtype=float)
+    present = np.all(np.isfinite(v), axis=-1)
+    common = present.all(axis=0)
+    cols = common if common.sum() >= 2 else np.ones(v.shape[1], dtype=bool)
+    with np.errstate(invalid="ignore"):
+        means = np.nanmean(np.where(present[..., None], v, np.nan)[:, cols], axis=1)
+    nd = lamp_posterior(means, sensitivities, daylight).non_daylight
+    return np.where(np.isfinite(nd), nd, 0.0)

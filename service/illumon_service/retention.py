@@ -23,6 +23,7 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from .datafiles import data_file
+from .pending import pending_files
 from .settings import Settings
 from .storage import Estimate, Frame, IdempotencyKey, Job, LoginSession, make_engine, make_session_factory, utcnow
 
@@ -65,7 +66,7 @@ def prune(sessions: sessionmaker[Session], data_dir: Path | str, retain_days: fl
         cutoff = now - timedelta(days=retain_days)
         while True:
             with sessions() as s, s.begin():
-                rows = s.execute(select(Frame.id, Frame.thumb_path, Frame.image_path)
+                rows = s.execute(select(Frame.id, Frame.camera_id, Frame.thumb_path, Frame.image_path)
                                  .where(Frame.taken_at < cutoff).order_by(Frame.id).limit(CHUNK)).all()
                 if not rows:
                     break
@@ -80,6 +81,9 @@ def prune(sessions: sessionmaker[Session], data_dir: Path | str, retain_days: fl
                     if path is not None and path.is_file():
                         path.unlink(missing_ok=True)
                         out["files"] += 1
+                for path in pending_files(data_dir, r.camera_id, r.id):  # an original kept for regions to come
+                    path.unlink(missing_ok=True)
+                    out["files"] += 1
         with sessions() as s, s.begin():
             out["jobs"] = s.execute(delete(Job).where(Job.state.in_(("done", "failed")),
                                                       Job.finished_at < cutoff)).rowcount or 0

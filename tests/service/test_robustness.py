@@ -498,3 +498,18 @@ def test_on_postgresql(tmp_path, history, pg_url):  # noqa: F811 - the fixture i
         r = c.delete(f"/v1/cameras/{cid}", headers=admin_headers())
         assert r.status_code == 200 and r.json()["deleted"]["frames"] == N, r.text
         assert [cam["id"] for cam in c.get("/v1/cameras", headers=admin_headers()).json()] == [other]
+
+
+def test_kept_originals_bounded_in_bytes(tmp_path, scene):
+    from svc_helpers import post_image
+
+    budget = int(3.5 * max(len(img) for img in scene.images))
+    with TestClient(create_app(make_settings(tmp_path, pending_max_bytes=budget))) as c:
+        r = c.post("/v1/cameras", json=camera_body(scene.css, []), headers=admin_headers())
+        cid, token = r.json()["id"], r.json()["token"]
+        ids = [post_image(c, cid, token, img, t).json()["frame_id"]
+               for img, t in zip(scene.images, scene.times, strict=True)]
+        kept = sorted((tmp_path / "pending" / f"camera-{cid}").iterdir(), key=lambda p: int(p.stem))
+        assert 3 <= len(kept) < len(ids) and [int(p.stem) for p in kept] == ids[-len(kept):]
+        assert sum(p.stat().st_size for p in kept) <= budget
+        assert len(c.get(f"/v1/cameras/{cid}/frames", headers=bearer(token)).json()) == len(ids)  # frames all stored

@@ -5,10 +5,9 @@ from __future__ import annotations
 from fastapi import APIRouter, HTTPException, Query
 from illumon.gains import all_conventions, v4l2_controls
 
-from ...deps import PrincipalDep, SessionDep, camera_for
+from ...deps import PrincipalDep, SessionDep, camera_for, nearest_estimate
 from ...storage import as_utc
 from ..schemas import ERROR_RESPONSES, IsoDateTime, WbGainsOut
-from .estimates import nearest_estimate
 
 router = APIRouter(prefix="/v1/cameras", tags=["gains"], responses=ERROR_RESPONSES)
 

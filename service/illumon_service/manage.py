@@ -43,6 +43,8 @@ def save_regions(session: Session, cam: Camera, regions: list[dict], view: str |
     frame); 409 when the view has no stored frame thumbnail.
     """
     size = view_size(session, cam.id, view)
+    if size is None and view is None and getattr(cam, "image_size", None):
+        size = (int(cam.image_size[0]), int(cam.image_size[1]))  # declared at registration, no frame yet
     outside = regions_outside(regions, size)
     if outside:
         shown = ", ".join(repr(r) for r in outside[:5]) + (" …" if len(outside) > 5 else "")

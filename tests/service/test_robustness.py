@@ -190,6 +190,15 @@ def test_region_outside_the_image_is_422_on_put_and_page(client):
     r = client.post(f"/cameras/{cid}/regions", data=form, headers=admin_headers())
     assert r.status_code == 422 and "Not saved" in r.text and "typo" in r.text
     assert client.put(f"/v1/cameras/{cid}/regions", json={"regions": regions}, headers=bearer(token)).status_code == 200
+    # with the frames' size declared at registration, the typo is refused there, and by PUT before any frame
+    body = {**camera_body(np.ones((61, 3)), typo), "image_size": {"width": SIZE[0], "height": SIZE[1]}}
+    r = client.post("/v1/cameras", json=body, headers=admin_headers())
+    assert r.status_code == 422 and "typo" in str(r.json()["detail"]), r.text
+    r = client.post("/v1/cameras", json={**body, "regions": regions}, headers=admin_headers())
+    assert r.status_code == 201, r.text
+    cid, token = r.json()["id"], r.json()["token"]
+    r = client.put(f"/v1/cameras/{cid}/regions", json={"regions": typo}, headers=bearer(token))
+    assert r.status_code == 422 and "typo" in r.json()["detail"], r.text
 
 
 def test_delete_camera_removes_everything(tmp_path, history):

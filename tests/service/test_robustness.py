@@ -522,3 +522,20 @@ def test_kept_originals_bounded_in_bytes(tmp_path, scene):
         assert 3 <= len(kept) < len(ids) and [int(p.stem) for p in kept] == ids[-len(kept):]
         assert sum(p.stat().st_size for p in kept) <= budget
         assert len(c.get(f"/v1/cameras/{cid}/frames", headers=bearer(token)).json()) == len(ids)  # frames all stored
+
+
+@pytest.mark.parametrize("field,change", [
+    ("gamma", {"response": {"encoding": "gamma", "gamma": 1e-300}}),
+    ("white_level", {"response": {"encoding": "linear", "white_level": 1e300}}),
+    ("matrix", {"response": {"encoding": "srgb", "matrix": [[1e300, 0, 0], [0, 1, 0], [0, 0, 1]]}}),
+    ("matrix", {"response": {"encoding": "srgb", "matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 1e-7]]}}),
+    ("r", {"sensitivities": {"wavelength_nm": list(range(400, 701, 50)), "r": [1e300] * 7, "g": [1.0] * 7,
+                             "b": [1.0] * 7}}),
+    ("b", {"sensitivities": {"wavelength_nm": list(range(400, 701, 50)), "r": [1.0] * 7, "g": [1.0] * 7,
+                             "b": [0.0] * 7}}),
+])
+def test_registration_numbers_in_range(client, field, change):
+    body = {**camera_body(np.ones((61, 3)), grid_regions(2)), **change}
+    r = client.post("/v1/cameras", json=body, headers=admin_headers())
+    assert r.status_code == 422 and field in str(r.json()["detail"]), r.text
+    assert client.get("/v1/cameras", headers=admin_headers()).json() == []

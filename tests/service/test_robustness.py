@@ -539,3 +539,23 @@ def test_registration_numbers_in_range(client, field, change):
     r = client.post("/v1/cameras", json=body, headers=admin_headers())
     assert r.status_code == 422 and field in str(r.json()["detail"]), r.text
     assert client.get("/v1/cameras", headers=admin_headers()).json() == []
+
+
+def test_refit_leaves_no_estimate_of_the_previous_model(tmp_path, history):
+    """Regions replaced: the old frames keep one region of the new set, too few to estimate. Their estimates of the
+    previous model go with the refit (reason ``too_few_regions``), so every estimate comes from the new model."""
+    css, lin = history
+    app = create_app(make_settings(tmp_path))
+    with TestClient(app) as c:
+        cid, token = _camera(c, css, lin)
+        assert _refit(c, cid, token)["state"] == "done"
+        new = [dict(g, id="r0" if i == 0 else f"n{i}") for i, g in enumerate(grid_regions(lin.shape[1]))]
+        assert c.put(f"/v1/cameras/{cid}/regions", json={"regions": new}, headers=bearer(token)).status_code == 200
+        for f in range(N, N + 6):
+            body = _observation(lin, f)
+            body["patches"] = {("r0" if k == "r0" else f"n{k[1:]}"): v for k, v in body["patches"].items()}
+            assert c.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token)).status_code == 201
+        job = _refit(c, cid, token)
+        assert job["state"] == "done", job
+        assert _versions(app.state.sessions, cid) == {job["summary"]["version"]}
+        assert c.get(f"/v1/cameras/{cid}", headers=bearer(token)).json()["not_estimated"] == {"too_few_regions": N}

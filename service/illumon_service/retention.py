@@ -23,6 +23,7 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from .datafiles import data_file
+from .pending import pending_files
 from .settings import Settings
 from .storage import Estimate, Frame, IdempotencyKey, Job, LoginSession, make_engine, make_session_factory, utcnow
 
@@ -83,6 +84,9 @@ def prune(sessions: sessionmaker[Session], data_dir: Path | str, retain_days: fl
                     if path is not None and path.is_file():
                         path.unlink(missing_ok=True)
                         out["files"] += 1
+                for path in pending_files(data_dir, r.camera_id, r.id):  # an original kept for regions to come
+                    path.unlink(missing_ok=True)
+                    out["files"] += 1
         with sessions() as s, s.begin():
             out["jobs"] = s.execute(delete(Job).where(Job.state.in_(("done", "failed")),
                                                       Job.finished_at < cutoff)).rowcount or 0

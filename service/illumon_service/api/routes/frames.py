@@ -168,7 +168,8 @@ def _store(
         raise
     if image is not None and not region_ids and fmt:  # measured once the view's regions are confirmed
         with request.app.state.sessions() as s:
-            keep_original(s, settings.data_dir, cam.id, view, out["frame_id"], image, fmt, settings.pending_max_frames)
+            keep_original(s, settings.data_dir, cam.id, view, out["frame_id"], image, fmt, settings.pending_max_frames,
+                          settings.pending_max_bytes)
     metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t1, labels='stage="commit"')
     metrics.inc("illumon_frames_ingested_total")
     return out

@@ -18,6 +18,7 @@ from .spectral import (
     fit_spectral_base,
     fluorescence_gains,
     generic_fluorescence_gains,
+    lamp_shares,
     off_locus_gains,
     refine_with_measured_daylight,
 )
@@ -354,8 +355,17 @@ def spectral_stage(obs: Observations, sensitivities: NDArray[np.float64],
     sums = np.cumsum(OFF_LOCUS_FRAME_Z - z[order])[ks - 1]
     best_k = int(ks[int(np.argmin(sums))])
     frames = sorted(int(i) for i in order[:best_k])
+    shares: list[float | None] = [None] * len(frames)
+    if float(sums.min()) < 0:  # the share of lamp light, with reflectances learned from the other frames
+        day = np.setdiff1d(np.arange(f), frames)
+        try:
+            sigma = fit_spectral_base(obs.subset(day), sensitivities).sigma if day.size >= 2 else None
+        except (ValueError, np.linalg.LinAlgError):
+            sigma = None
+        shares = lamp_shares(base, frames, sigma=sigma)
     off = Candidate("off_locus_illuminant", float(sums.min()),
                     {"frame_indices": frames, "frame_gains": [round(float(z[i]), 2) for i in frames],
-                     "gain_scale": round(scale, 3)},
+                     "gain_scale": round(scale, 3),
+                     "lamp_share": [None if v is None else round(v, 2) for v in shares]},
                     frame=frames[0])
     return [off, fluor], {"off_locus_frames": frames, "phi_spectral": base.phi}

@@ -138,9 +138,11 @@ def fit_scene_model(
         # (a few rounds: frames forced onto daylight bend the reflectances, which can hide other lamp-lit frames)
         lamp = np.zeros(len(obs.frames), dtype=bool)
         for _ in range(LAMP_ROUNDS):
-            # out of the reflectance fit: every frame whose data favour a lamp (Bayes factor > 1, posterior above
-            # the prior): a daylight frame lost costs little, a lamp-lit frame kept bends every reflectance
-            new = history_lamps(model, obs) > LAMP_PRIOR
+            # out of the reflectance fit, once some frame is more likely lit by a lamp than not: every frame whose
+            # data favour a lamp (Bayes factor > 1, posterior above the prior) — a daylight frame lost costs little,
+            # a lamp-lit frame kept bends every reflectance. A history with no lamp-lit frame is fitted as before.
+            nd = history_lamps(model, obs)
+            new = nd > (LAMP_PRIOR if np.any(nd > 0.5) else 1.0)
             day = obs.subset(np.flatnonzero(~new))
             if np.array_equal(new, lamp) or not new.any() or (~new).sum() < 2 or not np.all(day.present.any(axis=0)):
                 break

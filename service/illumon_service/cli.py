@@ -57,12 +57,18 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     # naming IPPROTO_TCP, so asyncio does not disable Nagle's algorithm on the connections the workers accept, and a
     # response's last segment then waits for the client's delayed ACK (~40 ms per request on a keep-alive
     # connection). Linux gives accepted sockets the listening socket's TCP_NODELAY.
+    # A worker imports numpy, SciPy and colour-science before it answers uvicorn's health check: on a busy two-core
+    # machine that takes longer than uvicorn's 5 s, and the supervisor then kills and restarts every worker for ever.
     config = uvicorn.Config("illumon_service.app:create_app", factory=True, workers=workers, host=args.host,
-                            port=args.port, log_level=args.log_level)
+                            port=args.port, log_level=args.log_level, timeout_worker_healthcheck=WORKER_START_SECONDS)
     sock = config.bind_socket()
     sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
     Multiprocess(config, sockets=[sock]).run()
     return 0
+
+
+WORKER_START_SECONDS = 60
+"""How long a ``serve --workers N`` worker may take to start and to answer the supervisor's health check."""
 
 
 def _cmd_refit(args: argparse.Namespace) -> int:

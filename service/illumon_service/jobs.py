@@ -36,6 +36,7 @@ from .estimation import (
     view_model_key,
 )
 from .limits import frame_problem
+from .locks import take_process_lock
 from .metrics import Metrics
 from .registration import view_regions
 from .settings import Settings
@@ -505,18 +506,8 @@ class JobRunner:
     def _take_schedule_lock(self) -> bool:
         """Hold ``<data dir>/refit-schedule.lock`` (an exclusive ``flock``, released when this process ends): of the
         service processes sharing a data dir (``illumon serve --workers N``) only the holder runs the schedule."""
-        try:
-            import fcntl
-        except ImportError:  # pragma: no cover - not on POSIX: one process per data dir assumed
-            return True
-        fd = os.open(Path(self.settings.data_dir) / "refit-schedule.lock", os.O_RDWR | os.O_CREAT, 0o600)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            os.close(fd)
-            return False
-        self._lock_fd = fd
-        return True
+        held, self._lock_fd = take_process_lock(Path(self.settings.data_dir) / "refit-schedule.lock")
+        return held
 
     def start_schedule(self) -> None:
         """Refit every camera every ``refit_every_hours`` hours in a daemon thread (no-op when the setting is 0, or

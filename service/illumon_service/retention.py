@@ -23,6 +23,7 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from .datafiles import data_file
+from .locks import take_process_lock
 from .pending import pending_files
 from .settings import Settings
 from .storage import Estimate, Frame, IdempotencyKey, Job, LoginSession, make_engine, make_session_factory, utcnow
@@ -126,18 +127,8 @@ class Housekeeper:
         """Completed prunes (tests)."""
 
     def _take_lock(self) -> bool:
-        try:
-            import fcntl
-        except ImportError:  # pragma: no cover - not on POSIX: one process per data dir assumed
-            return True
-        fd = os.open(Path(self.settings.data_dir) / "housekeeping.lock", os.O_RDWR | os.O_CREAT, 0o600)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            os.close(fd)
-            return False
-        self._lock_fd = fd
-        return True
+        held, self._lock_fd = take_process_lock(Path(self.settings.data_dir) / "housekeeping.lock")
+        return held
 
     def start(self) -> None:
         """Start the thread (no-op when another process sharing the data directory runs it)."""

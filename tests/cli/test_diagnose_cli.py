@@ -49,7 +49,8 @@ def test_diagnose_white_level_and_estimate_model_effects(shared_data, tmp_path):
     rows = list(csv.DictReader(est.open()))
     assert len(rows) == 24
     assert list(rows[0]) == ["frame", "time", "cct_k", "duv", "x", "y", "white_r", "white_g", "white_b", "gain_r", "gain_g",
-                             "gain_b"]
+                             "gain_b", "non_daylight"]
+    assert all(float(r["non_daylight"]) < 0.5 for r in rows)  # daylight with a pedestal (issue 28)
 
 
 @pytest.mark.parametrize(

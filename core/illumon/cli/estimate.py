@@ -55,12 +55,13 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
             kwargs["daylight"] = args.daylight_model
             kwargs["exposure"] = args.exposure.replace("-", "_")
         if args.model_effects == "auto":
-            from ..diagnosis.fit import estimate_with_effect
+            from ..diagnosis.fit import estimate_with_effects
             from .diagnose import run_diagnosis
 
             diag = run_diagnosis(args.observations, obs, css, reestimate=False)
-            result = estimate_with_effect(obs, css, diag, method=args.method, **kwargs)
-            print(f"illumon: model effects: {diag.effect}"
+            result = estimate_with_effects(obs, css, diag, method=args.method, **kwargs)
+            more = [e["effect"] for e in diag.effects[1:]]
+            print(f"illumon: model effects: {diag.effect}" + (f" (and {', '.join(more)})" if more else "")
                   + (f" (patch {diag.patch})" if diag.patch else "") + (f" (frame {diag.frame})" if diag.frame else ""),
                   file=sys.stderr)
         else:

@@ -66,7 +66,7 @@ from .stages import (
 
 __all__ = [
     "RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "Candidate", "Diagnosis", "diagnose", "corrected_observations",
-    "estimate_with_effect",
+    "estimate_with_effect", "estimate_with_effects",
 ]
 
 RANK = 4
@@ -284,6 +284,8 @@ def diagnose(
         diag.illuminant_change_deg = 0.0
     diag.effects = [e for _, e in effects]
     diag.notes = notes
+    order = {id(d): i for i, d in enumerate(found)}
+    diag.info["found"] = [d for d, _ in sorted(effects, key=lambda de: order[id(de[0])])]  # discovery order
     return diag
 
 
@@ -441,4 +443,31 @@ def estimate_with_effect(obs: Observations, sensitivities: NDArray[np.float64], 
     res = retrieve_illuminants(corr, sensitivities, **kwargs)
     if len(corr.patches) != len(obs.patches):
         res.patches = list(corr.patches)
+    return res
+
+
+def estimate_with_effects(obs: Observations, sensitivities: NDArray[np.float64], diag: Diagnosis, **kwargs):
+    """Illuminants re-estimated with *every* effect of ``diag.effects`` modelled (issue 28): the corrections of
+    :func:`corrected_observations` applied in the order the effects were found, lamp-lit frames left out of the joint
+    fit as in :func:`estimate_with_effect`. One effect (or none): :func:`estimate_with_effect`."""
+    found = diag.info.get("found") or []
+    if len(found) <= 1:
+        return estimate_with_effect(obs, sensitivities, diag, **kwargs)
+    corrected = obs
+    off: list[int] = []
+    for d in found:
+        if d.effect == "off_locus_illuminant":
+            off += list(d.parameters.get("frame_indices", []))
+        else:
+            corrected = corrected_observations(corrected, d)
+    res = None
+    if off:
+        lamp = Diagnosis("off_locus_illuminant", None, None, {"frame_indices": sorted(set(off))}, [], 0.0, 0.0, None)
+        res = estimate_with_effect(corrected, sensitivities, lamp, **kwargs)
+    else:
+        from ..retrieval import retrieve_illuminants
+
+        res = retrieve_illuminants(corrected, sensitivities, **kwargs)
+    if len(corrected.patches) != len(obs.patches):
+        res.patches = list(corrected.patches)
     return res

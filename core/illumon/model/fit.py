@@ -144,8 +144,9 @@ def fit_scene_model(
             nd = history_lamps(model, obs)
             new = nd > (LAMP_PRIOR if np.any(nd > 0.5) else 1.0)
             day = obs.subset(np.flatnonzero(~new))
-            if np.array_equal(new, lamp) or not new.any() or (~new).sum() < 2 or not np.all(day.present.any(axis=0)):
-                break
+            if (np.array_equal(new, lamp) or not new.any() or (~new).sum() < max(2, 0.5 * len(new))
+                    or not np.all(day.present.any(axis=0))):
+                break  # nothing (new) to leave out, or a history judged mostly lamp-lit: no daylight to learn from
             lamp = new
             model = fit_once(day)
             model.history_estimate = model.estimate(obs)

@@ -328,15 +328,16 @@ def history_lamps(model, obs) -> NDArray[np.float64]:
                         camera_sd=float(model.camera.get("white_sd_log", 0.0) or 0.0))
     nd = lp.non_daylight
     model.lamps = {"offset": lp.offset.tolist(), "offset_sd": lp.offset_sd.tolist(), "prior": LAMP_PRIOR,
-                   "daylight_frames": int(np.sum(np.isfinite(nd) & (nd < 0.5)))}
+                   "daylight_frames": int(np.sum(np.isfinite(nd) & (nd < 0.5))), "frames": int(len(nd))}
     return nd
 
 
 def apply_lamps(model, obs, result, extra: dict) -> None:
-    """Add ``non_daylight`` to a scene model's per-frame estimate of ``obs`` (in place) and, for frames more likely lit by a lamp
-    than by daylight, replace the white and gains by the general-illuminant white (the frame's scene average over
-    the history's scene-average colour), its ``confidence`` from that colour's posterior spread. CCT and Duv stay the
-    nearest daylight's. Without ``model.lamps`` (a model saved before it) nothing is added."""
+    """Add ``non_daylight`` to a scene model's per-frame estimate of ``obs`` (in place) and, for frames more likely
+    lit by a lamp than by daylight in a history at least half of whose frames are daylight, replace the white and gains by the
+    general illuminant's (:func:`general_whites`), its ``confidence`` from the scene-average colour's posterior
+    spread. CCT and Duv stay the nearest daylight's. Without ``model.lamps`` (a model saved before it) nothing is
+    added."""
     lamps = getattr(model, "lamps", None)
     if not lamps:
         return
@@ -349,11 +350,17 @@ def apply_lamps(model, obs, result, extra: dict) -> None:
     lamp = (nd > 0.5) & np.all(np.isfinite(lp.white), axis=1)
     if not lamp.any():
         return
-    white = lp.white.copy()
-    if lamps.get("daylight_frames", 0) >= 2:  # reflectances learned under daylight: fit the lamp's spectrum to them
-        spectral = general_whites(model, obs, np.asarray(result.info["theta"], dtype=float), lamp)
-        ok = lamp & np.all(np.isfinite(spectral), axis=1)
-        white[ok] = spectral[ok]
+    if lamps.get("daylight_frames", 0) < max(2, 0.5 * lamps.get("frames", 0)):
+        # too few daylight frames to learn the scene from (a history judged mostly lamp-lit: then the judgement itself
+        # rests on the scene-average prior, and so would the general white — gray-world's error); the frames are
+        # reported, their whites stay the daylight fit's
+        return
+    # reflectances learned under daylight: fit the lamp's spectrum to them
+    spectral = general_whites(model, obs, np.asarray(result.info["theta"], dtype=float), lamp)
+    lamp = lamp & np.all(np.isfinite(spectral), axis=1)
+    if not lamp.any():
+        return
+    white = spectral
     result.white[lamp] = white[lamp]
     result.gains[lamp] = 1.0 / white[lamp]
     var = float(np.sum(np.asarray(lamps["offset_sd"]) ** 2)) + 2 * FRAME_SD**2  # angular variance (rad² ≈ log²)

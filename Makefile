@@ -17,7 +17,7 @@ $(BIN)/illumon: pyproject.toml
 venv: $(BIN)/illumon
 
 run: venv
-	mkdir -p $(DATA_DIR)
+	mkdir -p -m 700 $(DATA_DIR)
 	$(BIN)/illumon serve --host $(HOST) --port $(PORT) --data-dir $(DATA_DIR)
 
 lint: venv

@@ -445,6 +445,8 @@ PIPELINE_VARIANTS: dict[str, str] = {
     "small": "small regions: 16…64 pixels each, no texture",
     "rounded": "region means delivered as codes: pixels averaged at 16 bits, each mean rounded to an 8-bit (3 in 4) or "
                "10-bit code (a history written by software that reports integer codes)",
+    "lamp_pairs": "lamp-lit frames lit by two lamps at different places (the real MIMO scenes, issue 28): each region "
+                  "its own fixed mix of the two, not one light per frame (other effects unchanged)",
 }
 """Pipeline variants :func:`hide_effect_raw` can render (``variant=``), for robustness checks the benchmarks do not
 score; ``None`` is the standard pipeline (identical histories to before the variants existed)."""
@@ -527,8 +529,10 @@ def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score"
         lamps = lamp_spectra()
         name = str(rng.choice(list(lamps)))
         lamp = lamps[name]
+        mixes = []
         for i in which:
             m = float(rng.uniform(0.6, 1.0))
+            mixes.append(m)
             lit[i] = (1 - m) * e[i] + m * lamp * e[i, i560] / lamp[i560]
         rad = lit[:, None, :] * r[None, :, :]
         params.update(frames=[int(i) for i in which], lamp=name)
@@ -571,6 +575,20 @@ def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score"
     elif variant == "rounded":
         sim["bits"] = 16
         kw["mean_bits"] = int(vr.choice([8, 8, 8, 10]))
+    elif variant == "lamp_pairs" and effect == "off_locus_illuminant":
+        # what the real lamp-lit scenes show (benchmarks/lamps.py, MIMO): two lamps at different places, so each
+        # region sees its own mix of them (its geometry: fixed over the frames) — the assumption broken is one light
+        # per frame on every region. The frame's truth is the regions' mean light, as benchmarks/lamps.py scores.
+        lamps = lamp_spectra()
+        name2 = str(vr.choice([k for k in lamps if k != params["lamp"]]))
+        l1, l2 = lamps[params["lamp"]], lamps[name2]
+        alpha = vr.uniform(0.0, 1.0, p)  # share of the first lamp at each region
+        for i, m in zip(params["frames"], mixes, strict=True):
+            pair = alpha[:, None] * l1[None] / l1[i560] + (1 - alpha)[:, None] * l2[None] / l2[i560]
+            light = (1 - m) * e[i][None] + m * pair * e[i, i560]  # P × 61
+            rad[i] = light * r
+            lit[i] = light.mean(axis=0)
+        params.update(second_lamp=name2, region_share_first=[round(float(a), 3) for a in alpha])
     params.update(variant=variant, bits=sim["bits"], tone=kw.get("tone", params.get("tone")))
     h = simulate_raw_history(
         css, lit, r, rng=vr, read_noise_e=prof["read_noise_e"], black_level=prof["black_level"],

@@ -13,6 +13,7 @@ from pathlib import Path
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from sqlalchemy.exc import DataError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from .api.routes import calibration, cameras, estimates, frames, gains, health, jobs, pages, proposals
@@ -122,6 +123,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if exc.status_code == 405:  # Starlette's Allow lists one route's methods; list every route's on the path
             headers = {**(headers or {}), "Allow": allowed_methods(app, request.scope)}
         return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=headers)
+
+    @app.exception_handler(DataError)
+    async def _on_data_error(request: Request, exc: DataError) -> JSONResponse:
+        # A value the database refuses to store (every text and number is checked at the door, so this is a
+        # safety net): the client's value, not a server fault.
+        metrics.inc("illumon_http_errors_total", labels='status="422"')
+        log.warning("database refused a value on %s %s: %s", request.method, request.url.path, str(exc.orig)[:200])
+        return JSONResponse({"detail": "a value of the request cannot be stored (e.g. a control character or a "
+                                       "number out of range)"}, status_code=422)
 
     @app.exception_handler(Exception)
     async def _on_error(request: Request, exc: Exception) -> JSONResponse:

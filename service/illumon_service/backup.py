@@ -2,7 +2,8 @@
 
 A backup is a folder (mode 0700: it holds the admin token and the cameras' token hashes)::
 
-    DEST/manifest.json      format, time, database kind, row counts, files, files missing at the snapshot
+    DEST/manifest.json      format, time, database kind, row counts, files, files missing at the snapshot, and
+                            SQLite's integrity check of the snapshot
     DEST/illumon.sqlite3    SQLite: a consistent snapshot by the online backup API (``sqlite3.Connection.backup``)
     DEST/database.pgdump    PostgreSQL: ``pg_dump --format=custom`` (one consistent transaction)
     DEST/data/              the data directory: models, thumbnails and reference frames, kept images, admin token
@@ -114,9 +115,18 @@ def _counts(engine: Engine) -> dict[str, int]:
 
 
 def forget_missing_files(engine: Engine, data_dir: Path) -> int:
-    """Clear the stored paths whose file is not under ``data_dir``; returns how many."""
+    """Clear the stored paths whose file is not under ``data_dir`` — frame thumbnails and kept images, and the
+    cameras' scene models in use (:attr:`~.storage.Camera.models`: a view whose model file is missing has none until
+    the next refit, rather than a name that cannot be read); returns how many."""
     n = 0
     with engine.begin() as conn:
+        for cid, models in conn.execute(select(Camera.id, Camera.models).where(Camera.models.is_not(None))).all():
+            kept = {k: v for k, v in (models or {}).items()
+                    if isinstance(v, dict) and (f := data_file(data_dir / "models", str(v.get("file") or "")))
+                    is not None and f.is_file()}
+            if kept != (models or {}):
+                conn.execute(update(Camera).where(Camera.id == cid).values(models=kept or None))
+                n += len(models or {}) - len(kept)
         for col in PATH_COLUMNS:
             for fid, value in conn.execute(select(Frame.id, col).where(col.is_not(None))).all():
                 path = data_file(data_dir, value)
@@ -188,6 +198,19 @@ def backup(settings: Settings, dest: Path | str) -> dict:
         shutil.rmtree(partial)
     partial.mkdir(mode=0o700, parents=True)
     os.chmod(partial, 0o700)
+    try:
+        manifest = _write_backup(partial, data_dir, url, db_file)
+    except BaseException:
+        shutil.rmtree(partial, ignore_errors=True)  # nothing half-written is left behind
+        raise
+    if dest.exists():
+        dest.rmdir()
+    partial.rename(dest)
+    return manifest
+
+
+def _write_backup(partial: Path, data_dir: Path, url: str, db_file: Path | None) -> dict:
+    """Write the backup into ``partial`` (see :func:`backup`); returns the manifest."""
     files = partial / "data"
     files.mkdir(mode=0o700)
     copied = _copy_tree(data_dir, files, db_file)  # before the snapshot: files that may be pruned meanwhile
@@ -199,6 +222,9 @@ def backup(settings: Settings, dest: Path | str) -> dict:
         try:
             src.backup(dst)  # one step: a consistent snapshot; writers in WAL mode are not blocked
             dst.execute("PRAGMA journal_mode=DELETE")  # one self-contained file
+            check = dst.execute("PRAGMA integrity_check").fetchone()[0]
+            if check != "ok":
+                raise BackupError(f"{db_file}: the snapshot fails SQLite's integrity check ({check}); backup not written")
         finally:
             dst.close()
             src.close()
@@ -231,12 +257,10 @@ def backup(settings: Settings, dest: Path | str) -> dict:
         "files": copied,
         "paths_relativized": paths.get("relativized", 0),
         "files_missing": missing,
+        "integrity_check": "ok" if kind == "sqlite" else None,
         "counts": counts,
     }
     (partial / "manifest.json").write_text(json.dumps(manifest, indent=2) + "\n")
-    if dest.exists():
-        dest.rmdir()
-    partial.rename(dest)
     return manifest
 
 

@@ -17,7 +17,7 @@ __all__ = ["estimate_out", "nearest_estimate", "estimates_between"]
 def estimate_non_daylight(e: Estimate) -> float | None:
     """The estimate's ``non_daylight`` (posterior probability that its light is not daylight,
     :mod:`illumon.model.lamps`), stored with its intervals; ``None`` for estimates made without it."""
-    v = (e.intervals or {}).get("non_daylight")
+    v = (getattr(e, "intervals", None) or {}).get("non_daylight")
     return float(v) if isinstance(v, (int, float)) else None
 
 

@@ -5,14 +5,15 @@ from __future__ import annotations
 import hmac
 from collections.abc import Iterator
 from dataclasses import dataclass
+from datetime import datetime
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request
 from sqlalchemy.orm import Session
 
-from .storage import Camera, camera_by_token, hash_token
+from .storage import Camera, Estimate, camera_by_token, hash_token
 
-__all__ = ["SessionDep", "Principal", "PrincipalDep", "AdminDep", "camera_for", "not_found"]
+__all__ = ["nearest_estimate", "SessionDep", "Principal", "PrincipalDep", "AdminDep", "camera_for", "not_found"]
 
 
 def get_session(request: Request) -> Iterator[Session]:
@@ -84,3 +85,14 @@ def camera_for(session: Session, principal: Principal, camera_id: int) -> Camera
     if cam is None:
         raise not_found(camera_id)
     return cam
+
+
+def nearest_estimate(session: Session, camera_id: int, at: datetime | None) -> Estimate:
+    """:func:`.crud.nearest_estimate`, or 404 when the camera has no estimate yet (the routes ``illuminant`` and
+    ``wb-gains`` share it)."""
+    from .crud import nearest_estimate as nearest
+
+    e = nearest(session, camera_id, at)
+    if e is None:
+        raise HTTPException(404, f"no estimate yet for camera {camera_id}; POST /v1/cameras/{camera_id}/refit")
+    return e

@@ -19,7 +19,7 @@ from __future__ import annotations
 import hashlib
 import json
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 
@@ -31,8 +31,8 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from .storage import IdempotencyKey
 
-__all__ = ["HEADER", "REPLAYED", "IDEMPOTENCY_DOC", "Claim", "parse_key", "fingerprint", "form_fingerprint", "stored",
-           "replay", "key_lock", "is_conflict"]
+__all__ = ["HEADER", "REPLAYED", "IDEMPOTENCY_DOC", "Claim", "parse_key", "fingerprint", "form_fingerprint", "keyed",
+           "stored", "replay", "key_lock", "is_conflict"]
 
 HEADER = "Idempotency-Key"
 IDEMPOTENCY_DOC = ("a retried post with the same key (1–255 visible ASCII characters, unique per camera) gets the "
@@ -76,6 +76,23 @@ def fingerprint(*parts: bytes | bytearray | str | None) -> str:
 def form_fingerprint(image: bytes | bytearray, fields: dict[str, str]) -> str:
     """:func:`fingerprint` of a multipart frame post: the image and every text field (sorted by name)."""
     return fingerprint(image, json.dumps(sorted(fields.items())))
+
+
+def keyed(write: Callable[[Session], dict], claim: Claim, as_json: Callable[[dict], dict]) -> Callable[[Session], dict]:
+    """``write`` (a frame's insert, run by the group commit) with the key stored in the same transaction: the key's
+    row first (flushed, so that a key another process stored meanwhile fails before any frame or file is written),
+    then the frame, then the key's frame id and answer (``as_json(answer)``)."""
+
+    def run(session: Session) -> dict:
+        row = IdempotencyKey(camera_id=claim.camera_id, key=claim.key, fingerprint=claim.fingerprint)
+        session.add(row)
+        session.flush()
+        answer = write(session)
+        row.frame_id = answer["frame_id"]
+        row.answer = as_json(answer)
+        return answer
+
+    return run
 
 
 def stored(sessions: sessionmaker[Session] | Session, claim: Claim) -> IdempotencyKey | None:

@@ -189,9 +189,10 @@ def refit_camera(
     summary["dropped"] = dropped[:MAX_DROPPED_LISTED]
     t_fit = time.perf_counter()
     report(0.8)
+    ids_of = {v: (view_ids[v] if v is not None else region_ids) for v in new_models}
+    used = {r.id: sum(r.patches.get(k) is not None for k in ids_of[r.view]) for r in rows if r.view in new_models}
     written = _commit_refit(sessions, data_dir, camera_id, version, new_models, estimates, times,
-                            {v: (view_ids[v] if v is not None else region_ids) for v in new_models}, matrix,
-                            read_ids, dropped)
+                            ids_of, matrix, read_ids, dropped, used)
     _remove_old_models(data_dir, camera_id, new_models, started)
     t_end = time.perf_counter()
     summary.update({
@@ -213,7 +214,7 @@ MAX_DROPPED_LISTED = 100
 def _commit_refit(
     sessions: sessionmaker[Session], data_dir: Path, camera_id: int, version: str, new_models: dict[str | None, Path],
     estimates: dict[str, dict], times: dict, region_ids: dict[str | None, list[str]], matrix: list | None,
-    read_ids: list[int], dropped: list[dict],
+    read_ids: list[int], dropped: list[dict], used: dict[int, int] | None = None,
 ) -> int:
     """Store a refit in one transaction: switch the camera's views to their new model files, replace the estimates,
     estimate with the new models the frames stored since the refit read the history, and record why the others have
@@ -261,6 +262,16 @@ def _commit_refit(
             s.execute(insert(Estimate), items[start : start + WRITE_CHUNK])
         for start in range(0, len(ids), WRITE_CHUNK):
             s.execute(update(Frame).where(Frame.id.in_(ids[start : start + WRITE_CHUNK])).values(not_estimated=None))
+        # frames the refit used but could not estimate (fewer than two regions seen, a non-finite white): no estimate
+        # of the previous model stays behind
+        missed = sorted(set(used or {}) - set(ids))
+        for start in range(0, len(missed), WRITE_CHUNK):
+            part = missed[start : start + WRITE_CHUNK]
+            s.execute(delete(Estimate).where(Estimate.frame_id.in_(part)))
+            for reason in ("too_few_regions", "estimate_failed"):
+                which = [i for i in part if (used[i] < 2) == (reason == "too_few_regions")]
+                if which:
+                    s.execute(update(Frame).where(Frame.id.in_(which)).values(not_estimated=reason))
         bad = [d["frame_id"] for d in dropped]
         for start in range(0, len(bad), WRITE_CHUNK):
             part = bad[start : start + WRITE_CHUNK]

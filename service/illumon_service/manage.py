@@ -15,7 +15,8 @@ from .registration import reference_path, set_reference, set_view_regions, thumb
 from .settings import Settings
 from .storage import Camera, Frame
 
-__all__ = ["view_size", "save_regions", "save_regions_and_measure", "delete_frame", "delete_camera", "camera_files"]
+__all__ = ["proposals_for", "MIN_HOURS", "view_size",
+           "save_regions", "save_regions_and_measure", "delete_frame", "delete_camera", "camera_files"]
 
 
 def _view_filter(view: str | None):  # noqa: ANN202 - a SQLAlchemy clause
@@ -42,6 +43,8 @@ def save_regions(session: Session, cam: Camera, regions: list[dict], view: str |
     frame); 409 when the view has no stored frame thumbnail.
     """
     size = view_size(session, cam.id, view)
+    if size is None and view is None and getattr(cam, "image_size", None):
+        size = (int(cam.image_size[0]), int(cam.image_size[1]))  # declared at registration, no frame yet
     outside = regions_outside(regions, size)
     if outside:
         shown = ", ".join(repr(r) for r in outside[:5]) + (" …" if len(outside) > 5 else "")
@@ -135,3 +138,26 @@ def delete_camera(session: Session, data_dir: Path | str, cam: Camera) -> dict:
             path.unlink(missing_ok=True)
     reference_path(data_dir, cam.id, None).unlink(missing_ok=True)
     return counts
+
+
+MIN_HOURS = 3
+"""Proposals from frames covering fewer hours of the day (UTC) than this carry a warning."""
+
+
+def proposals_for(session: Session, cam: Camera, view: str | None, count: int, data_dir: Path | str) -> dict:
+    """``{"frames_used", "view", "proposals"}`` of a camera's view (thumbnails under ``data_dir``); ``HTTPException``
+    409 with too few frames."""
+    from .proposals import MAX_FRAMES, MIN_FRAMES, propose_regions
+    from .registration import view_thumbnails
+
+    thumbs, frames = view_thumbnails(session, cam, view, data_dir, MAX_FRAMES)
+    if len(thumbs) < MIN_FRAMES:
+        raise HTTPException(409, f"{len(thumbs)} frame(s) of this view stored; region proposals need at least "
+                                 f"{MIN_FRAMES}, spread over the day (post frames to /v1/cameras/{cam.id}/frames)")
+    props = propose_regions(thumbs, count, (frames[0].width, frames[0].height))
+    hours = len({f.taken_at.hour for f in frames})
+    warnings = [] if hours >= MIN_HOURS else [
+        f"the frames used cover {hours} hour(s) of the day: a surface that changes with the sun (a highlight, a "
+        "moving shadow) may look static; propose again once frames from other hours are stored"]
+    return {"frames_used": len(thumbs), "view": view, "hours_covered": hours,
+            "proposals": [p.as_dict() for p in props], "warnings": warnings}

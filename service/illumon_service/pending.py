@@ -34,6 +34,10 @@ def atomic_write(path: Path, data: bytes | bytearray) -> None:
         raise
 
 
+DEFAULT_MAX_BYTES = 512 * 1024 * 1024
+"""Default bound on the bytes of a view's kept originals (:attr:`~.settings.Settings.pending_max_bytes`)."""
+
+
 def pending_dir(data_dir: Path | str, camera_id: int) -> Path:
     """Folder of a camera's kept originals."""
     return Path(data_dir) / "pending" / f"camera-{camera_id}"
@@ -48,22 +52,26 @@ def pending_files(data_dir: Path | str, camera_id: int, frame_id: int) -> list[P
 
 
 def keep_original(session: Session, data_dir: Path | str, camera_id: int, view: str | None, frame_id: int,
-                  data: bytes | bytearray, fmt: str, limit: int) -> None:
+                  data: bytes | bytearray, fmt: str, limit: int, max_bytes: int = DEFAULT_MAX_BYTES) -> None:
     """Keep a frame's original image until its view has regions, and drop the originals of the view's older frames
-    beyond ``limit`` (the files only: the frames stay stored)."""
-    if limit <= 0:
+    beyond ``limit`` files or ``max_bytes`` in all (the files only: the frames stay stored)."""
+    if limit <= 0 or len(data) > max_bytes:
         return
     folder = pending_dir(data_dir, camera_id)
     atomic_write(folder / f"{frame_id}.{fmt}", data)
     kept = _kept_ids(folder)
-    if len(kept) <= limit:
-        return
-    view_ids = set(session.scalars(select(Frame.id).where(
+    view_ids = sorted(set(session.scalars(select(Frame.id).where(
         Frame.camera_id == camera_id, Frame.id.in_(kept),
-        Frame.view.is_(None) if view is None else Frame.view == view)).all()) | {frame_id}
-    for old in sorted(view_ids)[: max(0, len(view_ids) - limit)]:
+        Frame.view.is_(None) if view is None else Frame.view == view)).all()) | {frame_id})
+    sizes = {i: sum(p.stat().st_size for p in pending_files(data_dir, camera_id, i)) for i in view_ids}
+    total = sum(sizes.values())
+    for old in view_ids:  # oldest first
+        if len(view_ids) <= limit and total <= max_bytes:
+            break
         for p in pending_files(data_dir, camera_id, old):
             p.unlink(missing_ok=True)
+        total -= sizes[old]
+        view_ids = [i for i in view_ids if i != old]
 
 
 def _kept_ids(folder: Path) -> list[int]:

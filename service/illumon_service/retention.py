@@ -23,6 +23,7 @@ from sqlalchemy import delete, select
 from sqlalchemy.orm import Session, sessionmaker
 
 from .datafiles import data_file
+from .pending import pending_files
 from .settings import Settings
 from .storage import Estimate, Frame, IdempotencyKey, Job, LoginSession, make_engine, make_session_factory, utcnow
 
@@ -65,7 +66,7 @@ def prune(sessions: sessionmaker[Session], data_dir: Path | str, retain_days: fl
         cutoff = now - timedelta(days=retain_days)
         while True:
             with sessions() as s, s.begin():
-                rows = s.execute(select(Frame.id, Frame.thumb_path, Frame.image_path)
+                rows = s.execute(select(Frame.id, Frame.camera_id, Frame.thumb_path, Frame.image_path)
                                  .where(Frame.taken_at < cutoff).order_by(Frame.id).limit(CHUNK)).all()
                 if not rows:
                     break
@@ -74,12 +75,18 @@ def prune(sessions: sessionmaker[Session], data_dir: Path | str, retain_days: fl
                 out["idempotency_keys"] += s.execute(
                     delete(IdempotencyKey).where(IdempotencyKey.frame_id.in_(ids))).rowcount or 0
                 out["frames"] += s.execute(delete(Frame).where(Frame.id.in_(ids))).rowcount or 0
-            for r in rows:  # committed: now the files
-                for stored in (r.thumb_path, r.image_path):
-                    path = data_file(data_dir, stored)
+            for r in rows:  # committed: now the files (and an original kept while the view had no regions)
+                paths = [data_file(data_dir, stored) for stored in (r.thumb_path, r.image_path)]
+                pending = Path(data_dir) / "pending" / f"camera-{r.camera_id}"
+                if pending.is_dir():
+                    paths += list(pending.glob(f"{r.id}.*"))
+                for path in paths:
                     if path is not None and path.is_file():
                         path.unlink(missing_ok=True)
                         out["files"] += 1
+                for path in pending_files(data_dir, r.camera_id, r.id):  # an original kept for regions to come
+                    path.unlink(missing_ok=True)
+                    out["files"] += 1
         with sessions() as s, s.begin():
             out["jobs"] = s.execute(delete(Job).where(Job.state.in_(("done", "failed")),
                                                       Job.finished_at < cutoff)).rowcount or 0

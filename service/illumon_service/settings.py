@@ -44,6 +44,8 @@ class Settings(BaseSettings):
     pending_max_frames: int = Field(default=64, ge=0, le=10_000)
     """Original images kept per camera view while it has no regions, measured once they are confirmed (the oldest
     beyond this number are dropped; their frames stay stored without values). 0: keep none."""
+    pending_max_bytes: int = Field(default=512 * 1024 * 1024, gt=0)
+    """…and at most this many bytes of them per camera view (oldest dropped first)."""
     max_decoded_bytes: int = Field(default=64 * 1024 * 1024, gt=0)
     """Largest decoded image in bytes (width × height × channels × bytes per sample, as the header states, checked
     before decoding): bounds the memory one upload can take, for 16-bit images too."""

@@ -84,6 +84,9 @@ class Camera(Base):
     regions: Mapped[list] = mapped_column(JSON)
     response: Mapped[dict] = mapped_column(JSON)
     created_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), default=utcnow)
+    image_size: Mapped[list | None] = mapped_column(JSON, nullable=True)
+    """[width, height] of its frames as declared at registration (regions are checked against it until a frame is
+    stored); ``None`` when not declared."""
     models: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     """The scene models in use, by view (``default`` or ``v-<view>``): ``{"file": name under <data dir>/models,
     "version": id}``. A refit writes a new versioned file and switches to it in the transaction that stores its

@@ -45,13 +45,15 @@ def test_fit_then_estimate(files: dict) -> None:
         rows = list(csv.DictReader(fh))
     assert len(rows) == 60
     assert list(rows[0])[12:] == [
-        "cct_lo", "cct_hi", "duv_lo", "duv_hi", "confidence", "gain_r_lo", "gain_r_hi", "gain_b_lo", "gain_b_hi"
+        "cct_lo", "cct_hi", "duv_lo", "duv_hi", "confidence", "gain_r_lo", "gain_r_hi", "gain_b_lo", "gain_b_hi",
+        "non_daylight",
     ]
     for r in rows:
         assert float(r["cct_lo"]) < float(r["cct_k"]) < float(r["cct_hi"])
         assert float(r["gain_r_lo"]) < float(r["gain_r"]) < float(r["gain_r_hi"])
         assert float(r["gain_b_lo"]) < float(r["gain_b"]) < float(r["gain_b_hi"])
         assert 0.0 <= float(r["confidence"]) <= 1.0
+        assert 0.0 <= float(r["non_daylight"]) < 0.5  # measured daylight (issue 28)
 
 
 def test_bad_inputs(files: dict, capsys: pytest.CaptureFixture[str]) -> None:

@@ -429,3 +429,29 @@ def test_clean_history_with_a_tone_misfit_below_the_margin_is_clean(shared_data)
     tone = next(c for c in d.candidates if c.effect == "nonlinear_response")
     assert tone.score < -10.0, tone.score  # a misfit that a looser margin would report
     assert d.effect == "none", [(c.effect, round(c.score, 1)) for c in d.candidates]
+
+
+def test_several_effects_at_once_lamp_frames_and_clipping(shared_data):
+    """Issue 28: a history with lamp-lit frames whose brightest values are also clipped names both effects, the
+    lamp-lit frames and their share of lamp light; the top-level effect is the list's first."""
+    from illumon.observations import Observations
+
+    h = hide_effect("off_locus_illuminant", "Canon_300D", 10001)
+    obs = h.observations
+    level = float(np.nanpercentile(obs.values, 97))
+    clipped = Observations(obs.frames, obs.patches, np.minimum(obs.values, level), obs.times)
+    diag = diagnose(clipped, h.history.sensitivities)
+    effects = {e["effect"]: e for e in diag.effects}
+    assert {"clipping", "off_locus_illuminant"} <= set(effects), diag.effects
+    assert diag.effect == diag.effects[0]["effect"] and diag.parameters == diag.effects[0]["parameters"]
+    changes = [e["illuminant_change_deg"] for e in diag.effects]
+    assert changes == sorted(changes, reverse=True)
+    off = effects["off_locus_illuminant"]["parameters"]
+    truth = dict(zip(h.parameters["frames"], h.parameters["lamp_fraction"], strict=True))
+    found = [obs.frames.index(fr) for fr in off["frames"]]
+    assert len(set(found) & set(truth)) >= len(truth) - 1 and len(set(found) - set(truth)) <= 1
+    shares = [(s, truth[i]) for i, s in zip(found, off["lamp_share"], strict=True) if i in truth and s is not None]
+    assert len(shares) >= len(truth) - 2
+    assert np.median([abs(s - t) for s, t in shares]) < 0.2, shares
+    json = diag.to_json()
+    assert json["effects"] == diag.effects and "notes" in json

@@ -110,6 +110,23 @@ def test_real_photographs_development_set(shared_data):
             assert real.angular(real.run_illumon(s, mode)[0], s.truth)[0] < 0.5, (name, mode)
 
 
+def test_real_photographs_reference_never_hurts(shared_data):
+    """Issue 26's targets on every development set of real photographs: the greys known in one frame are never worse
+    than no reference (median), the whole chart no worse than its greys, and no frame is made much worse by a
+    reference (a reference in one frame must not throw another frame's light off: max within 3° of no reference's)."""
+    import real
+
+    if not (shared_data / "real" / "sony-dolp").is_dir():
+        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
+    raw = real.sony_raw(shared_data)
+    for s in [raw, *real.isp_sets(raw)]:
+        err = {m: real.angular(real.run_illumon(s, m)[0], s.truth) for m in ("none", "grey", "chart")}
+        med = {m: float(np.median(e)) for m, e in err.items()}
+        assert med["grey"] <= med["none"] and med["chart"] <= med["grey"], (s.name, med)
+        for m in ("grey", "chart"):
+            assert err[m].max() <= err["none"].max() + 3.0, (s.name, m, err)
+
+
 def test_self_balancing_camera_is_named(shared_data):
     """A day (30 frames over 10 hours) from a camera that rebalances every frame: its light looks steady and the fit
     warns; the same day through a fixed daylight preset does not (``benchmarks/unmeasured.py`` cases)."""

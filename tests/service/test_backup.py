@@ -40,6 +40,13 @@ def _wait_job(c: httpx.Client, job: str, headers: dict) -> dict:
     raise AssertionError(f"job {job} did not end")
 
 
+def _wait_for(condition, timeout: float = 120.0) -> None:  # noqa: ANN001 - a callable returning bool
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.05)
+
+
 def _state(c: httpx.Client, cam: int, headers: dict) -> dict:
     frames = c.get(f"/v1/cameras/{cam}/frames?limit=100000", headers=headers).json()
     estimates = c.get(f"/v1/cameras/{cam}/estimates?limit=100000", headers=headers).json()
@@ -92,11 +99,12 @@ def _roundtrip(tmp_path: Path, database_url: str | None = None, restored_url: st
 
         t = threading.Thread(target=writer)
         t.start()
-        time.sleep(1.0)
+        _wait_for(lambda: len(acked) >= 5 or bool(errors))  # frames are being written when the backup starts
         t_backup = time.monotonic()
         args = ["backup", str(dest), "--data-dir", str(data)] + (["--database-url", database_url] if database_url else [])
         manifest = _cli(*args)
-        time.sleep(0.5)
+        n_after = len(acked)
+        _wait_for(lambda: len(acked) >= n_after + 3 or bool(errors))  # and still after it
         stop.set()
         t.join(timeout=60)
         assert not errors, errors
@@ -168,8 +176,9 @@ def _roundtrip(tmp_path: Path, database_url: str | None = None, restored_url: st
             with sqlite3.connect(fresh / "illumon.sqlite3") as db:
                 paths = [p for (p,) in db.execute("SELECT thumb_path FROM frames WHERE thumb_path IS NOT NULL")]
             assert paths and all(not p.startswith("/") and (fresh / p).is_file() for p in paths)
-        print(f"\nbackup while writing ({manifest['database']}): {len(acked)} frames acknowledged, {len(before)} before "
-              f"the backup started, {len(copy['frames'])} in the copy, all identical; original untouched")
+        print(f"\nbackup while writing ({manifest['database']}): {N_FIRST} frames, then {len(acked)} acknowledged while "
+              f"writing, {len(before)} of them before the backup started, {len(copy['frames']) - N_FIRST} in the copy, "
+              "every frame and estimate in the copy identical; original untouched")
     finally:
         server.stop()
 
@@ -210,8 +219,37 @@ def test_backup_and_restore_errors(tmp_path):
     assert r.returncode == 2 and "not an empty folder" in r.stderr
     r = run("restore", str(bk), "--data-dir", str(tmp_path / "r"), "--database-url", "postgresql+psycopg://u@127.0.0.1:1/x")
     assert r.returncode == 2 and "cannot be restored into PostgreSQL" in r.stderr, r.stderr
+    # a PostgreSQL that cannot be reached: one line, and no backup folder (not even a partial one) left behind
+    r = run("backup", str(tmp_path / "pgbk"), "--data-dir", str(tmp_path / "var"), "--database-url",
+            "postgresql+psycopg://u@127.0.0.1:1/x")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "pg_dump" in r.stderr, r.stderr
+    assert not (tmp_path / "pgbk").exists() and not (tmp_path / "pgbk.partial").exists()
     # a database that cannot be reached, a negative retention: one line each, no traceback
     for args in (["prune", "--data-dir", str(tmp_path / "var"), "--database-url", "postgresql+psycopg://u@127.0.0.1:1/x"],
                  ["prune", "--data-dir", str(tmp_path / "var"), "--retain-days", "-1"]):
         r = run(*args)
         assert r.returncode == 2 and r.stderr.startswith("illumon: error:") and r.stderr.count("\n") == 1, r.stderr
+
+
+def test_backup_forgets_what_it_could_not_copy(tmp_path):
+    """A thumbnail or model file the snapshot names but the copy lacks (deleted in between) is forgotten in the copy,
+    counted in the manifest; the original keeps its rows."""
+    from illumon_service.backup import backup
+    from illumon_service.settings import Settings
+    from illumon_service.storage import make_engine
+
+    data = tmp_path / "var"
+    make_engine(f"sqlite:///{data / 'illumon.sqlite3'}").dispose()
+    with sqlite3.connect(data / "illumon.sqlite3") as db:
+        db.execute("INSERT INTO cameras (id, name, token_hash, sensitivities, regions, response, models, created_at) "
+                   "VALUES (1, 'c', 'h', '[]', '[]', '{}', '{\"default\": {\"file\": \"camera-1.gone.json\"}}', "
+                   "'2025-01-01 00:00:00')")
+        db.execute("INSERT INTO frames (id, camera_id, taken_at, patches, thumb_path, created_at) VALUES "
+                   "(1, 1, '2025-01-01 00:00:00', '{}', 'thumbs/camera-1/1.png', '2025-01-01 00:00:00')")
+    manifest = backup(Settings(data_dir=data, admin_token="x"), tmp_path / "bk")
+    assert manifest["files_missing"] == 2 and manifest["integrity_check"] == "ok"
+    with sqlite3.connect(tmp_path / "bk" / "illumon.sqlite3") as db:
+        assert db.execute("SELECT thumb_path FROM frames").fetchone()[0] is None
+        assert db.execute("SELECT models FROM cameras").fetchone()[0] in (None, "null")
+    with sqlite3.connect(data / "illumon.sqlite3") as db:
+        assert db.execute("SELECT thumb_path FROM frames").fetchone()[0] == "thumbs/camera-1/1.png"

@@ -161,9 +161,12 @@ def test_retention_prunes_old_frames_estimates_and_files(tmp_path, images):
             old_files = [tmp_path / p for (p,) in db.execute(
                 f"SELECT thumb_path FROM frames WHERE thumb_path IS NOT NULL AND id IN ({','.join(str(ids[t]) for t in old_t)})")]
         assert old_files and all(f.is_file() for f in old_files)
+        kept_original = tmp_path / "pending" / f"camera-{cam}" / f"{ids[old_t[0]]}.png"  # an original kept for later
+        kept_original.parent.mkdir(parents=True)
+        kept_original.write_bytes(images[0])
         out = prune(sessions, tmp_path, 30)
         assert out["frames"] == 6 and out["estimates"] == 6 and out["idempotency_keys"] == 6
-        assert out["files"] == len(old_files) and not any(f.exists() for f in old_files)
+        assert out["files"] == len(old_files) + 1 and not any(f.exists() for f in [*old_files, kept_original])
         frames = c.get(f"/v1/cameras/{cam}/frames?limit=100000", headers=h).json()
         assert sorted(f["frame_id"] for f in frames) == sorted(ids[t] for t in new_t)
         est = c.get(f"/v1/cameras/{cam}/estimates?limit=100000", headers=h).json()
@@ -272,3 +275,22 @@ def test_metrics_setting(tmp_path):
 
 def test_data_file_is_path(tmp_path):
     assert isinstance(data_file(tmp_path, "a/b.png"), Path)
+
+
+def test_login_session_is_not_the_token_and_ends_with_it(tmp_path):
+    """The cookie holds a random id; the database holds only hashes; a changed admin token ends its sessions."""
+    with TestClient(create_app(make_settings(tmp_path))) as c:
+        r = c.post("/login", data={"token": ADMIN, "next": "/"}, follow_redirects=False)
+        assert r.status_code == 303
+        sid = c.cookies.get("illumon_session")
+        assert sid and ADMIN not in sid and c.get("/", follow_redirects=False).status_code == 200
+    with sqlite3.connect(tmp_path / "illumon.sqlite3") as db:
+        dump = "\n".join(db.iterdump())
+    assert sid not in dump and ADMIN not in dump  # hashes only
+    with TestClient(create_app(make_settings(tmp_path))) as c:  # same token: the session survives a restart
+        c.cookies.set("illumon_session", sid)
+        assert c.get("/", follow_redirects=False).status_code == 200
+    with TestClient(create_app(make_settings(tmp_path, admin_token="a-new-admin-token"))) as c:
+        c.cookies.set("illumon_session", sid)
+        r = c.get("/", follow_redirects=False)
+        assert r.status_code == 303 and r.headers["location"].startswith("/login")

@@ -46,7 +46,8 @@ def day(tmp_path_factory) -> Day:
 def expected_alerts(name: str, latest: dict) -> set[str]:
     """The alerts a demo camera's row must show: the yard's troubles, and those its latest estimate implies."""
     out = {"regions_missing", "clipping"} if name == "yard" else set()
-    if abs(latest["duv"]) > 0.02:
+    p = latest.get("non_daylight")
+    if (p >= 0.5) if p is not None else abs(latest["duv"]) > 0.02:
         out.add("non_daylight")
     if latest["confidence"] < 0.5:
         out.add("low_confidence")
@@ -190,6 +191,13 @@ def test_alert_rules() -> None:
     assert _kinds(_ctx()) == []
     assert _kinds(_ctx(duv=-0.025)) == ["non_daylight"]
     assert _kinds(_ctx(duv=0.019)) == []
+    # with the model's posterior (issue 28) the alert follows it, not the Duv rule
+    lamp = _ctx(duv=0.001)
+    lamp.latest.intervals = {"non_daylight": 0.8}
+    assert _kinds(lamp) == ["non_daylight"]
+    day = _ctx(duv=-0.025)
+    day.latest.intervals = {"non_daylight": 0.1}
+    assert _kinds(day) == []
     assert _kinds(_ctx(confidence=0.2)) == ["low_confidence"]
     assert _kinds(_ctx(missing=2)) == []  # a passer-by
     assert _kinds(_ctx(missing=3)) == ["regions_missing"]

@@ -23,6 +23,7 @@ from illumon_service.app import create_app
 from illumon_service.storage import Estimate, Frame, Job, make_engine, make_session_factory, utcnow
 from sqlalchemy import select
 from svc_helpers import SIZE, T0, admin_headers, bearer, camera_body, grid_regions, make_settings, need_data
+from test_faults import pg_url  # noqa: F401 - a throwaway PostgreSQL cluster, or skip
 
 N = 12
 
@@ -107,6 +108,9 @@ def test_hostile_values_refused_at_the_door_and_refit_survives_stored_ones(tmp_p
             assert r.status_code == 422 and field in r.json()["detail"], (field, r.text)
         job = _refit(c, cid, token)
         assert job["state"] == "done", job
+        for q in ("-1e308,1e308", "0,1e-320"):  # query numbers too: the mapping overflowed to null gains (200)
+            r = c.get(f"/v1/cameras/{cid}/wb-gains", params={"onvif_range": q}, headers=bearer(token))
+            assert r.status_code == 422 and "onvif_range" in r.json()["detail"], r.text
         # rows as an older version stored them
         sessions = app.state.sessions
         with sessions() as s, s.begin():
@@ -186,6 +190,15 @@ def test_region_outside_the_image_is_422_on_put_and_page(client):
     r = client.post(f"/cameras/{cid}/regions", data=form, headers=admin_headers())
     assert r.status_code == 422 and "Not saved" in r.text and "typo" in r.text
     assert client.put(f"/v1/cameras/{cid}/regions", json={"regions": regions}, headers=bearer(token)).status_code == 200
+    # with the frames' size declared at registration, the typo is refused there, and by PUT before any frame
+    body = {**camera_body(np.ones((61, 3)), typo), "image_size": {"width": SIZE[0], "height": SIZE[1]}}
+    r = client.post("/v1/cameras", json=body, headers=admin_headers())
+    assert r.status_code == 422 and "typo" in str(r.json()["detail"]), r.text
+    r = client.post("/v1/cameras", json={**body, "regions": regions}, headers=admin_headers())
+    assert r.status_code == 201, r.text
+    cid, token = r.json()["id"], r.json()["token"]
+    r = client.put(f"/v1/cameras/{cid}/regions", json={"regions": typo}, headers=bearer(token))
+    assert r.status_code == 422 and "typo" in r.json()["detail"], r.text
 
 
 def test_delete_camera_removes_everything(tmp_path, history):
@@ -463,3 +476,86 @@ def test_frames_before_regions_are_measured_when_confirmed(tmp_path, scene):
         assert cam["warnings"] == job["summary"]["warnings"]
         if cam["warnings"]:
             assert 'id="refit-warnings"' in c.get(f"/cameras/{cid}", headers=admin_headers()).text
+
+
+def test_on_postgresql(tmp_path, history, pg_url):  # noqa: F811 - the fixture imported above
+    """The same guarantees on PostgreSQL: NUL refused (it was a 500 there), a refit switching model and estimates
+    together, deletes (rows of every table), recovery of a job a crash left running."""
+    css, lin = history
+    settings = make_settings(tmp_path, database_url=pg_url)
+    app = create_app(settings)
+    with TestClient(app) as c:
+        body = camera_body(css, grid_regions(lin.shape[1]), name="roof\x00east")
+        r = c.post("/v1/cameras", json=body, headers=admin_headers())
+        assert r.status_code == 422 and "control character" in str(r.json()["detail"]), r.text
+        cid, token = _camera(c, css, lin)
+        v1 = _refit(c, cid, token)["summary"]["version"]
+        r = c.post(f"/v1/cameras/{cid}/observations", json=_observation(lin, 3), headers=bearer(token))
+        assert r.json()["estimate"] is not None and _versions(app.state.sessions, cid) == {v1}
+        v2 = _refit(c, cid, token)["summary"]["version"]
+        assert _versions(app.state.sessions, cid) == {v2}
+        fid = r.json()["frame_id"]
+        assert c.delete(f"/v1/cameras/{cid}/frames/{fid}", headers=admin_headers()).json()["deleted"] == {
+            "frames": 1, "estimates": 1}
+        other, _ = _camera(c, css, lin)
+        with app.state.sessions() as s, s.begin():
+            s.add(Job(id="orphan", camera_id=other, state="running", progress=0.3, heartbeat_at=utcnow()))
+    with TestClient(create_app(settings)) as c:
+        job = c.get("/v1/jobs/orphan", headers=admin_headers()).json()
+        assert job["state"] == "failed" and job["summary"]["interrupted"]
+        assert c.get(f"/v1/jobs/{job['summary']['requeued_as']}", headers=admin_headers()).json()["state"] == "done"
+        r = c.delete(f"/v1/cameras/{cid}", headers=admin_headers())
+        assert r.status_code == 200 and r.json()["deleted"]["frames"] == N, r.text
+        assert [cam["id"] for cam in c.get("/v1/cameras", headers=admin_headers()).json()] == [other]
+
+
+def test_kept_originals_bounded_in_bytes(tmp_path, scene):
+    from svc_helpers import post_image
+
+    budget = int(3.5 * max(len(img) for img in scene.images))
+    with TestClient(create_app(make_settings(tmp_path, pending_max_bytes=budget))) as c:
+        r = c.post("/v1/cameras", json=camera_body(scene.css, []), headers=admin_headers())
+        cid, token = r.json()["id"], r.json()["token"]
+        ids = [post_image(c, cid, token, img, t).json()["frame_id"]
+               for img, t in zip(scene.images, scene.times, strict=True)]
+        kept = sorted((tmp_path / "pending" / f"camera-{cid}").iterdir(), key=lambda p: int(p.stem))
+        assert 3 <= len(kept) < len(ids) and [int(p.stem) for p in kept] == ids[-len(kept):]
+        assert sum(p.stat().st_size for p in kept) <= budget
+        assert len(c.get(f"/v1/cameras/{cid}/frames", headers=bearer(token)).json()) == len(ids)  # frames all stored
+
+
+@pytest.mark.parametrize("field,change", [
+    ("gamma", {"response": {"encoding": "gamma", "gamma": 1e-300}}),
+    ("white_level", {"response": {"encoding": "linear", "white_level": 1e300}}),
+    ("matrix", {"response": {"encoding": "srgb", "matrix": [[1e300, 0, 0], [0, 1, 0], [0, 0, 1]]}}),
+    ("matrix", {"response": {"encoding": "srgb", "matrix": [[1, 0, 0], [0, 1, 0], [0, 0, 1e-7]]}}),
+    ("r", {"sensitivities": {"wavelength_nm": list(range(400, 701, 50)), "r": [1e300] * 7, "g": [1.0] * 7,
+                             "b": [1.0] * 7}}),
+    ("b", {"sensitivities": {"wavelength_nm": list(range(400, 701, 50)), "r": [1.0] * 7, "g": [1.0] * 7,
+                             "b": [0.0] * 7}}),
+])
+def test_registration_numbers_in_range(client, field, change):
+    body = {**camera_body(np.ones((61, 3)), grid_regions(2)), **change}
+    r = client.post("/v1/cameras", json=body, headers=admin_headers())
+    assert r.status_code == 422 and field in str(r.json()["detail"]), r.text
+    assert client.get("/v1/cameras", headers=admin_headers()).json() == []
+
+
+def test_refit_leaves_no_estimate_of_the_previous_model(tmp_path, history):
+    """Regions replaced: the old frames keep one region of the new set, too few to estimate. Their estimates of the
+    previous model go with the refit (reason ``too_few_regions``), so every estimate comes from the new model."""
+    css, lin = history
+    app = create_app(make_settings(tmp_path))
+    with TestClient(app) as c:
+        cid, token = _camera(c, css, lin)
+        assert _refit(c, cid, token)["state"] == "done"
+        new = [dict(g, id="r0" if i == 0 else f"n{i}") for i, g in enumerate(grid_regions(lin.shape[1]))]
+        assert c.put(f"/v1/cameras/{cid}/regions", json={"regions": new}, headers=bearer(token)).status_code == 200
+        for f in range(N, N + 6):
+            body = _observation(lin, f)
+            body["patches"] = {("r0" if k == "r0" else f"n{k[1:]}"): v for k, v in body["patches"].items()}
+            assert c.post(f"/v1/cameras/{cid}/observations", json=body, headers=bearer(token)).status_code == 201
+        job = _refit(c, cid, token)
+        assert job["state"] == "done", job
+        assert _versions(app.state.sessions, cid) == {job["summary"]["version"]}
+        assert c.get(f"/v1/cameras/{cid}", headers=bearer(token)).json()["not_estimated"] == {"too_few_regions": N}

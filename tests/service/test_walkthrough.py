@@ -146,3 +146,25 @@ def test_readme_walkthrough_runs(tmp_path):
         assert bool(gains["notes"]) == gains["v4l2"]["temperature_clamped"]
     finally:
         server.stop()
+
+
+def test_readme_synopsis_matches_the_parser():
+    """Every ``illumon`` subcommand is in the README's synopsis, and every option the synopsis names exists."""
+    import argparse
+
+    from illumon.cli import build_parser
+
+    block = re.search(r"## Command line\s*```\n(.*?)```", README.read_text(), re.S)
+    assert block, "README has no command-line synopsis"
+    text = block.group(1).replace("\\\n", " ")
+    commands = [line.split() for line in text.splitlines() if line.startswith("illumon ")]
+    parser = build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    assert {c[1] for c in commands} == set(sub.choices), "README synopsis and `illumon` subcommands differ"
+    for words in commands:
+        p = sub.choices[words[1]]
+        if words[1] == "report":
+            p = next(a for a in p._actions if isinstance(a, argparse._SubParsersAction)).choices[words[2]]
+        known = {o for a in p._actions for o in a.option_strings}
+        named = {w.strip("[]|").split("=")[0] for w in words if w.strip("[").startswith("--")}
+        assert named <= known, (words[1], named - known)

@@ -35,7 +35,7 @@ def add_white_level(parser: argparse.ArgumentParser) -> None:
 
 
 def write_estimates(path: str | Path, result, extra: dict[str, np.ndarray] | None = None) -> None:
-    """Write a retrieval result as ``ESTIMATES.csv`` (one row per frame; see the README for the columns)."""
+    """Write a retrieval result as ``ESTIMATES.csv`` (one row per frame; docs/cli.md lists the columns)."""
     extra = extra or {}
     cols = ["frame", "time", "cct_k", "duv", "x", "y", "white_r", "white_g", "white_b", "gain_r", "gain_g", "gain_b"]
     cols += list(extra)

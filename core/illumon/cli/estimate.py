@@ -85,9 +85,11 @@ def _estimate_calibrated(args: argparse.Namespace, obs, known: dict[str, np.ndar
 
         result, extra = model.history_estimate
         return result, interval_columns(result, extra)
+    from ..model.lamps import non_daylight_column
     from ..retrieval import retrieve_illuminants
 
-    return retrieve_illuminants(scene, model.sensitivities, method=args.method), None
+    return (retrieve_illuminants(scene, model.sensitivities, method=args.method),
+            {"non_daylight": non_daylight_column(scene, model.sensitivities)})
 
 
 def add_estimate_command(sub: Any) -> None:

@@ -112,6 +112,8 @@ class Diagnosis:
     patch_index: int | None = None
     frame_index: int | None = None
     info: dict = field(default_factory=dict)
+    effects: list[dict] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
     def to_json(self) -> dict:
         """The ``REPORT.json`` form."""
@@ -128,6 +130,8 @@ class Diagnosis:
             "residual_base": self.residual_base,
             "residual_extended": self.residual_extended,
             "illuminant_change_deg": self.illuminant_change_deg,
+            "effects": self.effects,
+            "notes": self.notes,
         }
 
 
@@ -222,9 +226,84 @@ def diagnose(
         raise ValueError(f"diagnosis needs at least {rank + 2} frames, got {f}")
     if p < 3:
         raise ValueError(f"diagnosis needs at least 3 patches, got {p}")
-    y = obs.values.reshape(f, 3 * p)
-    base, cands, info = bilinear_stage(y, rank, margins["clipping"], learn_noise)
     css = np.asarray(sensitivities, dtype=float)
+    chosen, cands, info = _choose(obs, css, rank, margins, learn_noise)
+    diag = _as_diagnosis(obs, chosen, cands, info)
+    # Several effects at once (issue 28): model the one found, look again in what is left, until nothing passes its
+    # margin (at most MAX_EFFECTS); each is then re-estimated on its own to rank them by what they change.
+    found = [diag] if chosen is not None else []
+    current = obs
+    while found and len(found) < MAX_EFFECTS:
+        current = _modelled(current, found[-1])
+        if current is None or current.values.shape[0] < rank + 2 or current.values.shape[1] < 3:
+            break
+        nxt, ncands, ninfo = _choose(current, css, rank, margins, learn_noise,
+                                     exclude={d.effect for d in found})
+        if nxt is None:
+            break
+        found.append(_as_diagnosis(current, nxt, ncands, ninfo))
+    # every effect in the original history's indices (a later one was found with earlier ones modelled)
+    found = [d if i == 0 else (_on_original(obs, d) or d) for i, d in enumerate(found)]
+    if reestimate:
+        if not found:
+            diag.illuminant_change_deg = 0.0
+        else:
+            fast = {"start_offsets": (0.0,), "polish_max_frames": 0}
+            from ..retrieval import retrieve_illuminants
+
+            before = retrieve_illuminants(obs, sensitivities, **fast)
+            for i, d in enumerate(found):
+                if i > 0 and d.patch is not None and d.patch not in obs.patches:
+                    continue  # a part of a split patch: its change is not defined on the original history
+                after = estimate_with_effect(obs, sensitivities, d, base_result=before, **fast)
+                d.illuminant_change_deg = round(float(np.median(angular_error_deg(before.white, after.white))), 4)
+                d.info["before"], d.info["after"] = before, after
+    effects, notes = [], []
+    for d in found:
+        score = float(d.info.get("score", np.nan))
+        entry = {"effect": d.effect, "patch": d.patch, "frame": d.frame, "parameters": d.parameters,
+                 "score": round(score, 3) if np.isfinite(score) else None,
+                 "illuminant_change_deg": d.illuminant_change_deg}
+        if (d.effect == "clipping" and d.illuminant_change_deg is not None
+                and d.illuminant_change_deg <= MINOR_CLIPPING_DEG
+                and d.parameters.get("clipped_values", 0) <= MINOR_CLIPPING_FRACTION * obs.values.size):
+            notes.append(f"{d.parameters.get('clipped_values')} values at the white level "
+                         f"({d.parameters.get('clip_level')}), censored anyway; modelling them moves the "
+                         f"illuminants by {d.illuminant_change_deg}° (a note, not an effect)")
+            continue
+        effects.append((d, entry))
+    if reestimate:  # most consequential first
+        effects.sort(key=lambda de: -(de[0].illuminant_change_deg if de[0].illuminant_change_deg is not None else -1.0))
+    if effects and effects[0][0] is not diag:
+        first = effects[0][0]
+        first.candidates = diag.candidates
+        first.residual_base = diag.residual_base
+        diag = first
+    elif not effects and found:  # only notes: the history is clean
+        diag = _as_diagnosis(obs, None, diag.candidates, {**diag.info, "rms_base": diag.residual_base})
+        diag.illuminant_change_deg = 0.0
+    diag.effects = [e for _, e in effects]
+    diag.notes = notes
+    return diag
+
+
+MAX_EFFECTS = 3
+"""At most this many effects are reported for one history."""
+
+MINOR_CLIPPING_DEG = 0.1
+"""Clipping that moves the median illuminant by no more than this (degrees) is a note, not an effect (issue 28: a few
+values at the white level, censored by every fit anyway)."""
+
+MINOR_CLIPPING_FRACTION = 0.01
+"""… when at most this fraction of the history's values are at the white level."""
+
+
+def _choose(obs: Observations, css: NDArray[np.float64], rank: int, margins: dict[str, float], learn_noise: bool,
+            exclude: set[str] | frozenset = frozenset()) -> tuple[Candidate | None, list[Candidate], dict]:
+    """One round of selection (module docstring): the bilinear stage, the spectral stage, the converse checks."""
+    f, p, _ = obs.values.shape
+    y = obs.values.reshape(f, 3 * p)
+    _, cands, info = bilinear_stage(y, rank, margins["clipping"], learn_noise)
     spectral, sinfo = spectral_stage(obs, css, margins["fluorescence"])
     info.update(sinfo)
     cands += spectral
@@ -234,16 +313,22 @@ def diagnose(
         if c.frame is not None and c.effect in ("patch_change", "shadow"):
             c.parameters["frame"] = obs.frames[c.frame]
     chosen: Candidate | None = None
-    bil = [c for c in cands if c.effect not in ("off_locus_illuminant", "fluorescence")]
+    bil = [c for c in cands if c.effect not in ("off_locus_illuminant", "fluorescence") and c.effect not in exclude]
     ok = [c for c in bil if c.score < -margins[c.effect]]
+    spectral_ok = [c for c in spectral if c.effect not in exclude]
     if ok:
         chosen = min(ok, key=lambda c: c.score)
-        chosen = _spectral_cause(obs, css, rank, chosen, spectral, margins, learn_noise) or chosen
+        chosen = _spectral_cause(obs, css, rank, chosen, spectral_ok, margins, learn_noise) or chosen
     else:
         # off-locus frames first: their misfit can make a patch look fluorescent, not the reverse
-        ok = [c for c in spectral if c.score < -margins[c.effect]]
+        ok = [c for c in spectral_ok if c.score < -margins[c.effect]]
         if ok:
             chosen = ok[0]
+    return chosen, cands, info
+
+
+def _as_diagnosis(obs: Observations, chosen: Candidate | None, cands: list[Candidate], info: dict) -> Diagnosis:
+    """A :class:`Diagnosis` of ``obs`` for the chosen candidate (``none`` without one)."""
     effect = chosen.effect if chosen else "none"
     params = dict(chosen.parameters) if chosen else {}
     patch_i = chosen.patch if chosen and effect in ("patch_change", "shadow", "fluorescence") else None
@@ -252,7 +337,7 @@ def diagnose(
         params["frames"] = [obs.frames[i] for i in params["frame_indices"]]
     if effect == "shadow":
         params["shaded_frames"] = [obs.frames[i] for i in range(params["first_frame_index"], params["last_frame_index"] + 1)]
-    diag = Diagnosis(
+    return Diagnosis(
         effect=effect,
         patch=obs.patches[patch_i] if patch_i is not None else None,
         frame=obs.frames[frame_i] if frame_i is not None else None,
@@ -263,21 +348,38 @@ def diagnose(
         illuminant_change_deg=None,
         patch_index=patch_i,
         frame_index=frame_i,
-        info={k: v for k, v in info.items() if k != "fits"},
+        info={**{k: v for k, v in info.items() if k != "fits"}, "score": chosen.score if chosen else np.nan},
     )
-    if reestimate:
-        if effect == "none":
-            diag.illuminant_change_deg = 0.0
-        else:
-            fast = {"start_offsets": (0.0,), "polish_max_frames": 0}
-            from ..retrieval import retrieve_illuminants
 
-            before = retrieve_illuminants(obs, sensitivities, **fast)
-            after = estimate_with_effect(obs, sensitivities, diag, base_result=before, **fast)
-            diag.illuminant_change_deg = round(float(np.median(angular_error_deg(before.white, after.white))), 4)
-            diag.info["before"] = before
-            diag.info["after"] = after
-    return diag
+
+def _modelled(obs: Observations, diag: Diagnosis) -> Observations | None:
+    """``obs`` with ``diag``'s effect modelled out, for the next round: :func:`corrected_observations`, and the
+    off-locus frames left out."""
+    if diag.effect == "off_locus_illuminant":
+        keep = np.setdiff1d(np.arange(len(obs.frames)), diag.parameters.get("frame_indices", []))
+        return obs.subset(keep) if keep.size else None
+    return corrected_observations(obs, diag)
+
+
+def _on_original(obs: Observations, d: Diagnosis) -> Diagnosis | None:
+    """``d`` (found on a history with earlier effects modelled) with its patch and frame indices in ``obs``; ``None``
+    when its patch is not one of ``obs``'s (a split patch)."""
+    import copy
+
+    out = copy.copy(d)
+    out.parameters = dict(d.parameters)
+    if d.patch is not None:
+        if d.patch not in obs.patches:
+            return None
+        out.patch_index = obs.patches.index(d.patch)
+    if d.frame is not None:
+        out.frame_index = obs.frames.index(d.frame)
+    if d.effect == "off_locus_illuminant":
+        out.parameters["frame_indices"] = [obs.frames.index(fr) for fr in d.parameters["frames"]]
+    if d.effect == "shadow":
+        idx = [obs.frames.index(fr) for fr in d.parameters["shaded_frames"]]
+        out.parameters["first_frame_index"], out.parameters["last_frame_index"] = min(idx), max(idx)
+    return out
 
 
 def corrected_observations(obs: Observations, diag: Diagnosis) -> Observations:

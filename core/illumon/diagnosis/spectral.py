@@ -202,6 +202,52 @@ def off_locus_gains(base: SpectralBase) -> tuple[NDArray[np.float64], int]:
     return gains, g.shape[1] - xs.shape[1]
 
 
+def lamp_shares(base: SpectralBase, frames: list[int], steps: int = 21,
+                sigma: NDArray[np.float64] | None = None) -> list[float | None]:
+    """The share of lamp light in each of ``frames`` (0…1 of the light at 560 nm), where it can be estimated.
+
+    Each frame's light is re-fitted, reflectances held, as ``(1 − m)·D + m·L`` — ``D`` a CIE daylight (reciprocal
+    temperature on a grid over the daylight range: the frame's own daylight re-fit has absorbed part of the lamp),
+    ``L`` any lamp of the CIE tables (:mod:`illumon.model.lamps`), both 100 at 560 nm, ``m`` on a grid — with a free
+    exposure. ``None`` where the best lamp mixture does not explain the frame better than the best daylight alone by
+    more than the noise (χ² gain < 4): the light is off the locus, but not like any tabulated lamp. ``sigma``: the
+    reflectance coefficients to hold (default the base's; better those fitted without the lamp-lit frames, which
+    otherwise absorb part of the lamp).
+    """
+    from ..daylight import CIEDaylight
+    from ..model.lamps import _lamp_spectra
+
+    prob = base.prob
+    lamps = _lamp_spectra()
+    dm = CIEDaylight()
+    lo, hi = dm.bounds()
+    days = dm.spectra(np.stack([np.linspace(lo[0], hi[0], 24), np.zeros(24)], axis=1))
+    days = days / days[:, 32:33] * 100.0
+    kl, _ = imaging_operators(base.sensitivities, lamps.T, prob.rb)  # N × 3 × J
+    kd, _ = imaging_operators(base.sensitivities, days.T, prob.rb)  # D × 3 × J
+    sig = base.sigma if sigma is None else sigma
+    pred_l = np.einsum("ncj,pj->npc", kl, sig)  # N × P × 3
+    pred_d = np.einsum("ncj,pj->npc", kd, sig)  # D × P × 3
+    share = np.linspace(0.0, 1.0, steps)
+    out: list[float | None] = []
+    for f in frames:
+        w2 = prob.W[f] ** 2
+        y = prob.Y[f]
+        best_chi = np.full(steps, np.inf)
+        best_arg = [None] * steps
+        for i, m in enumerate(share):
+            pred = (1 - m) * pred_d[:, None] + m * pred_l[None]  # D × N × P × 3
+            num = np.einsum("pc,dnpc->dn", w2 * y, pred)
+            den = np.einsum("pc,dnpc->dn", w2, pred**2)
+            k = np.clip(num / np.maximum(den, 1e-300), 0, None)
+            chi = (np.einsum("pc,pc->", w2, y**2) - 2 * k * num + k**2 * den) / base.phi
+            best_chi[i] = float(chi.min())
+            best_arg[i] = np.unravel_index(int(np.argmin(chi)), chi.shape)
+        i = int(np.argmin(best_chi))
+        out.append(float(share[i]) if best_chi[0] - best_chi[i] >= 4.0 else None)
+    return out
+
+
 def shipped_fluorophores() -> tuple[list[str], NDArray[np.float64], NDArray[np.float64]]:
     """The 21 fluorophores shipped with illumon: names, excitation (21 × 61) and emission (21 × 61), peak-normalised."""
     from importlib import resources

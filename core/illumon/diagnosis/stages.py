@@ -18,6 +18,7 @@ from .spectral import (
     fit_spectral_base,
     fluorescence_gains,
     generic_fluorescence_gains,
+    lamp_shares,
     off_locus_gains,
     refine_with_measured_daylight,
 )
@@ -175,6 +176,55 @@ def _patch_candidates(y: NDArray[np.float64], w: NDArray[np.float64], base: bl.L
     return cands
 
 
+MIN_INGEST_CLIPPED = 3
+"""Regions missing above the censoring level, at least, for clipping removed at ingest to be named."""
+
+
+def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64]) -> Candidate | None:
+    """Clipping that the measurement already removed (issue 28; the service drops pixels at the white level and
+    regions more than half clipped, so an over-exposed history reaches the diagnosis as *missing* regions, never as
+    values sharing a clip level: ``imgsim`` clipping was named in 0 of 20).
+
+    Missing regions are compared as a Bernoulli outcome under two models: missing at random (one rate), and missing
+    when the region would be bright — the rank-``r`` model's prediction of its brightest channel at or above a level
+    ``c`` (a decision stump: ``c`` and a second rate, two extra parameters). Score: ΔBIC of the stump against the
+    constant rate, the level searched over the predictions; only a stump whose upper group is mostly missing and
+    whose level is above the median observed value counts (occlusion and a region out of view do not follow
+    brightness). ``None`` when no region is missing."""
+    f, m = y.shape
+    p = m // 3
+    miss = ~np.all(np.isfinite(y.reshape(f, p, 3)), axis=-1).ravel()
+    k_miss = int(miss.sum())
+    if k_miss < MIN_INGEST_CLIPPED or k_miss == miss.size:
+        return None
+    bright = np.max(pred.reshape(f, p, 3), axis=-1).ravel()
+    n = miss.size
+
+    def nll(k: float, t: float) -> float:
+        q = np.clip(k / max(t, 1.0), 1e-9, 1 - 1e-9)
+        return -(k * np.log(q) + (t - k) * np.log(1 - q))
+
+    nll0 = nll(k_miss, n)
+    order = np.argsort(-bright)
+    cum = np.cumsum(miss[order])
+    best, best_i = np.inf, -1
+    median_obs = float(np.nanmedian(y))
+    for i in range(MIN_INGEST_CLIPPED - 1, n - 1):
+        up_k, up_t = float(cum[i]), float(i + 1)
+        if up_k < MIN_INGEST_CLIPPED or up_k / up_t < 0.5 or bright[order[i]] <= median_obs:
+            continue
+        v = nll(up_k, up_t) + nll(k_miss - up_k, n - up_t)
+        if v < best:
+            best, best_i = v, i
+    if best_i < 0:
+        return None
+    score = 2.0 * (best - nll0) + 2.0 * np.log(n)
+    level = float(bright[order[best_i]])
+    return Candidate("clipping", float(score),
+                     {"clip_level": round(level, 5), "clipped_values": int(3 * cum[best_i]),
+                      "censored_at_ingest": True})
+
+
 def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
                     learn_noise: bool = True) -> tuple[bl.LowRankFit, list[Candidate], dict]:
     f, m = y.shape
@@ -303,6 +353,9 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
         fits["clipping"] = {"level": vmax, "censored": censored}
     else:
         cands.append(Candidate("clipping", float("inf"), {"clip_level": None, "clipped_values": int(censored.sum())}))
+    ingest = _censored_at_ingest(y, base.pred)
+    if ingest is not None and ingest.score < cands[-1].score:
+        cands[-1] = ingest
 
     # patch change and shadow; when clipping is supported, on the unclipped values only
     w_patch = w
@@ -354,8 +407,17 @@ def spectral_stage(obs: Observations, sensitivities: NDArray[np.float64],
     sums = np.cumsum(OFF_LOCUS_FRAME_Z - z[order])[ks - 1]
     best_k = int(ks[int(np.argmin(sums))])
     frames = sorted(int(i) for i in order[:best_k])
+    shares: list[float | None] = [None] * len(frames)
+    if float(sums.min()) < 0:  # the share of lamp light, with reflectances learned from the other frames
+        day = np.setdiff1d(np.arange(f), frames)
+        try:
+            sigma = fit_spectral_base(obs.subset(day), sensitivities).sigma if day.size >= 2 else None
+        except (ValueError, np.linalg.LinAlgError):
+            sigma = None
+        shares = lamp_shares(base, frames, sigma=sigma)
     off = Candidate("off_locus_illuminant", float(sums.min()),
                     {"frame_indices": frames, "frame_gains": [round(float(z[i]), 2) for i in frames],
-                     "gain_scale": round(scale, 3)},
+                     "gain_scale": round(scale, 3),
+                     "lamp_share": [None if v is None else round(v, 2) for v in shares]},
                     frame=frames[0])
     return [off, fluor], {"off_locus_frames": frames, "phi_spectral": base.phi}

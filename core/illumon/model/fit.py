@@ -31,11 +31,14 @@ from ..retrieval.common import RetrievalResult, censored, gray_world_mired, imag
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
 from .intervals import MODEL_ERROR
-from .lamps import apply_lamps, history_lamps
+from .lamps import LAMP_PRIOR, apply_lamps, history_lamps
 from .scene import SceneModel
 from .solver import FrameSolver
 
-__all__ = ["fit_scene_model"]
+__all__ = ["fit_scene_model", "LAMP_ROUNDS"]
+
+LAMP_ROUNDS = 3
+"""Rounds of judging the frames' light and refitting the scene without the lamp-lit ones (:mod:`.lamps`)."""
 
 
 def _reflectance_posterior(
@@ -132,9 +135,18 @@ def fit_scene_model(
     if not known:
         # Light that is not daylight (:mod:`.lamps`): lamp-lit frames are left out of the reflectance fit when
         # enough daylight frames remain to learn every patch; every frame is then judged against the refitted scene.
-        lamp = history_lamps(model, obs) > 0.5
-        day = obs.subset(np.flatnonzero(~lamp))
-        if lamp.any() and (~lamp).sum() >= 2 and np.all(day.present.any(axis=0)):
+        # (a few rounds: frames forced onto daylight bend the reflectances, which can hide other lamp-lit frames)
+        lamp = np.zeros(len(obs.frames), dtype=bool)
+        for _ in range(LAMP_ROUNDS):
+            # out of the reflectance fit, once some frame is more likely lit by a lamp than not: every frame whose
+            # data favour a lamp (Bayes factor > 1, posterior above the prior) — a daylight frame lost costs little,
+            # a lamp-lit frame kept bends every reflectance. A history with no lamp-lit frame is fitted as before.
+            nd = history_lamps(model, obs)
+            new = nd > (LAMP_PRIOR if np.any(nd > 0.5) else 1.0)
+            day = obs.subset(np.flatnonzero(~new))
+            if np.array_equal(new, lamp) or not new.any() or (~new).sum() < 2 or not np.all(day.present.any(axis=0)):
+                break
+            lamp = new
             model = fit_once(day)
             model.history_estimate = model.estimate(obs)
     scene = obs.select_patches([p for p in obs.patches if p not in known]) if known else obs

@@ -98,7 +98,7 @@ def illuminant_retrieval_Marguier2007(
     Eq. (5) divides the central difference by Δθ (not 2Δθ). The paper leaves α open and proposes an adaptive step
     as its improvement; the rate here grows by 1.5 after a step that lowers eq. (3) and halves (retrying from the
     same point) otherwise. A fixed rate stopped far above the error at the true angles on the paper's protocol (all
-    23 cases of the first patch set), most of the gap to the paper's Tables 1–3 (README, *Seeds and peers*). The
+    23 cases of the first patch set), most of the gap to the paper's Tables 1–3 (docs/benchmarks.md, *Seeds and peers*). The
     gradient is divided by the current error so one setting serves any data scale. No exposure model: frames are compared as
     given, as in the paper's synthetic experiments, so eq. (3) is only unbiased when the frames are at the model's
     scale (``ε1 = 1``; :func:`illumon.scenarios.paper_protocol` ``illuminant_scale="model"``).

@@ -19,6 +19,7 @@ from ..limits import (
     SENSITIVITY_MAX,
     WAVELENGTH_RANGE,
     check_text,
+    regions_outside,
 )
 
 
@@ -171,6 +172,13 @@ class ResponseIn(_Strict):
         return self
 
 
+class ImageSizeIn(_Strict):
+    """Width and height of a camera's frames in pixels."""
+
+    width: int = Field(gt=0, le=MAX_SIDE, strict=True)
+    height: int = Field(gt=0, le=MAX_SIDE, strict=True)
+
+
 class CameraIn(_Strict):
     """Registration of a camera; without ``sensitivities`` the camera is unmeasured (a prior from measured cameras,
     pinned by a calibration image: ``POST /v1/cameras/{id}/calibration``)."""
@@ -180,8 +188,21 @@ class CameraIn(_Strict):
     regions: list[RegionIn] = Field(default_factory=list, max_length=500)
     """Without regions, frames are stored (with thumbnails) until regions are confirmed (region proposals)."""
     response: ResponseIn = ResponseIn()
+    image_size: ImageSizeIn | None = None
+    """The frames' size in pixels, when known at registration: every region must then lie inside it (422
+    otherwise), and ``PUT …/regions`` checks against it until a frame is stored."""
 
     _check_regions = field_validator("regions")(_unique)
+
+    @model_validator(mode="after")
+    def _regions_inside(self) -> CameraIn:
+        if self.image_size is not None:
+            size = (self.image_size.width, self.image_size.height)
+            outside = regions_outside([r.model_dump() for r in self.regions], size)
+            if outside:
+                raise ValueError(f"region(s) {', '.join(map(repr, outside))} lie outside the {size[0]}×{size[1]} "
+                                 "image (image_size): x + width ≤ width, y + height ≤ height")
+        return self
 
 
 class RegionsIn(_Strict):

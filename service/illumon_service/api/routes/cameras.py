@@ -77,6 +77,7 @@ def register_camera(body: CameraIn, session: SessionDep, _admin: AdminDep) -> di
         sensitivities=css,
         regions=[r.model_dump() for r in body.regions],
         response=body.response.resolved(measured=body.sensitivities is not None),
+        image_size=None if body.image_size is None else [body.image_size.width, body.image_size.height],
     )
     session.add(cam)
     session.commit()

@@ -2,26 +2,14 @@
 
 from __future__ import annotations
 
-from datetime import datetime
-
-from fastapi import APIRouter, HTTPException, Query
-from sqlalchemy.orm import Session
+from fastapi import APIRouter, Query
 
 from ... import crud
-from ...deps import PrincipalDep, SessionDep, camera_for
+from ...deps import PrincipalDep, SessionDep, camera_for, nearest_estimate
 from ...estimation import GRID_WAVELENGTHS
-from ...storage import Estimate
 from ..schemas import ERROR_RESPONSES, MAX_LIST, EstimateOut, IlluminantOut, IsoDateTime
 
 router = APIRouter(prefix="/v1/cameras", tags=["estimates"], responses=ERROR_RESPONSES)
-
-
-def nearest_estimate(session: Session, camera_id: int, at: datetime | None) -> Estimate:
-    """:func:`crud.nearest_estimate`, or 404 when the camera has no estimate yet."""
-    e = crud.nearest_estimate(session, camera_id, at)
-    if e is None:
-        raise HTTPException(404, f"no estimate yet for camera {camera_id}; POST /v1/cameras/{camera_id}/refit")
-    return e
 
 
 @router.get("/{camera_id}/estimates", response_model=list[EstimateOut])

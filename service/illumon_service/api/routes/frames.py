@@ -17,7 +17,18 @@ from ...datafiles import stored_path
 from ...decode import ImageError, decode_frame, sniff_format
 from ...deps import AdminDep, PrincipalDep, SessionDep, camera_for
 from ...estimation import current_model, estimate_frame, undo_camera_gains, undo_camera_gains_sd
-from ...idempotency import IDEMPOTENCY_DOC, Claim, fingerprint, form_fingerprint, is_conflict, key_lock, parse_key, replay, stored
+from ...idempotency import (
+    IDEMPOTENCY_DOC,
+    Claim,
+    fingerprint,
+    form_fingerprint,
+    is_conflict,
+    key_lock,
+    keyed,
+    parse_key,
+    replay,
+    stored,
+)
 from ...limits import regions_outside
 from ...manage import delete_frame
 from ...pending import keep_original
@@ -33,7 +44,7 @@ from ...registration import (
     thumbs_dir,
     view_regions,
 )
-from ...storage import Camera, Estimate, Frame, IdempotencyKey, as_utc
+from ...storage import Camera, Estimate, Frame, as_utc
 from ...uploads import IMAGE_TYPES, parse_gains, parse_positive, parse_time, read_multipart
 from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, DeletedOut, FrameIngestOut, FrameOut, IsoDateTime, ObservationIn
 
@@ -102,11 +113,6 @@ def _store(
     session.close()
 
     def write(session: Session) -> dict:
-        key_row = None
-        if claim is not None:
-            key_row = IdempotencyKey(camera_id=cam.id, key=claim.key, fingerprint=claim.fingerprint)
-            session.add(key_row)
-            session.flush()
         frame = Frame(camera_id=cam.id, taken_at=taken_at, patches=patches,
                       width=size[0] if size else None, height=size[1] if size else None,
                       applied_gains=applied_gains, exposure=exposure, view=view, patch_sd=patch_sd,
@@ -139,7 +145,7 @@ def _store(
                                    else "no_regions" if not region_ids else "too_few_regions" if usable < 2
                                    else "no_model" if now is None else "estimate_failed")
         session.flush()
-        answer = {
+        return {
             "frame_id": frame.id,
             "taken_at": as_utc(frame.taken_at).isoformat(),
             "regions": patches,
@@ -151,13 +157,9 @@ def _store(
             "estimate": estimate_out(row) if row is not None else None,
             "warnings": warnings,
         }
-        if key_row is not None:
-            key_row.frame_id = frame.id
-            key_row.answer = FrameIngestOut.model_validate(answer).model_dump(mode="json")
-        return answer
 
     try:
-        out = request.app.state.commits.submit(write)
+        out = request.app.state.commits.submit(write if claim is None else keyed(write, claim, _answer_json))
     except Exception as exc:
         if claim is not None and is_conflict(exc):  # a concurrent retry in another process stored the frame first
             first = stored(request.app.state.sessions, claim)
@@ -166,10 +168,16 @@ def _store(
         raise
     if image is not None and not region_ids and fmt:  # measured once the view's regions are confirmed
         with request.app.state.sessions() as s:
-            keep_original(s, settings.data_dir, cam.id, view, out["frame_id"], image, fmt, settings.pending_max_frames)
+            keep_original(s, settings.data_dir, cam.id, view, out["frame_id"], image, fmt, settings.pending_max_frames,
+                          settings.pending_max_bytes)
     metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t1, labels='stage="commit"')
     metrics.inc("illumon_frames_ingested_total")
     return out
+
+
+def _answer_json(answer: dict) -> dict:
+    """A frame's 201 answer as JSON values (kept with its idempotency key)."""
+    return FrameIngestOut.model_validate(answer).model_dump(mode="json")
 
 
 @router.post("/{camera_id}/frames", status_code=status.HTTP_201_CREATED, openapi_extra=FRAME_UPLOAD,
@@ -211,12 +219,6 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
     metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t_start, labels='stage="receive"')
 
     def work() -> dict | JSONResponse:
-        with key_lock(claim):  # retries with the same key wait for the first, then get its answer
-            if claim is not None and (first := stored(request.app.state.sessions, claim)) is not None:
-                return replay(first, claim)
-            return measure()
-
-    def measure() -> dict | JSONResponse:
         try:
             t0 = time.perf_counter()
             regions = [Region(**r) for r in configured]
@@ -262,7 +264,13 @@ async def post_frame(camera_id: int, request: Request, session: SessionDep, prin
         return _store(request, session, cam, taken_at, patches, frame.size, data, sniff_format(data), applied_gains,
                       exposure, [r["id"] for r in configured], view, reg, thumb, patch_sd, extra, claim)
 
-    out = await run_in_threadpool(work)
+    def work_once() -> dict | JSONResponse:
+        with key_lock(claim):  # retries with the same key wait for the first, then get its answer
+            if claim is not None and (first := stored(request.app.state.sessions, claim)) is not None:
+                return replay(first, claim)
+            return work()
+
+    out = await run_in_threadpool(work_once)
     request.app.state.metrics.observe("illumon_ingest_seconds", time.perf_counter() - t_start)
     return out
 

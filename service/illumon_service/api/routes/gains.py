@@ -5,10 +5,9 @@ from __future__ import annotations
 from fastapi import APIRouter, HTTPException, Query
 from illumon.gains import all_conventions, v4l2_controls
 
-from ...deps import PrincipalDep, SessionDep, camera_for
+from ...deps import PrincipalDep, SessionDep, camera_for, nearest_estimate
 from ...storage import as_utc
 from ..schemas import ERROR_RESPONSES, IsoDateTime, WbGainsOut
-from .estimates import nearest_estimate
 
 router = APIRouter(prefix="/v1/cameras", tags=["gains"], responses=ERROR_RESPONSES)
 
@@ -18,16 +17,21 @@ their own with ``v4l2-ctl -L``). Daylight often lies beyond it (a blue sky ~10 0
 
 
 def parse_range(text: str | None) -> tuple[float, float] | None:
-    """``"lo,hi"`` → ``(lo, hi)``; 422 when malformed."""
+    """``"lo,hi"`` → ``(lo, hi)``; 422 when malformed or out of range."""
     if not text:
         return None
     try:
         lo, hi = (float(v) for v in text.split(","))
     except ValueError:
         raise HTTPException(422, f"onvif_range {text!r}: expected two numbers 'lo,hi'") from None
-    if not (lo < hi) or any(v != v or abs(v) == float("inf") for v in (lo, hi)):
-        raise HTTPException(422, f"onvif_range {text!r}: expected finite lo < hi")
+    if not (lo < hi) or any(v != v or abs(v) > ONVIF_RANGE_MAX for v in (lo, hi)) or hi - lo < 1e-3:
+        raise HTTPException(422, f"onvif_range {text!r}: expected lo < hi within ±{ONVIF_RANGE_MAX:g}, at least 0.001 "
+                                 "apart")
     return lo, hi
+
+
+ONVIF_RANGE_MAX = 1e6
+"""Largest magnitude of an ``onvif_range`` end (vendor ranges are 0…255 or so; beyond, the mapping overflows)."""
 
 
 @router.get("/{camera_id}/wb-gains", response_model=WbGainsOut)

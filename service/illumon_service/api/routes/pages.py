@@ -32,13 +32,12 @@ from ...deps import Principal, SessionDep, principal_from_token
 from ...estimation import camera_primaries
 from ...logins import MAX_AGE as LOGIN_MAX_AGE
 from ...logins import create_login, end_login, principal_from_login
-from ...manage import save_regions_and_measure
+from ...manage import proposals_for, save_regions_and_measure
 from ...proposals import MAX_FRAMES, preview_jpeg
 from ...registration import parse_view, view_regions, view_thumbnails
 from ...status import NON_DAYLIGHT_DUV, REASON_WORDS, camera_history, camera_status, fleet_status
 from ...storage import Camera, Frame, as_utc
 from ..schemas import RegionsIn
-from .proposals import proposals_for
 
 __all__ = ["router", "install", "COOKIE"]
 

@@ -5,31 +5,11 @@ from __future__ import annotations
 from fastapi import APIRouter, HTTPException, Query, Request
 
 from ...deps import PrincipalDep, SessionDep, camera_for
-from ...proposals import MAX_FRAMES, MIN_FRAMES, propose_regions
-from ...registration import parse_view, view_thumbnails
+from ...manage import proposals_for
+from ...registration import parse_view
 from ..schemas import ERROR_RESPONSES, ErrorOut, ProposalsOut
 
 router = APIRouter(prefix="/v1/cameras", tags=["regions"], responses=ERROR_RESPONSES)
-
-MIN_HOURS = 3
-"""Proposals from frames covering fewer hours of the day (UTC) than this carry a warning."""
-
-
-def proposals_for(session, cam, view: str | None, count: int, data_dir) -> dict:  # noqa: ANN001 - Session, Camera, Path
-    """``{"frames_used", "view", "proposals"}`` of a camera's view (thumbnails under ``data_dir``); ``HTTPException``
-    409 with too few frames."""
-    thumbs, frames = view_thumbnails(session, cam, view, data_dir, MAX_FRAMES)
-    if len(thumbs) < MIN_FRAMES:
-        raise HTTPException(409, f"{len(thumbs)} frame(s) of this view stored; region proposals need at least "
-                                 f"{MIN_FRAMES}, spread over the day (post frames to /v1/cameras/{cam.id}/frames)")
-    props = propose_regions(thumbs, count, (frames[0].width, frames[0].height))
-    hours = len({f.taken_at.hour for f in frames})
-    warnings = [] if hours >= MIN_HOURS else [
-        f"the frames used cover {hours} hour(s) of the day: a surface that changes with the sun (a highlight, a "
-        "moving shadow) may look static; propose again once frames from other hours are stored"]
-    return {"frames_used": len(thumbs), "view": view, "hours_covered": hours,
-            "proposals": [p.as_dict() for p in props], "warnings": warnings}
-
 
 @router.get("/{camera_id}/region-proposals", response_model=ProposalsOut,
             responses={409: {"model": ErrorOut, "description": "Too few frames of the view stored"}})

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 from datetime import datetime
 
 from sqlalchemy import func, select
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, defer
 
 from .crud import estimate_non_daylight, estimate_out
 from .deps import Principal
@@ -65,6 +65,8 @@ __all__ = [
     "camera_history",
     "not_estimated_counts",
     "latest_job",
+    "chart_history",
+    "MAX_CHART_POINTS",
 ]
 
 RECENT_FRAMES = 12
@@ -348,3 +350,68 @@ def camera_history(session: Session, camera_id: int, limit: int = 2000) -> list[
         d["intervals"] = e.intervals
         out.append(d)
     return out
+
+
+MAX_CHART_POINTS = 1000
+"""The camera page draws at most this many points per series, whatever the history's length: the wide chart's plot
+area is 642 px across, so 1000 points is already more than one per pixel column."""
+
+
+@dataclass
+class ChartHistory:
+    """What the camera page draws: the window's estimates thinned to a bounded number of points, and the newest."""
+
+    points: list[dict]
+    """At most ``max_points`` estimates of the window, oldest first, every ``stride``-th counted from the newest (so
+    the newest is always drawn), as the JSON API gives them plus ``intervals``."""
+    recent: list[dict]
+    """The window's newest ``recent`` estimates, newest first (the page's table), same form."""
+    count: int
+    """Estimates in the window (the camera's most recent ``limit``)."""
+    stride: int
+    """1 when every estimate of the window is drawn."""
+
+
+def chart_history(session: Session, camera_id: int, limit: int = 2000, max_points: int = MAX_CHART_POINTS,
+                  recent: int = 24) -> ChartHistory:
+    """The camera's most recent ``limit`` estimates, thinned by a stride to at most ``max_points``, and its newest
+    ``recent`` ones.
+
+    The window is read as frame ids only, newest first (an index-only range scan of ``ix_estimates_camera_taken``);
+    the drawn and recent rows are then fetched by primary key, without their spectra. The page's cost is therefore
+    bounded by ``max_points`` + ``recent`` rows, plus ``limit`` index entries, whatever the history's length.
+
+    Parameters
+    ----------
+    session
+        Database session.
+    camera_id
+        The camera.
+    limit
+        Size of the window (the most recent estimates); at least 1.
+    max_points
+        Upper bound of the drawn points; at least 1.
+    recent
+        How many of the newest estimates the table lists.
+
+    Returns
+    -------
+    ChartHistory
+    """
+    order = (Estimate.taken_at.desc(), Estimate.frame_id.desc())
+    ids = list(session.scalars(select(Estimate.frame_id).where(Estimate.camera_id == camera_id).order_by(*order)
+                               .limit(max(1, limit))).all())
+    stride = max(1, math.ceil(len(ids) / max(1, max_points)))
+    drawn = ids[::stride]
+    want = set(drawn) | set(ids[:recent])
+    rows: dict[int, dict] = {}
+    chunk = 900  # under SQLite's default limit of bound parameters of old versions (999)
+    wanted = sorted(want)
+    for start in range(0, len(wanted), chunk):
+        for e in session.scalars(select(Estimate).options(defer(Estimate.spectrum))
+                                 .where(Estimate.frame_id.in_(wanted[start : start + chunk]))).all():
+            d = estimate_out(e)
+            d["intervals"] = e.intervals
+            rows[e.frame_id] = d
+    return ChartHistory(points=[rows[i] for i in reversed(drawn) if i in rows],
+                        recent=[rows[i] for i in ids[:recent] if i in rows], count=len(ids), stride=stride)

@@ -28,6 +28,7 @@ from sqlalchemy import (
     create_engine,
     event,
     select,
+    text,
 )
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
@@ -111,8 +112,13 @@ class Frame(Base):
     (divided out before estimating and fitting)."""
 
     __tablename__ = "frames"
-    __table_args__ = (Index("ix_frames_camera_taken", "camera_id", "taken_at", "id"),)
-    """Every "latest N frames" and time-range query of one camera is an index range scan (no sort of its rows)."""
+    __table_args__ = (
+        Index("ix_frames_camera_taken", "camera_id", "taken_at", "id"),
+        Index("ix_frames_camera_not_estimated", "camera_id", "not_estimated",
+              sqlite_where=text("not_estimated IS NOT NULL"), postgresql_where=text("not_estimated IS NOT NULL")),
+    )
+    """Every "latest N frames" and time-range query of one camera is an index range scan (no sort of its rows); the
+    frames with a reason for having no estimate (few) are a range of a partial index."""
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"), index=True)
     taken_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), index=True)

@@ -141,3 +141,37 @@ def test_camera_page_draws_a_bounded_number_of_points(tmp_path) -> None:
             assert f"({n} estimates, one in {-(-n // MAX_CHART_POINTS)} drawn;" in page.text
             rows = re.findall(r'<tr data-frame-id="(\d+)">', page.text)
             assert rows[0] == str(30 + 6000) and len(rows) == 24  # the newest estimate heads the table
+
+
+def test_not_estimated_counts_match_the_join(tmp_path) -> None:
+    """The counts without a pass over the rows equal those of the outer join of frames and estimates, also for rows
+    that break the usual pattern (a frame with a reason and an estimate, frames of older versions without either)."""
+    from illumon_service.status import not_estimated_counts
+    from sqlalchemy import delete, func, select, update
+
+    url = f"sqlite:///{tmp_path / 'db.sqlite3'}"
+    a, b = _fill(url, [200, 300])
+    engine = make_engine(url)
+
+    def by_join(s, cid: int) -> dict[str, int]:
+        rows = s.execute(select(Frame.not_estimated, func.count()).select_from(Frame)
+                         .outerjoin(Estimate, Estimate.frame_id == Frame.id)
+                         .where(Frame.camera_id == cid, Estimate.frame_id.is_(None))
+                         .group_by(Frame.not_estimated)).all()
+        return dict(sorted({(r or "pending"): int(n) for r, n in rows}.items()))
+
+    with make_session_factory(engine)() as s:
+        assert not_estimated_counts(s, a) == by_join(s, a) == {}
+        s.execute(update(Frame).where(Frame.id.in_(range(201, 221))).values(not_estimated="view_change"))
+        s.execute(delete(Estimate).where(Estimate.frame_id.in_(range(201, 221))))  # 20 view changes
+        s.execute(update(Frame).where(Frame.id.in_(range(230, 235))).values(not_estimated="invalid_values"))
+        s.execute(delete(Estimate).where(Estimate.frame_id.in_(range(230, 233))))  # 2 keep an estimate anyway
+        s.execute(delete(Estimate).where(Estimate.frame_id.in_(range(300, 340))))  # 40 of older versions: pending
+        s.execute(update(Frame).where(Frame.id.in_(range(5, 8))).values(not_estimated="no_model"))
+        s.execute(delete(Estimate).where(Estimate.frame_id.in_(range(5, 8))))
+        s.commit()
+        want = {"invalid_values": 3, "pending": 40, "view_change": 20}
+        assert not_estimated_counts(s, b) == by_join(s, b) == want
+        assert not_estimated_counts(s, b, frames=300) == want
+        assert not_estimated_counts(s, a) == by_join(s, a) == {"no_model": 3}
+    engine.dispose()

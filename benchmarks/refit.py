@@ -1,8 +1,11 @@
 """Refit benchmark (issue 9): one camera's history of 1k / 10k / 100k frames × 16 patches, and a fleet of cameras
 refitted through a Dask ``LocalCluster`` versus serially.
 
-Run: ``python benchmarks/refit.py [--quick] [--sizes 1000,10000,100000] [--cameras 200] [--fleet-frames 200]``.
-Prints a table and writes ``benchmarks/results/refit.json``.
+Run: ``python benchmarks/refit.py [--quick] [--sizes 1000,10000,100000] [--cameras 200] [--fleet-frames 200]
+[--no-fleet]``. Prints a table and writes ``benchmarks/results/refit.json``.
+
+Each one-camera refit runs in a fresh (spawned) process whose peak resident set (``ru_maxrss``, imports included) is
+reported as ``peak MiB``; ``check s`` is the tone-response check's part of ``fit+est s`` (issue 29).
 
 Each history is simulated from measured data (Nikon D5100 sensitivities, Granada daylight in sequence, 16 Munsell
 reflectances, 10 % of patches missing) when ``../shared/data`` is present, from synthetic spectra otherwise. Frames
@@ -83,6 +86,38 @@ def store_camera(sessions, css: np.ndarray, day: np.ndarray, refl: np.ndarray, n
     return cid, hist.true_white
 
 
+def _refit_child(url: str, data_dir: str, cid: int, conn) -> None:  # noqa: ANN001 - a multiprocessing Connection
+    """Child process: refit one camera; send (seconds, summary, peak RSS in MiB) back."""
+    import resource
+
+    warnings.simplefilter("ignore")
+    settings = Settings(data_dir=data_dir, admin_token="x")
+    engine = make_engine(url)
+    t = time.perf_counter()
+    summary = refit_camera(make_session_factory(engine), cid, data_dir=Path(data_dir),
+                           max_frames=settings.refit_max_frames, method=settings.refit_method,
+                           max_fit_frames=settings.refit_fit_frames)
+    seconds = time.perf_counter() - t
+    engine.dispose()
+    conn.send((seconds, summary, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))  # KiB on Linux
+    conn.close()
+
+
+def refit_in_child(settings: Settings, cid: int, data_dir: Path) -> tuple[float, dict, float]:
+    """``refit_camera`` in a fresh (spawned) process, so that its peak memory is the refit's own (plus the imports):
+    returns (seconds, summary, peak resident set in MiB, ``ru_maxrss``)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("spawn")
+    parent, child = ctx.Pipe(duplex=False)
+    proc = ctx.Process(target=_refit_child, args=(settings.resolved_database_url, str(data_dir), cid, child))
+    proc.start()
+    child.close()
+    seconds, summary, peak = parent.recv()
+    proc.join()
+    return seconds, summary, peak
+
+
 def one_camera(sizes: list[int], css, day, refl) -> list[dict]:
     """Time refit_camera on histories of the given lengths."""
     out = []
@@ -92,10 +127,10 @@ def one_camera(sizes: list[int], css, day, refl) -> list[dict]:
             engine = make_engine(settings.resolved_database_url)
             sessions = make_session_factory(engine)
             cid, truth = store_camera(sessions, css, day, refl, n, seed=1)
-            t = time.perf_counter()
-            summary = refit_camera(sessions, cid, data_dir=Path(tmp), max_frames=settings.refit_max_frames,
-                                   method=settings.refit_method, max_fit_frames=settings.refit_fit_frames)
-            seconds = time.perf_counter() - t
+            engine.dispose()
+            seconds, summary, peak_mib = refit_in_child(settings, cid, Path(tmp))
+            engine = make_engine(settings.resolved_database_url)
+            sessions = make_session_factory(engine)
             with sessions() as s:
                 from illumon_service.storage import Estimate
                 from sqlalchemy import select
@@ -106,11 +141,12 @@ def one_camera(sizes: list[int], css, day, refl) -> list[dict]:
             err = angular_error_deg(white, truth[[fid - 1 for fid, _ in got]])
             engine.dispose()
         row = {"frames": n, "patches": N_PATCHES, "seconds": seconds, "read_s": summary["read_s"],
-               "fit_estimate_s": summary["fit_s"], "write_s": summary["write_s"], "estimated": summary["frames"],
+               "fit_estimate_s": summary["fit_s"], "response_check_s": summary.get("response_check_s", float("nan")),
+               "write_s": summary["write_s"], "estimated": summary["frames"], "peak_mib": peak_mib,
                "median_deg": float(np.median(err)), "p95_deg": float(np.percentile(err, 95))}
         out.append(row)
-        print(f"{n:>7d} {seconds:8.2f} {row['read_s']:7.2f} {row['fit_estimate_s']:9.2f} {row['write_s']:7.2f} "
-              f"{row['median_deg']:7.3f} {row['p95_deg']:7.3f}", flush=True)
+        print(f"{n:>7d} {seconds:8.2f} {row['read_s']:7.2f} {row['fit_estimate_s']:9.2f} {row['response_check_s']:8.2f} "
+              f"{row['write_s']:7.2f} {peak_mib:8.0f} {row['median_deg']:7.3f} {row['p95_deg']:7.3f}", flush=True)
     return out
 
 
@@ -153,6 +189,7 @@ def main() -> None:
     parser.add_argument("--cameras", type=int, help="fleet size (200)")
     parser.add_argument("--fleet-frames", type=int, help="frames per fleet camera (200)")
     parser.add_argument("--workers", type=int, default=usable_cpus(), help="Dask worker processes (usable CPUs)")
+    parser.add_argument("--no-fleet", action="store_true", help="one camera only")
     args = parser.parse_args()
     warnings.simplefilter("ignore")
     sizes = [int(v) for v in args.sizes.split(",")] if args.sizes else ([1000, 10000] if args.quick else [1000, 10000, 100000])
@@ -161,8 +198,15 @@ def main() -> None:
     css, day, refl, provenance = spectra()
     print(f"data: {provenance}; CPUs: {os.cpu_count()}")
     print("\none camera, 16 patches: refit (read + scene model fit + estimate every frame + write)")
-    print(f"{'frames':>7} {'total s':>8} {'read s':>7} {'fit+est s':>9} {'write s':>7} {'med °':>7} {'p95 °':>7}")
+    print(f"{'frames':>7} {'total s':>8} {'read s':>7} {'fit+est s':>9} {'check s':>8} {'write s':>7} {'peak MiB':>8} "
+          f"{'med °':>7} {'p95 °':>7}")
     single = one_camera(sizes, css, day, refl)
+    if args.no_fleet:
+        RESULTS.mkdir(exist_ok=True)
+        (RESULTS / "refit.json").write_text(json.dumps({"data": provenance, "cpus": os.cpu_count(),
+                                                        "one_camera": single}, indent=1) + "\n")
+        print(f"\nwrote {RESULTS / 'refit.json'}")
+        return
     print(f"\nfleet: {cameras} cameras × {fleet_frames} frames × 16 patches")
     fl = fleet(cameras, fleet_frames, args.workers, css, day, refl)
     print(f"{'serial s':>9} {'Dask s':>8} {'workers':>8} {'speed-up':>9} {'failures':>9} {'s/cam ser':>9} {'s/cam Dask':>10} "

@@ -111,7 +111,11 @@ apart (a camera offline for months, or the night of a daytime-only camera): noth
 
 def gap_breaks(times: Sequence[datetime], factor: float = GAP_FACTOR) -> set[int]:
     """Indices ``i`` of ``times`` (in time order) preceded by a gap longer than ``factor`` × the median spacing."""
-    ts = [t.timestamp() for t in times]
+    return _gap_breaks([t.timestamp() for t in times], factor)
+
+
+def _gap_breaks(ts: Sequence[float], factor: float = GAP_FACTOR) -> set[int]:
+    """:func:`gap_breaks` of POSIX times."""
     steps = [b - a for a, b in zip(ts, ts[1:], strict=False)]
     positive = sorted(d for d in steps if d > 0)
     if len(positive) < 2:
@@ -146,7 +150,9 @@ def time_chart(series: Sequence[Series], *, title: str, unit: str = "", refs: Se
     ``width`` × ``height`` is the viewBox (the page scales it to its column): a narrower one keeps text readable on a
     phone.
     """
-    all_t = [t.timestamp() for s in series for t in s.times]
+    stamps = [[t.timestamp() for t in s.times] for s in series]  # once per series (the chart's hot loop)
+    breaks_of = [_gap_breaks(ts) for ts in stamps]
+    all_t = [t for ts in stamps for t in ts]
     vals = [float(v) for s in series for v in s.values if v is not None and math.isfinite(v)]
     for s in series:
         for band in (s.lo, s.hi):
@@ -187,10 +193,10 @@ def time_chart(series: Sequence[Series], *, title: str, unit: str = "", refs: Se
             parts.append(f'<line class="ref" x1="{LEFT}" x2="{width - RIGHT}" y1="{y:.1f}" y2="{y:.1f}"/>')
     parts.append(f'<rect class="frame" x="{LEFT}" y="{TOP}" width="{width - LEFT - RIGHT}" height="{height - TOP - BOTTOM}"/>')
     # bands, then lines and points
-    for s in series:
-        xs = [fr.x(t.timestamp()) for t in s.times]
+    for s, ts, brk in zip(series, stamps, breaks_of, strict=True):
+        xs = [fr.x(t) for t in ts]
         if s.lo is not None and s.hi is not None:
-            for run in _band_runs(xs, s.lo, s.hi, gap_breaks(s.times)):
+            for run in _band_runs(xs, s.lo, s.hi, brk):
                 up = [f"{xs[i]:.1f},{fr.y(float(s.hi[i])):.1f}" for i in run]  # type: ignore[arg-type]
                 down = [f"{xs[i]:.1f},{fr.y(float(s.lo[i])):.1f}" for i in reversed(run)]  # type: ignore[arg-type]
                 if len(run) == 1:
@@ -199,14 +205,13 @@ def time_chart(series: Sequence[Series], *, title: str, unit: str = "", refs: Se
                                  f'y1="{fr.y(float(s.lo[i])):.1f}" y2="{fr.y(float(s.hi[i])):.1f}"/>')  # type: ignore[arg-type]
                 else:
                     parts.append(f'<polygon class="{s.band_css}" points="{" ".join(up + down)}"/>')
-    for s in series:
-        breaks = gap_breaks(s.times)
+    for s, ts, breaks in zip(series, stamps, breaks_of, strict=True):
         pts, runs = [], [[]]
-        for i, (t, v) in enumerate(zip(s.times, s.values, strict=True)):
+        for i, (t, v) in enumerate(zip(ts, s.values, strict=True)):
             if i in breaks and runs[-1]:
                 runs.append([])
             if v is not None and math.isfinite(v):
-                pts.append((fr.x(t.timestamp()), fr.y(float(v))))
+                pts.append((fr.x(t), fr.y(float(v))))
                 runs[-1].append(pts[-1])
         if not pts:
             continue

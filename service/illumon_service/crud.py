@@ -51,10 +51,13 @@ def nearest_estimate(session: Session, camera_id: int, at: datetime | None) -> E
 
 def estimates_between(session: Session, camera_id: int, since: datetime | None, until: datetime | None,
                       limit: int) -> Sequence[Estimate]:
-    """A camera's estimates in ``since`` ≤ taken_at ≤ ``until``, oldest first, at most ``limit``."""
-    q = select(Estimate).where(Estimate.camera_id == camera_id)
+    """A camera's estimates in ``since`` ≤ taken_at ≤ ``until``, oldest first, at most ``limit``: a range of the
+    (camera, time) index. Rows with every column of :class:`.storage.Estimate` by name but its ``spectrum`` (not
+    ORM objects: a third of the time for 1000 rows; :func:`estimate_out` reads them alike)."""
+    columns = [c for c in Estimate.__table__.columns if c.name != "spectrum"]
+    q = select(*columns).where(Estimate.camera_id == camera_id)
     if since is not None:
         q = q.where(Estimate.taken_at >= as_utc(since))
     if until is not None:
         q = q.where(Estimate.taken_at <= as_utc(until))
-    return session.scalars(q.order_by(Estimate.taken_at, Estimate.frame_id).limit(limit)).all()
+    return session.execute(q.order_by(Estimate.taken_at, Estimate.frame_id).limit(limit)).all()  # type: ignore[return-value]

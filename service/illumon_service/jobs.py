@@ -178,8 +178,10 @@ def refit_camera(
         estimates.update(est_d)
         if path.is_file():
             new_models[None] = path
+    t_check = time.perf_counter()
     check = check_response(frames, region_ids, css, encoding) if frames else {"warnings": []}
     summary["response_check"] = {k: v for k, v in check.items() if k != "warnings"}
+    summary["response_check_s"] = round(time.perf_counter() - t_check, 3)  # part of fit_s
     model_warnings = [str(w) for w in summary.get("identifiability_warnings") or []]
     if isinstance(summary.get("model"), str) and summary["model"].startswith("scene model fit failed"):
         model_warnings.append(summary["model"])

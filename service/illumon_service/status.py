@@ -65,6 +65,8 @@ __all__ = [
     "camera_history",
     "not_estimated_counts",
     "latest_job",
+    "chart_history",
+    "MAX_CHART_POINTS",
 ]
 
 RECENT_FRAMES = 12
@@ -271,18 +273,35 @@ class CameraStatus:
     """Every warning of the latest refit (one list: tone response, calibration, identifiability, white balance)."""
 
 
-def not_estimated_counts(session: Session, camera_id: int) -> dict[str, int]:
+def not_estimated_counts(session: Session, camera_id: int, frames: int | None = None) -> dict[str, int]:
     """The camera's stored frames that have no estimate, counted by reason (:attr:`.storage.Frame.not_estimated`;
-    ``pending`` for frames of older versions, which recorded none)."""
+    ``pending`` for frames of older versions, which recorded none).
+
+    Without a pass over the history's rows: frames with a reason are a range of the partial index
+    ``ix_frames_camera_not_estimated`` (each checked for an estimate by key); frames without a reason and without an
+    estimate are counted as the camera's frames less its estimates (index-only counts), corrected for the frames with
+    a reason that do have an estimate. ``frames`` is the camera's frame count when the caller has it already.
+    """
+    marked = Frame.not_estimated.is_not(None)
     rows = session.execute(
-        select(Frame.not_estimated, func.count()).select_from(Frame)
+        select(Frame.not_estimated, Estimate.frame_id.is_not(None), func.count()).select_from(Frame)
         .outerjoin(Estimate, Estimate.frame_id == Frame.id)
-        .where(Frame.camera_id == camera_id, Estimate.frame_id.is_(None))
-        .group_by(Frame.not_estimated)).all()
+        .where(Frame.camera_id == camera_id, marked)
+        .group_by(Frame.not_estimated, Estimate.frame_id.is_not(None))).all()
     out: dict[str, int] = {}
-    for reason, n in rows:
-        key = reason or "pending"
-        out[key] = out.get(key, 0) + int(n)
+    marked_frames = marked_estimated = 0
+    for reason, estimated, n in rows:
+        marked_frames += int(n)
+        if estimated:
+            marked_estimated += int(n)
+        else:
+            out[reason] = out.get(reason, 0) + int(n)
+    if frames is None:
+        frames = session.scalar(select(func.count()).select_from(Frame).where(Frame.camera_id == camera_id)) or 0
+    estimates = session.scalar(select(func.count()).select_from(Estimate).where(Estimate.camera_id == camera_id)) or 0
+    pending = (int(frames) - marked_frames) - (int(estimates) - marked_estimated)
+    if pending > 0:
+        out["pending"] = pending
     return dict(sorted(out.items()))
 
 
@@ -316,7 +335,7 @@ def camera_status(session: Session, cam: Camera, settings: Settings) -> CameraSt
     latest = _latest_estimate(session, cam.id)
     calibrated = bool(cam.sensitivities) or session.scalar(
         select(func.count()).select_from(Calibration).where(Calibration.camera_id == cam.id)) > 0
-    counts = not_estimated_counts(session, cam.id)
+    counts = not_estimated_counts(session, cam.id, int(count))
     ctx = AlertContext(cam, frames, latest, settings, int(count), refit_warnings(session, cam.id), not calibrated,
                        counts, latest_job(session, cam.id))
     alerts = [a for rule in ALERT_RULES for a in rule(ctx)]
@@ -348,3 +367,69 @@ def camera_history(session: Session, camera_id: int, limit: int = 2000) -> list[
         d["intervals"] = e.intervals
         out.append(d)
     return out
+
+
+MAX_CHART_POINTS = 640
+"""The camera page draws at most this many points per series, whatever the history's length: the wide chart's plot
+area is 642 px across (the compact one's 322), so more points would share pixel columns; drawing costs ~0.1 ms a
+point (six charts, bands included)."""
+
+
+@dataclass
+class ChartHistory:
+    """What the camera page draws: the window's estimates thinned to a bounded number of points, and the newest."""
+
+    points: list[dict]
+    """At most ``max_points`` estimates of the window, oldest first, every ``stride``-th counted from the newest (so
+    the newest is always drawn), as the JSON API gives them plus ``intervals``."""
+    recent: list[dict]
+    """The window's newest ``recent`` estimates, newest first (the page's table), same form."""
+    count: int
+    """Estimates in the window (the camera's most recent ``limit``)."""
+    stride: int
+    """1 when every estimate of the window is drawn."""
+
+
+def chart_history(session: Session, camera_id: int, limit: int = 2000, max_points: int = MAX_CHART_POINTS,
+                  recent: int = 24) -> ChartHistory:
+    """The camera's most recent ``limit`` estimates, thinned by a stride to at most ``max_points``, and its newest
+    ``recent`` ones.
+
+    The window is read as frame ids only, newest first (an index-only range scan of ``ix_estimates_camera_taken``);
+    the drawn and recent rows are then fetched by primary key, as plain rows without their spectra. The page's cost is therefore
+    bounded by ``max_points`` + ``recent`` rows, plus ``limit`` index entries, whatever the history's length.
+
+    Parameters
+    ----------
+    session
+        Database session.
+    camera_id
+        The camera.
+    limit
+        Size of the window (the most recent estimates); at least 1.
+    max_points
+        Upper bound of the drawn points; at least 1.
+    recent
+        How many of the newest estimates the table lists.
+
+    Returns
+    -------
+    ChartHistory
+    """
+    order = (Estimate.taken_at.desc(), Estimate.frame_id.desc())
+    ids = list(session.scalars(select(Estimate.frame_id).where(Estimate.camera_id == camera_id).order_by(*order)
+                               .limit(max(1, limit))).all())
+    stride = max(1, math.ceil(len(ids) / max(1, max_points)))
+    drawn = ids[::stride]
+    want = set(drawn) | set(ids[:recent])
+    rows: dict[int, dict] = {}
+    chunk = 900  # under SQLite's default limit of bound parameters of old versions (999)
+    wanted = sorted(want)
+    columns = [c for c in Estimate.__table__.columns if c.name != "spectrum"]  # rows, not ORM objects: 3 × faster
+    for start in range(0, len(wanted), chunk):
+        for e in session.execute(select(*columns).where(Estimate.frame_id.in_(wanted[start : start + chunk]))).all():
+            d = estimate_out(e)  # type: ignore[arg-type] - a row with the estimate's columns by name
+            d["intervals"] = e.intervals
+            rows[e.frame_id] = d
+    return ChartHistory(points=[rows[i] for i in reversed(drawn) if i in rows],
+                        recent=[rows[i] for i in ids[:recent] if i in rows], count=len(ids), stride=stride)

@@ -16,7 +16,20 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import TypeVar
 
-from sqlalchemy import JSON, DateTime, Float, ForeignKey, Integer, String, UniqueConstraint, create_engine, event, select
+from sqlalchemy import (
+    JSON,
+    DateTime,
+    Float,
+    ForeignKey,
+    Index,
+    Integer,
+    String,
+    UniqueConstraint,
+    create_engine,
+    event,
+    select,
+    text,
+)
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
 
@@ -99,6 +112,13 @@ class Frame(Base):
     (divided out before estimating and fitting)."""
 
     __tablename__ = "frames"
+    __table_args__ = (
+        Index("ix_frames_camera_taken", "camera_id", "taken_at", "id"),
+        Index("ix_frames_camera_not_estimated", "camera_id", "not_estimated",
+              sqlite_where=text("not_estimated IS NOT NULL"), postgresql_where=text("not_estimated IS NOT NULL")),
+    )
+    """Every "latest N frames" and time-range query of one camera is an index range scan (no sort of its rows); the
+    frames with a reason for having no estimate (few) are a range of a partial index."""
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"), index=True)
     taken_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), index=True)
@@ -160,6 +180,8 @@ class Estimate(Base):
     """The illuminant estimate of one frame (the latest one wins: a refit replaces older estimates)."""
 
     __tablename__ = "estimates"
+    __table_args__ = (Index("ix_estimates_camera_taken", "camera_id", "taken_at", "frame_id"),)
+    """"Latest estimate", "latest N" and ``since``/``until`` of one camera: an index range scan in time order."""
     frame_id: Mapped[int] = mapped_column(ForeignKey("frames.id", ondelete="CASCADE"), primary_key=True)
     camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"), index=True)
     taken_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), index=True)
@@ -261,6 +283,7 @@ def make_engine(url: str) -> Engine:
         engine = create_engine(url, pool_pre_ping=True)
     Base.metadata.create_all(engine)
     add_missing_columns(engine)
+    add_missing_indexes(engine)
     return engine
 
 
@@ -284,6 +307,30 @@ def add_missing_columns(engine: Engine) -> list[str]:
                 if col.name not in {c["name"] for c in inspect(engine).get_columns(table.name)}:
                     raise
             added.append(f"{table.name}.{col.name}")
+    return added
+
+
+def add_missing_indexes(engine: Engine) -> list[str]:
+    """Create the indexes a newer version defines on the tables of an older database (``create_all`` creates the
+    indexes of the tables it creates only), e.g. the (camera, time) indexes of frames and estimates; returns the
+    names of those created. Idempotent; safe when several processes race. On a large history this is the one slow
+    start-up (one pass over the table per index, ~1 s per million rows on SQLite).
+    """
+    from sqlalchemy import inspect
+    from sqlalchemy.exc import DBAPIError
+
+    added = []
+    for table in Base.metadata.sorted_tables:
+        have = {ix["name"] for ix in inspect(engine).get_indexes(table.name)}
+        for index in sorted(table.indexes, key=lambda ix: str(ix.name)):
+            if index.name in have:
+                continue
+            try:
+                index.create(engine, checkfirst=True)
+            except DBAPIError:  # another process created it first
+                if index.name not in {ix["name"] for ix in inspect(engine).get_indexes(table.name)}:
+                    raise
+            added.append(str(index.name))
     return added
 
 

@@ -27,7 +27,7 @@ __all__ = [
     "Candidate", "GAMMA_NOISE_FLOOR", "TONE_HUBER", "ADAPTIVE_DARK", "DARK_STEP", "MIN_GAMMA", "MIN_OFFSET", "MAX_DARK_LEVEL",
     "REFINE_ITERS",
     "MIN_OFF_LOCUS_FRAMES", "OFF_LOCUS_FRAME_Z", "srgb_decode", "srgb_decode_slope", "bt709_decode", "bt709_decode_slope",
-    "bilinear_stage", "spectral_stage",
+    "bilinear_stage", "spectral_stage", "tone_stage",
 ]
 
 GAMMA_NOISE_FLOOR = 0.025
@@ -225,24 +225,10 @@ def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64]) -> Ca
                       "censored_at_ingest": True})
 
 
-def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
-                    learn_noise: bool = True) -> tuple[bl.LowRankFit, list[Candidate], dict]:
-    f, m = y.shape
-    if learn_noise:
-        noise = nz.estimate_noise(y, rank)
-    else:
-        noise = nz.NoiseLevel(DEFAULT_NOISE.shot, DEFAULT_NOISE.read, 0.0, np.zeros(y.shape, dtype=bool))
-    w = noise.weights(y)
-    present = w > 0
-    half_log_var = 0.5 * float(np.log(1.0 / w[present]).sum())
-    base = bl.wals(y, w, rank)
-    n = base.n
-    bic0 = _bic(_nll(base.wrss, n, half_log_var), base.k, n)
-    rms0 = float(np.sqrt(base.wrss / max(n - base.k, 1)))
-    cands: list[Candidate] = []
-    fits: dict = {"noise": {"shot": noise.shot, "read": noise.read, "step": noise.step,
-                            "censored": int(noise.censored.sum())}}
-
+def _tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArray[np.bool_], base: bl.LowRankFit,
+                    rank: int, n: int, fits: dict) -> Candidate:
+    """The bilinear stage's tone-curve extension (``nonlinear_response``) against the linear base ``base``; records
+    ``fits["dark_level"]`` and ``fits["nonlinear_response"]``."""
     # tone curve: y = x^(1/γ) (γ fitted) or the sRGB encoding (IEC 61966-2-1, the usual camera output curve, whose
     # linear toe a pure gamma does not follow); the factorisation holds for the linearised x = T(y). Each hypothesis
     # learns its own Poissonian-Gaussian noise (σ² = a·x + b in its linear light, a and b free) from its residuals,
@@ -310,13 +296,64 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
     score_s, curve_s, fit_s = min(std, key=lambda t: t[0])
     if score_s < score_g:
         # the best pure gamma is reported too (the service's tone-response hint reads it)
-        cands.append(Candidate("nonlinear_response", score_s, {"curve": curve_s, "gamma": round(g, 4)},
-                               residual=float(np.sqrt(fit_s.wrss / max(n - fit_s.k, 1)))))
         fits["nonlinear_response"] = {"curve": curve_s, "gamma": g}
+        return Candidate("nonlinear_response", score_s, {"curve": curve_s, "gamma": round(g, 4)},
+                         residual=float(np.sqrt(fit_s.wrss / max(n - fit_s.k, 1))))
+    fits["nonlinear_response"] = {"curve": "gamma", "gamma": g}
+    return Candidate("nonlinear_response", score_g, {"curve": "gamma", "gamma": round(g, 4)},
+                     residual=float(np.sqrt(fit_g.wrss / max(n - fit_g.k, 1))))
+
+
+def _bilinear_base(y: NDArray[np.float64], rank: int,
+                   learn_noise: bool) -> tuple[nz.NoiseLevel, NDArray[np.float64], bl.LowRankFit]:
+    """The bilinear stage's noise (learned or default), weights and rank-``rank`` base fit."""
+    if learn_noise:
+        noise = nz.estimate_noise(y, rank)
     else:
-        cands.append(Candidate("nonlinear_response", score_g, {"curve": "gamma", "gamma": round(g, 4)},
-                               residual=float(np.sqrt(fit_g.wrss / max(n - fit_g.k, 1)))))
-        fits["nonlinear_response"] = {"curve": "gamma", "gamma": g}
+        noise = nz.NoiseLevel(DEFAULT_NOISE.shot, DEFAULT_NOISE.read, 0.0, np.zeros(y.shape, dtype=bool))
+    w = noise.weights(y)
+    return noise, w, bl.wals(y, w, rank)
+
+
+def tone_stage(y: NDArray[np.float64], rank: int, learn_noise: bool = True) -> tuple[Candidate, dict]:
+    """The tone-curve test of :func:`bilinear_stage` alone: its ``nonlinear_response`` candidate, identical to the one
+    the whole stage returns (same noise, base fit and extension), without the other extensions and the spectral
+    stage (a fifth of a diagnosis' time; the service's tone-response check needs this test only).
+
+    Parameters
+    ----------
+    y
+        Values, frames × (patches·channels), NaN where missing.
+    rank
+        Rank of the bilinear model.
+    learn_noise
+        As in :func:`bilinear_stage`.
+
+    Returns
+    -------
+    tuple
+        The candidate and the fits it recorded (``noise``, ``dark_level``, ``nonlinear_response``).
+    """
+    noise, w, base = _bilinear_base(y, rank, learn_noise)
+    fits: dict = {"noise": {"shot": noise.shot, "read": noise.read, "step": noise.step,
+                            "censored": int(noise.censored.sum())}}
+    return _tone_candidate(y, noise, w > 0, base, rank, base.n, fits), fits
+
+
+def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
+                    learn_noise: bool = True) -> tuple[bl.LowRankFit, list[Candidate], dict]:
+    f, m = y.shape
+    noise, w, base = _bilinear_base(y, rank, learn_noise)
+    present = w > 0
+    half_log_var = 0.5 * float(np.log(1.0 / w[present]).sum())
+    n = base.n
+    bic0 = _bic(_nll(base.wrss, n, half_log_var), base.k, n)
+    rms0 = float(np.sqrt(base.wrss / max(n - base.k, 1)))
+    cands: list[Candidate] = []
+    fits: dict = {"noise": {"shot": noise.shot, "read": noise.read, "step": noise.step,
+                            "censored": int(noise.censored.sum())}}
+
+    cands.append(_tone_candidate(y, noise, present, base, rank, n, fits))
 
     # black offset, on the values above nz.DARK_LEVEL only (base and extension alike): near black, rounding of
     # pixels the noise does not dither and the clipping at 0 bias a region's mean by up to half a code, which a

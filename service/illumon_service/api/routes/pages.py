@@ -35,7 +35,7 @@ from ...logins import create_login, end_login, principal_from_login
 from ...manage import proposals_for, save_regions_and_measure
 from ...proposals import MAX_FRAMES, preview_jpeg
 from ...registration import parse_view, view_regions, view_thumbnails
-from ...status import NON_DAYLIGHT_DUV, REASON_WORDS, camera_history, camera_status, fleet_status
+from ...status import NON_DAYLIGHT_DUV, REASON_WORDS, camera_status, chart_history, fleet_status
 from ...storage import Camera, Frame, as_utc
 from ..schemas import RegionsIn
 
@@ -199,11 +199,10 @@ def camera_page(camera_id: int, request: Request, session: SessionDep, limit: in
     if cam is None:
         return _render(request, "not_found.html", {"camera_id": camera_id, "principal": principal}, status_code=404)
     status = camera_status(session, cam, request.app.state.settings)
-    history = camera_history(session, camera_id, limit=max(1, min(limit, 20000)))
-    recent = list(reversed(history[-24:]))
+    history = chart_history(session, camera_id, limit=max(1, min(limit, 20000)))
     primaries = camera_primaries(cam.response, cam.sensitivities is not None)
-    return _render(request, "camera.html", {"row": status, "charts": _charts(history), "recent": recent,
-                                            "count": len(history), "principal": principal,
+    return _render(request, "camera.html", {"row": status, "charts": _charts(history.points), "recent": history.recent,
+                                            "count": history.count, "stride": history.stride, "principal": principal,
                                             "output": PRIMARIES_WORDS[primaries], "reason_words": REASON_WORDS})
 
 

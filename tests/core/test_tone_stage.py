@@ -1,0 +1,64 @@
+"""The tone-curve test alone (issue 29): :func:`illumon.diagnosis.stages.tone_stage` gives exactly the
+``nonlinear_response`` candidate of the whole diagnosis, so the service's tone-response check, which now runs it alone,
+decides as before on the diagnosis's test histories (every effect, the test cameras and seeds of
+``tests/core/test_diagnosis.py``), and the matrix-product Gram sums of the bilinear fit equal the einsums they
+replace."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from illumon.diagnosis import bilinear as bl
+from illumon.diagnosis.effects import EFFECTS, TEST_CAMERAS, hide_effect
+from illumon.diagnosis.fit import NONE_MARGIN, RANK, diagnose
+from illumon.diagnosis.stages import tone_stage
+from illumon_service.estimation import check_response
+
+SEED0 = 10_000  # tests/core/test_diagnosis.py's histories
+
+
+def _hist(effect: str, i: int):
+    frames, patches = {"off_locus_illuminant": (32, 10), "fluorescence": (32, 10)}.get(effect, (24, 8))
+    return hide_effect(effect, TEST_CAMERAS[i % len(TEST_CAMERAS)], SEED0 + 100 * EFFECTS.index(effect) + i,
+                       frames=frames, patches=patches)
+
+
+def test_gram_products_equal_the_einsums() -> None:
+    rng = np.random.default_rng(0)
+    w, u, v = rng.random((30, 21)), rng.normal(size=(30, 4)), rng.normal(size=(4, 21))
+    np.testing.assert_allclose(bl._gram_cols(w, u), np.einsum("fj,fa,fb->jab", w, u, u), rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(bl._gram_rows(w, v), np.einsum("fj,aj,bj->fab", w, v, v), rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("effect", ["none", "nonlinear_response", "black_offset", "clipping", "shadow"])
+def test_tone_stage_is_the_diagnosis_tone_candidate(effect: str) -> None:
+    for i in range(2):
+        h = _hist(effect, i)
+        obs = h.observations
+        f, p, _ = obs.values.shape
+        d = diagnose(obs, h.history.sensitivities, reestimate=False)
+        want = next(c for c in d.candidates if c.effect == "nonlinear_response")
+        got, _ = tone_stage(obs.values.reshape(f, 3 * p), RANK)
+        assert got.score == want.score and got.parameters == want.parameters
+        supported = got.score < -NONE_MARGIN["nonlinear_response"]
+        assert supported == (want.score < -NONE_MARGIN["nonlinear_response"])
+        if d.effect == "nonlinear_response":
+            assert supported  # the tone curves the diagnosis names are found
+
+
+def test_check_response_decides_as_the_diagnosis() -> None:
+    """Through the service's check: a tone-encoded history warns with the diagnosis's γ, a linear one does not."""
+    for effect, warns in (("nonlinear_response", True), ("none", False)):
+        h = _hist(effect, 0)
+        obs = h.observations
+        ids = [f"p{j}" for j in range(obs.values.shape[1])]
+        frames = [(str(k), f"2025-06-01T{k % 24:02d}:00:00+00:00",
+                   {pid: (None if not np.all(np.isfinite(obs.values[k, j])) else obs.values[k, j].tolist())
+                    for j, pid in enumerate(ids)}) for k in range(obs.values.shape[0])]
+        out = check_response(frames, ids, h.history.sensitivities, "linear")
+        assert out["checked"] and bool(out["warnings"]) == warns, out
+        assert out["effect"] == ("nonlinear_response" if warns else "none")
+        if warns:
+            d = diagnose(obs, h.history.sensitivities, reestimate=False)
+            tone = next(c for c in d.candidates if c.effect == "nonlinear_response")
+            assert out["gamma"] == float(tone.parameters["gamma"])

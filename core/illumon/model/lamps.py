@@ -47,6 +47,7 @@ __all__ = [
     "FRAME_SD",
     "LampPosterior",
     "lamp_posterior",
+    "frame_lamp_posterior",
     "lamp_population",
     "history_lamps",
     "apply_lamps",
@@ -262,6 +263,43 @@ def lamp_posterior(
     return LampPosterior(nd, white, a_hat, a_sd)
 
 
+def frame_lamp_posterior(
+    means: NDArray[np.float64],
+    sensitivities: NDArray[np.float64],
+    daylight: CIEDaylight | None,
+    offset: NDArray[np.float64],
+    offset_sd: NDArray[np.float64],
+    *,
+    prior: float = LAMP_PRIOR,
+) -> LampPosterior:
+    """Each frame judged on its own, given the history's posterior of the scene-average offset (``offset`` ±
+    ``offset_sd``): what :meth:`.scene.SceneModel.estimate` does for every new frame.
+
+    A frame on its own adds nothing to the offset's posterior, so the integral over it is the Gaussian convolution of
+    each hypothesis' mixture (isotropic, the offset's variance averaged over its two axes): ``N(u − a; c, s²)`` over
+    ``a ~ N(â, σ_a²)`` is ``N(u − â; c, s² + σ_a²)``. One evaluation per frame instead of :func:`lamp_posterior`'s
+    grid over the offset (a new frame's estimate took 40 ms with the grid, 1 ms without a lamp test).
+    """
+    dm = daylight or CIEDaylight()
+    means = np.asarray(means, dtype=float)
+    offset, offset_sd = np.asarray(offset, dtype=float), np.asarray(offset_sd, dtype=float)
+    f = len(means)
+    ok = np.all(np.isfinite(means), axis=1) & np.all(means > 0, axis=1)
+    nd = np.full(f, np.nan)
+    white = np.full((f, 3), np.nan)
+    if ok.any():
+        u_d, logw_d, u_l, logw_l = lamp_population(sensitivities, dm)
+        var_a = float(np.mean(offset_sd**2))
+        u = _log_chroma(means[ok]) - offset
+        ld = _mixture_loglik(u, u_d, logw_d, math.sqrt(FRAME_SD**2 + var_a)) + math.log(1 - prior)
+        ll = _mixture_loglik(u, u_l, logw_l, math.sqrt(FRAME_SD**2 + _LAMP_SD**2 + var_a)) + math.log(prior)
+        nd[ok] = np.exp(ll - np.logaddexp(ld, ll))
+        w = np.ones((int(ok.sum()), 3))
+        w[:, 0], w[:, 2] = np.exp(u[:, 0]), np.exp(u[:, 1])
+        white[ok] = w
+    return LampPosterior(nd, white, offset, offset_sd)
+
+
 def _frame_means(model, obs, theta: NDArray[np.float64]) -> NDArray[np.float64]:
     """Each frame's average over the model's patches (F × 3, the model's scale), a missing patch filled with the
     model's prediction under the frame's fitted daylight (so every frame averages the same scene)."""
@@ -372,9 +410,8 @@ def apply_lamps(model, obs, result, extra: dict) -> None:
     if not lamps:
         return
     means = _frame_means(model, obs, np.asarray(result.info["theta"], dtype=float))
-    lp = lamp_posterior(means, model.sensitivities, model.daylight_model(),
-                        prior=float(lamps.get("prior", LAMP_PRIOR)),
-                        offset_prior=(np.asarray(lamps["offset"]), np.maximum(np.asarray(lamps["offset_sd"]), 0.01)))
+    lp = frame_lamp_posterior(means, model.sensitivities, model.daylight_model(), np.asarray(lamps["offset"]),
+                              np.maximum(np.asarray(lamps["offset_sd"]), 0.01), prior=float(lamps.get("prior", LAMP_PRIOR)))
     nd = np.where(np.isfinite(lp.non_daylight), lp.non_daylight, float(lamps.get("prior", LAMP_PRIOR)))
     extra["non_daylight"] = nd
     lamp = (nd > 0.5) & np.all(np.isfinite(lp.white), axis=1)

@@ -14,11 +14,12 @@ The data that speak to ``u`` without any daylight assumption are the frame's sce
 colour is common to every frame, so ``u_f = log chroma(mean of frame f's patches) − a`` with one unknown offset ``a``
 for the whole history (gray-world made Bayesian, Buchsbaum 1980). ``a`` has a Gaussian prior: achromatic on average,
 spread :data:`SCENE_OFFSET_SD` (plus the camera's own white uncertainty for a camera nobody measured). The posterior
-over ``a`` (a grid) given every frame's two-hypothesis mixture gives each frame's posterior ``non_daylight`` and, for
-lamp-lit frames, the general-illuminant white ``log chroma(mean) − â``: the differences between frames are the data's,
-the common level the scene average's — in a history with daylight frames those pin ``a``, so a lamp-lit frame's white
-follows from the scene as the daylight frames saw it. The estimate of a frame is the posterior mixture of the daylight
-fit and the general white (in log chroma).
+over ``a`` (a grid) given every frame's two-hypothesis mixture gives each frame's posterior ``non_daylight``; in a
+history with daylight frames those pin ``a``, so a frame whose light departs from them as no daylight does is called a
+lamp. In a history at least half daylight, the frames whose data favour a lamp are left out of the reflectance fit
+(:func:`illumon.model.fit_scene_model`) and a frame with ``non_daylight`` > 0.5 takes the white of a *general*
+illuminant fitted to the reflectances learned under daylight (:func:`general_whites`); elsewhere the frames are
+reported and keep the daylight fit's white.
 
 References
 ----------
@@ -26,6 +27,8 @@ References
 .. [2] CIE 015:2018, *Colorimetry*, 4th ed.: illuminant A and the F, HP and LED illuminant tables (via colour-science).
 .. [3] J. Marguier, S. Süsstrunk, "Illuminant retrieval for fixed location cameras", IS&T/SID CIC 2007 (the daylight
    model this module tests frames against).
+.. [4] Y. Kinoshita, H. Kiya, "Separated-spectral-distribution estimation based on Bayesian inference with single RGB
+   camera" (the linear Gaussian posterior, eqs. 13–14, used for the general illuminant).
 """
 
 from __future__ import annotations

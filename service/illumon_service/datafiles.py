@@ -9,6 +9,8 @@ never to the original's (which it would otherwise read, and prune). Versions bef
 from __future__ import annotations
 
 import logging
+import os
+import tempfile
 from pathlib import Path, PurePath
 
 from sqlalchemy import select, update
@@ -16,7 +18,7 @@ from sqlalchemy.engine import Engine
 
 from .storage import Frame
 
-__all__ = ["PATH_COLUMNS", "stored_path", "data_file", "relative_form", "relativize_paths"]
+__all__ = ["PATH_COLUMNS", "atomic_write", "stored_path", "data_file", "relative_form", "relativize_paths"]
 
 log = logging.getLogger("illumon_service.datafiles")
 
@@ -25,6 +27,20 @@ PATH_COLUMNS = (Frame.thumb_path, Frame.image_path)
 
 _TOP_FOLDERS = ("thumbs", "images")
 """The data directory's folders such paths lie in (``<folder>/camera-<id>/<file>``)."""
+
+
+def atomic_write(path: Path, data: bytes | bytearray) -> None:
+    """Write ``data`` to ``path`` through a private temporary file in the same folder, renamed into place: readers
+    see the old file or the new one, and concurrent writers never share a temporary file."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
 
 
 def stored_path(data_dir: Path | str, path: Path | str) -> str:

@@ -6,32 +6,17 @@ stored without region values (its reason: ``no_regions``)."""
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from .datafiles import atomic_write
 from .settings import Settings
 from .storage import Frame
 
 __all__ = ["pending_dir", "pending_files", "keep_original", "measure_pending", "measure_original", "atomic_write"]
-
-
-def atomic_write(path: Path, data: bytes | bytearray) -> None:
-    """Write ``data`` to ``path`` through a private temporary file in the same folder, renamed into place: readers
-    see the old file or the new one, and concurrent writers never share a temporary file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 DEFAULT_MAX_BYTES = 512 * 1024 * 1024

@@ -127,7 +127,7 @@ def save_thumbnail(path: Path, thumb: Thumbnail) -> None:
                            [cv2.IMWRITE_PNG_COMPRESSION, 1])
     if not ok:
         raise ValueError("thumbnail could not be encoded")
-    from .pending import atomic_write
+    from .datafiles import atomic_write
 
     atomic_write(path, buf.tobytes())  # a private temporary file: concurrent writers never share one
 

@@ -288,7 +288,7 @@ def set_reference(data_dir: Path | str, camera_id: int, view: str | None, thumb_
         return False
     path = reference_path(data_dir, camera_id, view)
     path.parent.mkdir(parents=True, exist_ok=True)
-    from .pending import atomic_write
+    from .datafiles import atomic_write
 
     atomic_write(path, source.read_bytes())
     return True

@@ -163,6 +163,16 @@ def _run(cmd: list[str], env: dict[str, str]) -> None:
         raise BackupError(f"{Path(cmd[0]).name} failed: {last}")
 
 
+
+def _settle_files(engine: Engine, data_dir: Path, files: Path) -> tuple[dict, int, dict]:
+    """Stored paths made relative to ``data_dir``, rows of files absent under ``files`` forgotten, the rows counted
+    (then ``engine`` disposed)."""
+    try:
+        return relativize_paths(engine, data_dir), forget_missing_files(engine, files), _counts(engine)
+    finally:
+        engine.dispose()
+
+
 def backup(settings: Settings, dest: Path | str) -> dict:
     """Back the service's database and data directory up into the new folder ``dest`` (see the module docstring).
 
@@ -239,12 +249,7 @@ def _write_backup(partial: Path, data_dir: Path, url: str, db_file: Path | None)
         db_name, kind = PG_NAME, "postgresql"
     copied += _copy_tree(data_dir, files, db_file, only_new=True)  # after it: files of frames it holds
     if engine is not None:
-        try:
-            paths = relativize_paths(engine, data_dir)
-            missing = forget_missing_files(engine, files)
-            counts = _counts(engine)
-        finally:
-            engine.dispose()
+        paths, missing, counts = _settle_files(engine, data_dir, files)
     else:
         paths, missing = {}, None  # fixed at restore time (the dump is not rewritten)
         counts = {}
@@ -344,12 +349,7 @@ def restore(settings: Settings, src: Path | str, *, force: bool = False) -> dict
         _run([_pg_command("pg_restore"), "--clean", "--if-exists", "--no-owner", "--no-privileges",
               "--single-transaction", "--dbname", uri, str(dump)], env)
     restored = _copy_tree(src / "data", data_dir, None) if (src / "data").is_dir() else 0
-    engine = make_engine(url)  # brings an older backup's schema up to this version
-    try:
-        paths = relativize_paths(engine, data_dir)
-        forgotten = forget_missing_files(engine, data_dir)
-        counts = _counts(engine)
-    finally:
-        engine.dispose()
+    # make_engine brings an older backup's schema up to this version
+    paths, forgotten, counts = _settle_files(make_engine(url), data_dir, data_dir)
     return {"restored_from": str(src), "database": kind, "files": restored, "counts": counts,
             "paths_relativized": paths["relativized"], "files_missing": forgotten}

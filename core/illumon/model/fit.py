@@ -132,7 +132,7 @@ def fit_scene_model(
         return m
 
     model = fit_once(obs)
-    if not known:
+    if not known and sensitivities is not None:  # an unmeasured camera's lamp verdicts are not to be acted on
         # Light that is not daylight (:mod:`.lamps`): lamp-lit frames are left out of the reflectance fit when
         # enough daylight frames remain to learn every patch; every frame is then judged against the refitted scene.
         # (a few rounds: frames forced onto daylight bend the reflectances, which can hide other lamp-lit frames)

@@ -7,11 +7,11 @@ from __future__ import annotations
 from datetime import datetime, timedelta, timezone
 
 import numpy as np
-from illumon.camera import ResponseCurve, render
+from illumon.camera import render
 from illumon.daylight import daylight_locus_xy, daylight_spectrum
 from illumon.reflectance import colourchecker_reflectances
 from illumon.spectra import sensitivities_from_arrays
-from svc_helpers import encode_png
+from svc_helpers import encode_png, paint_srgb
 
 WL = [400, 450, 500, 550, 600, 650, 700]
 SENS = {"wavelength_nm": WL, "r": [0.02, 0.03, 0.05, 0.25, 1.00, 0.55, 0.05],
@@ -39,13 +39,7 @@ def render_frames(n: int, seed: int = 27) -> list[bytes]:
     out = []
     for f in range(n):
         k = 0.8 / lin[f].max()
-        img = np.empty((240, 340, 3))
-        img[:] = grey[f] * k
-        for r, v in zip(REGIONS, lin[f] * k, strict=True):
-            img[r["y"] : r["y"] + r["height"], r["x"] : r["x"] + r["width"]] = v
-        img *= 1 + 0.01 * rng.standard_normal(img.shape)
-        code = np.round(ResponseCurve("srgb", white_level=255).encode(np.clip(img, 0, 1))).astype(np.uint8)
-        out.append(encode_png(code))
+        out.append(encode_png(paint_srgb((340, 240), grey[f] * k, list(zip(REGIONS, lin[f] * k, strict=True)), rng)))
     return out
 
 

@@ -94,6 +94,19 @@ def render_image(lin_regions: np.ndarray, background: np.ndarray, regions: list[
     return np.round(np.clip(img, 0, 1) * 65535).astype(np.uint16)
 
 
+def paint_srgb(size: tuple[int, int], background: np.ndarray, rects: list[tuple[dict, np.ndarray]],
+               rng: np.random.Generator, noise: float = 0.01) -> np.ndarray:
+    """An 8-bit sRGB image (``size`` = width, height) of a flat linear ``background`` with each rectangle (a region
+    dict: x, y, width, height) filled with its linear value, then multiplicative Gaussian noise of ``noise``."""
+    w, h = size
+    img = np.empty((h, w, 3))
+    img[:] = background
+    for r, v in rects:
+        img[r["y"] : r["y"] + r["height"], r["x"] : r["x"] + r["width"]] = v
+    img *= 1 + noise * rng.standard_normal(img.shape)
+    return np.round(ResponseCurve("srgb", white_level=255).encode(np.clip(img, 0, 1))).astype(np.uint8)
+
+
 def encode_png(rgb: np.ndarray, ext: str = ".png") -> bytes:
     """RGB array → encoded image bytes via OpenCV."""
     ok, buf = cv2.imencode(ext, np.ascontiguousarray(rgb[:, :, ::-1]))

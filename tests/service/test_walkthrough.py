@@ -19,11 +19,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from illumon.camera import ResponseCurve, angular_error_deg, camera_white, render
+from illumon.camera import angular_error_deg, camera_white, render
 from illumon.daylight import daylight_locus_xy, daylight_spectrum
 from illumon.reflectance import colourchecker_reflectances
 from illumon.spectra import sensitivities_from_arrays
 from serve_helpers import start_server
+from svc_helpers import paint_srgb
 
 README = Path(__file__).resolve().parents[2] / "README.md"
 PATCHES = ["dark skin", "foliage", "moderate red", "yellow green", "blue", "neutral 5 (.70 D)"]
@@ -76,14 +77,8 @@ def _render_frames(body: dict, regions: list[dict], card: dict, work: Path) -> t
         (work / folder).mkdir()
     for f in range(n):
         k = 0.8 / lin[f].max()
-        img = np.empty((240, 320, 3))
-        img[:] = grey[f] * k
-        for r, v in zip(regions, lin[f] * k, strict=True):
-            img[r["y"] : r["y"] + r["height"], r["x"] : r["x"] + r["width"]] = v
-        if f == n - 1:
-            img[card["y"] : card["y"] + card["height"], card["x"] : card["x"] + card["width"]] = card_rgb[f] * k
-        img *= 1 + 0.01 * rng.standard_normal(img.shape)
-        code = np.round(ResponseCurve("srgb", white_level=255).encode(np.clip(img, 0, 1))).astype(np.uint8)
+        rects = list(zip(regions, lin[f] * k, strict=True)) + ([(card, card_rgb[f] * k)] if f == n - 1 else [])
+        code = paint_srgb((320, 240), grey[f] * k, rects, rng)
         ok, buf = cv2.imencode(".jpg", code[:, :, ::-1], [cv2.IMWRITE_JPEG_QUALITY, 95])
         assert ok
         if f == n - 1:

@@ -27,7 +27,6 @@ from sqlalchemy import (
     UniqueConstraint,
     create_engine,
     event,
-    select,
     text,
 )
 from sqlalchemy.engine import Engine
@@ -47,8 +46,6 @@ __all__ = [
     "new_token",
     "utcnow",
     "as_utc",
-    "camera_by_token",
-    "refit_warnings",
     "GroupCommit",
     "IdempotencyKey",
     "LoginSession",
@@ -337,22 +334,6 @@ def add_missing_indexes(engine: Engine) -> list[str]:
 def make_session_factory(engine: Engine) -> sessionmaker[Session]:
     """Session factory bound to ``engine`` (objects stay usable after commit)."""
     return sessionmaker(engine, expire_on_commit=False)
-
-
-def camera_by_token(session: Session, token: str) -> Camera | None:
-    """The camera whose token is ``token``, or ``None``."""
-    return session.scalars(select(Camera).where(Camera.token_hash == hash_token(token))).first()
-
-
-def refit_warnings(session: Session, camera_id: int) -> list[str]:
-    """The warnings of the camera's latest finished refit (e.g. a tone response that does not match the frames)."""
-    job = session.scalars(
-        select(Job).where(Job.camera_id == camera_id, Job.state == "done")
-        .order_by(Job.finished_at.desc(), Job.created_at.desc()).limit(1)
-    ).first()
-    if job is None or not job.summary:
-        return []
-    return [str(w) for w in job.summary.get("warnings") or []]
 
 
 class GroupCommit:

@@ -24,7 +24,6 @@ from sqlalchemy.orm import Session
 from starlette.datastructures import State
 
 from . import crud
-from .api.schemas import FrameIngestOut, ObservationIn
 from .datafiles import stored_path
 from .decode import ImageError, decode_frame, sniff_format
 from .estimation import current_model, estimate_frame, undo_camera_gains, undo_camera_gains_sd
@@ -45,7 +44,7 @@ from .registration import (
 from .settings import Settings
 from .storage import Camera, Frame, as_utc, utcnow
 
-__all__ = ["FrameUpload", "Measured", "ingest_image", "ingest_observations", "measure_image", "store_frame",
+__all__ = ["FrameUpload", "Observation", "Measured", "ingest_image", "ingest_observations", "measure_image", "store_frame",
            "MIN_REGISTER_SIDE"]
 
 MIN_REGISTER_SIDE = 32
@@ -64,6 +63,19 @@ class FrameUpload:
     applied_gains: list[float] | None = None
     exposure: float | None = None
     view: str | None = None
+
+
+@dataclass(frozen=True)
+class Observation:
+    """Region means measured by the client, as posted (:class:`~.api.schemas.ObservationIn`): linear values on the
+    0…``white_level`` scale, ``None`` for a missing region."""
+
+    patches: dict[str, list[float] | None]
+    sd: dict[str, list[float] | None] | None = None
+    white_level: float = 1.0
+    taken_at: datetime | None = None
+    applied_gains: list[float] | None = None
+    exposure: float | None = None
 
 
 @dataclass
@@ -112,14 +124,14 @@ def ingest_image(state: State, session: Session, cam: Camera, upload: FrameUploa
     return out
 
 
-def ingest_observations(state: State, session: Session, cam: Camera, body: ObservationIn,
+def ingest_observations(state: State, session: Session, cam: Camera, body: Observation,
                         claim: Claim | None) -> Answer:
     """Check and store region means measured by the client (linear values; ``null`` for a missing region): 422 for
     an unknown region, for every region ``null``, or for a standard error without its value."""
     return _once(state.sessions, claim, lambda: store_frame(state, session, cam, observed(cam, body), claim))
 
 
-def observed(cam: Camera, body: ObservationIn) -> Measured:
+def observed(cam: Camera, body: Observation) -> Measured:
     """Client-measured region means as stored: checked against the camera's regions, divided by the white level."""
     known = {r["id"] for r in cam.regions}
     unknown = sorted(set(body.patches) - known)
@@ -228,7 +240,7 @@ def store_frame(state: State, session: Session, cam: Camera, m: Measured, claim:
     # columns) so that requests waiting for a group commit never hold every pooled connection.
     session.close()
     try:
-        out = state.commits.submit(pending.write if claim is None else keyed(pending.write, claim, _answer_json))
+        out = state.commits.submit(pending.write if claim is None else keyed(pending.write, claim))
     except Exception as exc:
         if claim is not None and is_conflict(exc):  # a concurrent retry in another process stored the frame first
             first = stored(state.sessions, claim)
@@ -242,11 +254,6 @@ def store_frame(state: State, session: Session, cam: Camera, m: Measured, claim:
     metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - t1, labels='stage="commit"')
     metrics.inc("illumon_frames_ingested_total")
     return out
-
-
-def _answer_json(answer: dict) -> dict:
-    """A frame's 201 answer as JSON values (kept with its idempotency key)."""
-    return FrameIngestOut.model_validate(answer).model_dump(mode="json")
 
 
 @dataclass

@@ -1,5 +1,5 @@
-"""Frames posted before a view has regions (issue 26, "no installer frame wasted"): their original images are kept,
-at most :attr:`~.settings.Settings.pending_max_frames` per camera view (the oldest dropped first), under
+"""Frames posted before a view has regions, so that an installer's first frames are not wasted: their original images
+are kept, at most :attr:`~.settings.Settings.pending_max_frames` per camera view (the oldest dropped first), under
 ``<data dir>/pending/camera-<id>/<frame id>.<format>``, and measured with the regions once they are confirmed
 (``PUT …/regions`` or the regions page); their files are deleted then. A frame whose original was dropped stays
 stored without region values (its reason: ``no_regions``)."""

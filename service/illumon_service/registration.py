@@ -1,5 +1,5 @@
-"""Keeping regions on their surfaces when the view moves (issue 17): registration of each frame to its view's
-reference frame, per-view regions, and frame thumbnails on disk.
+"""Keeping regions on their surfaces when the view moves (a PTZ preset, a knocked or re-aimed camera): registration
+of each frame to its view's reference frame, per-view regions, and frame thumbnails on disk.
 
 Each camera view (``view`` form field of an upload, a PTZ preset id; ``None`` for a fixed camera) has a *reference
 frame*: the thumbnail (:mod:`.proposals`) of the first frame stored for that view, kept as

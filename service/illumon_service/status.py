@@ -150,7 +150,7 @@ def _non_daylight(ctx: AlertContext) -> list[Alert]:
     if e is None:
         return []
     p = estimate_non_daylight(e)
-    if p is not None:  # the model's posterior (issue 28); the Duv rule for estimates made without it
+    if p is not None:  # the model's posterior of non-daylight light; the Duv rule for estimates made without it
         if p < NON_DAYLIGHT_PROBABILITY:
             return []
         return [Alert("non_daylight", "Non-daylight light",

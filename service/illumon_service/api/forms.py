@@ -19,9 +19,10 @@ from ..limits import EXPOSURE_RANGE, GAINS_RANGE, check_gains, control_character
 from ..regions import Region
 from ..registration import parse_view
 from ..storage import as_utc
+from .schemas import FrameIngestOut
 
 __all__ = ["IMAGE_TYPES", "MAX_PARTS", "parse_time", "read_multipart", "parse_gains", "parse_positive",
-           "parse_view_field", "image_part", "FrameForm", "read_frame_form", "read_calibration_form",
+           "parse_view_field", "image_part", "FrameForm", "answer_json", "read_frame_form", "read_calibration_form",
            "regions_from_form"]
 
 IMAGE_TYPES = {"image/png", "image/jpeg", "image/jpg", "image/tiff", "application/octet-stream", ""}
@@ -165,7 +166,12 @@ class FrameForm:
     def claim(self, camera_id: int) -> Claim | None:
         """The idempotency claim of the post (``None`` without a key)."""
         return None if self.key is None else Claim(camera_id, self.key, form_fingerprint(self.upload.image,
-                                                                                         self.fields))
+                                                                                         self.fields), answer_json)
+
+
+def answer_json(answer: dict) -> dict:
+    """A frame post's 201 answer as the JSON values the route sends (kept with its ``Idempotency-Key``)."""
+    return FrameIngestOut.model_validate(answer).model_dump(mode="json")
 
 
 async def read_frame_form(request: Request, limit: int) -> FrameForm:

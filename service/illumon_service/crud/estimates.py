@@ -29,20 +29,14 @@ def estimate_non_daylight(e: Estimate) -> float | None:
     return float(v) if isinstance(v, (int, float)) else None
 
 
+_PUBLIC = ("cct_k", "duv", "xy", "white_rgb", "gains_rgb", "confidence")
+"""Columns of an estimate given as stored."""
+
+
 def estimate_out(e: Estimate) -> dict:
-    """The public fields of an estimate."""
-    return {
-        "frame_id": e.frame_id,
-        "taken_at": as_utc(e.taken_at).isoformat(),
-        "cct_k": e.cct_k,
-        "duv": e.duv,
-        "xy": e.xy,
-        "white_rgb": e.white_rgb,
-        "gains_rgb": e.gains_rgb,
-        "confidence": e.confidence,
-        "non_daylight": estimate_non_daylight(e),
-        "source": e.source,
-    }
+    """The public fields of an estimate (a row of :class:`.storage.Estimate`, or a row with its columns by name)."""
+    return {"frame_id": e.frame_id, "taken_at": as_utc(e.taken_at).isoformat(), **{k: getattr(e, k) for k in _PUBLIC},
+            "non_daylight": estimate_non_daylight(e), "source": e.source}
 
 
 def _newest_first(session: Session, camera_id: int, limit: int) -> Sequence[Estimate]:

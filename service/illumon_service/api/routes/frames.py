@@ -12,9 +12,9 @@ from starlette.concurrency import run_in_threadpool
 from ... import crud
 from ...deps import AdminDep, PrincipalDep, SessionDep, camera_for
 from ...idempotency import IDEMPOTENCY_DOC, Claim, fingerprint, parse_key
-from ...ingest import ingest_image, ingest_observations
+from ...ingest import Observation, ingest_image, ingest_observations
 from ...manage import delete_frame
-from ..forms import parse_time, read_frame_form
+from ..forms import answer_json, parse_time, read_frame_form
 from ..schemas import ERROR_RESPONSES, FRAME_UPLOAD, MAX_LIST, DeletedOut, FrameIngestOut, FrameOut, IsoDateTime, ObservationIn
 
 router = APIRouter(prefix="/v1/cameras", tags=["frames"], responses=ERROR_RESPONSES)
@@ -43,8 +43,8 @@ def post_observations(camera_id: int, body: ObservationIn, request: Request, ses
     region is ``null``)."""
     cam = camera_for(session, principal, camera_id)
     key = parse_key(request)
-    claim = None if key is None else Claim(cam.id, key, fingerprint(body.model_dump_json()))
-    return ingest_observations(request.app.state, session, cam, body, claim)
+    claim = None if key is None else Claim(cam.id, key, fingerprint(body.model_dump_json()), answer_json)
+    return ingest_observations(request.app.state, session, cam, Observation(**body.model_dump()), claim)
 
 
 @router.get("/{camera_id}/frames", response_model=list[FrameOut])

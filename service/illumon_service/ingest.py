@@ -25,7 +25,7 @@ from starlette.datastructures import State
 
 from . import crud
 from .datafiles import stored_path
-from .decode import ImageError, decode_frame, sniff_format
+from .decode import ImageError, decode_frame
 from .estimation import current_model, estimate_frame, undo_camera_gains, undo_camera_gains_sd
 from .idempotency import Claim, is_conflict, key_lock, keyed, replay, stored
 from .limits import regions_outside
@@ -116,8 +116,8 @@ def ingest_image(state: State, session: Session, cam: Camera, upload: FrameUploa
     state.metrics.observe("illumon_ingest_stage_seconds", time.perf_counter() - received, labels='stage="receive"')
 
     def work() -> Answer:
-        return store_frame(state, session, cam, measure_image(state.settings, state.metrics, cam, upload, configured),
-                           claim)
+        measured = measure_image(state.settings, state.metrics, cam, upload, configured)
+        return store_frame(state, session, cam, measured, claim)
 
     out = _once(state.sessions, claim, work)
     state.metrics.observe("illumon_ingest_seconds", time.perf_counter() - received)
@@ -128,7 +128,12 @@ def ingest_observations(state: State, session: Session, cam: Camera, body: Obser
                         claim: Claim | None) -> Answer:
     """Check and store region means measured by the client (linear values; ``null`` for a missing region): 422 for
     an unknown region, for every region ``null``, or for a standard error without its value."""
-    return _once(state.sessions, claim, lambda: store_frame(state, session, cam, observed(cam, body), claim))
+
+    def work() -> Answer:
+        measured = observed(cam, body)
+        return store_frame(state, session, cam, measured, claim)
+
+    return _once(state.sessions, claim, work)
 
 
 def observed(cam: Camera, body: Observation) -> Measured:
@@ -189,8 +194,7 @@ def measure_image(settings: Settings, metrics: Metrics, cam: Camera, upload: Fra
     except RegionError as exc:
         raise HTTPException(422, str(exc)) from None
     return Measured(upload.taken_at, patches, patch_sd, upload.applied_gains, upload.exposure, frame.size,
-                    upload.image, sniff_format(upload.image), [r["id"] for r in configured], upload.view, reg, thumb,
-                    extra)
+                    upload.image, frame.fmt, [r["id"] for r in configured], upload.view, reg, thumb, extra)
 
 
 def _warnings(cam: Camera, m: Measured, region_ids: list[str], usable: int) -> list[str]:
@@ -307,10 +311,10 @@ class _Stored:
             row = crud.add_estimate(session, frame_id=frame.id, camera_id=cam.id, taken_at=m.taken_at,
                                     model=now[1] if now else None, **use)
         else:
-            frame.not_estimated = ("view_change" if m.registration is not None and m.registration.state == "view_change"
-                                   else "no_regions" if not self.region_ids else "too_few_regions" if self.usable < 2
-                                   else "no_model" if now is None else "estimate_failed")
-        session.flush()
+            crud.mark_not_estimated(session, frame, (
+                "view_change" if m.registration is not None and m.registration.state == "view_change"
+                else "no_regions" if not self.region_ids else "too_few_regions" if self.usable < 2
+                else "no_model" if now is None else "estimate_failed"))
         return {
             "frame_id": frame.id,
             "taken_at": as_utc(frame.taken_at).isoformat(),

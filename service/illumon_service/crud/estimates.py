@@ -120,9 +120,10 @@ def estimated_frame_ids(session: Session, frame_ids: Sequence[int]) -> set[int]:
 
 
 def add_estimate(session: Session, **columns: object) -> Estimate:
-    """A new estimate row (added, not flushed)."""
+    """A new estimate row, added and flushed."""
     row = Estimate(**columns)
     session.add(row)
+    session.flush()
     return row
 
 

@@ -13,7 +13,7 @@ from sqlalchemy.orm import Session
 from ..storage import Estimate, Frame, as_utc
 
 __all__ = [
-    "view_filter", "add_frame", "frame_of", "delete_frame", "frames_between", "frame_out", "latest_frame",
+    "view_filter", "add_frame", "mark_not_estimated", "frame_of", "delete_frame", "frames_between", "frame_out", "latest_frame",
     "recent_frames", "frame_count", "view_size", "last_thumbnail", "thumbnail_frames", "view_frames",
     "history_rows", "frames_not_read", "not_estimated_counts",
 ]
@@ -33,6 +33,12 @@ def add_frame(session: Session, **columns: object) -> Frame:
     session.add(frame)
     session.flush()
     return frame
+
+
+def mark_not_estimated(session: Session, frame: Frame, reason: str) -> None:
+    """Record why a frame has no estimate (:attr:`.storage.Frame.not_estimated`) and flush."""
+    frame.not_estimated = reason
+    session.flush()
 
 
 def frame_of(session: Session, camera_id: int, frame_id: int) -> Frame | None:

@@ -1,13 +1,15 @@
 """Ingest: one frame carried from its bytes (or the client's region means) to its stored estimate.
 
-:func:`ingest_image` — an uploaded image: decoded (:mod:`.decode`), registered to its view's reference frame
-(:mod:`.registration`), its regions measured (:func:`~.registration.measure_shifted`), then stored as
-:func:`ingest_observations` stores client-measured means: :func:`store_frame` estimates the frame with the camera
-view's scene model (:func:`~.estimation.estimate_frame`, the camera's applied gains and exposure divided out first) and
-writes it durably through the group commit (:mod:`.crud`), the answer only after the commit that holds it. A post
-with an ``Idempotency-Key`` is stored once; a retry gets the first answer (:mod:`.idempotency`).
+* :func:`ingest_image` — an uploaded image: decoded (:mod:`.decode`), registered to its view's reference frame and its
+  regions measured where they lie now (:mod:`.registration`) by :func:`measure_image`, then stored;
+* :func:`ingest_observations` — region means measured by the client: checked against the camera's regions
+  (:func:`observed`), then stored;
+* :func:`store_frame` — the frame estimated with its view's scene model (:func:`~.estimation.estimate_frame`, the
+  camera's applied gains and exposure divided out first), written durably through the group commit (:mod:`.crud`),
+  answered only after the commit that holds it.
 
-The routes (:mod:`.api.routes.frames`) only parse the request (:mod:`.api.forms`), call these and answer.
+A post with an ``Idempotency-Key`` is stored once; a retry gets the first answer (:mod:`.idempotency`). The routes
+(:mod:`.api.routes.frames`) only parse the request (:mod:`.api.forms`), call these and answer.
 """
 
 from __future__ import annotations
@@ -234,9 +236,7 @@ def store_frame(state: State, session: Session, cam: Camera, m: Measured, claim:
     settings, metrics = state.settings, state.metrics
     region_ids = [r["id"] for r in cam.regions] if m.region_ids is None else m.region_ids
     t0 = time.perf_counter()
-    pending = _Stored(settings, cam, m, region_ids)
-    pending.first = current_model(settings.data_dir, cam.models, cam.id, m.view)
-    pending.estimate = pending.estimate_with(pending.first)
+    entry = _Stored(settings, cam, m, region_ids, current_model(settings.data_dir, cam.models, cam.id, m.view))
     t1 = time.perf_counter()
     metrics.observe("illumon_estimate_seconds", t1 - t0)
     metrics.observe("illumon_ingest_stage_seconds", t1 - t0, labels='stage="estimate"')
@@ -244,7 +244,7 @@ def store_frame(state: State, session: Session, cam: Camera, m: Measured, claim:
     # columns) so that requests waiting for a group commit never hold every pooled connection.
     session.close()
     try:
-        out = state.commits.submit(pending.write if claim is None else keyed(pending.write, claim))
+        out = state.commits.submit(entry.write if claim is None else keyed(entry.write, claim))
     except Exception as exc:
         if claim is not None and is_conflict(exc):  # a concurrent retry in another process stored the frame first
             first = stored(state.sessions, claim)
@@ -269,9 +269,10 @@ class _Stored:
     cam: Camera
     m: Measured
     region_ids: list[str]
-    first: tuple[Path, str] | None = None
-    """The scene model (file, version) in use when the frame was estimated."""
-    estimate: dict | None = None
+    first: tuple[Path, str] | None
+    """The scene model (file, version) in use at ingest; ``None`` before the first refit."""
+    estimate: dict | None = field(init=False)
+    """The frame's estimate with that model."""
     usable: int = field(init=False)
     """Regions with a value."""
     undone: dict = field(init=False)
@@ -285,6 +286,7 @@ class _Stored:
         self.undone = undo_camera_gains(m.patches, m.applied_gains, m.exposure, matrix)
         self.undone_sd = undo_camera_gains_sd(m.patch_sd, m.applied_gains, m.exposure, matrix)
         self.warnings = _warnings(self.cam, m, self.region_ids, self.usable)
+        self.estimate = self.estimate_with(self.first)
 
     def estimate_with(self, model: tuple[Path, str] | None) -> dict | None:
         """The frame's estimate with ``model`` (``None`` without a model or two usable regions)."""

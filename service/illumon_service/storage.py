@@ -100,7 +100,7 @@ class Camera(Base):
     models: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     """The scene models in use, by view (``default`` or ``v-<view>``): ``{"file": name under <data dir>/models,
     "version": id}``. A refit writes a new versioned file and switches to it in the transaction that stores its
-    estimates, so estimates and model change together (:mod:`.jobs`); ``None`` before the first refit."""
+    estimates, so estimates and model change together (:mod:`.refit`); ``None`` before the first refit."""
 
 
 class Frame(Base):
@@ -230,7 +230,7 @@ class IdempotencyKey(Base):
 
 
 class LoginSession(Base):
-    """A status-page login (:mod:`.sessions`): the SHA-256 of the random session id the cookie holds, and the hash
+    """A status-page login (:mod:`.logins`): the SHA-256 of the random session id the cookie holds, and the hash
     of the token that logged in (a session ends when that token no longer authenticates)."""
 
     __tablename__ = "login_sessions"

@@ -31,7 +31,6 @@ from .cameras import (
     view_regions,
 )
 from .estimates import (
-    WRITE_CHUNK,
     add_estimate,
     camera_history,
     drop_estimates,
@@ -60,7 +59,6 @@ from .frames import (
     not_estimated_counts,
     recent_frames,
     thumbnail_frames,
-    view_filter,
     view_frames,
     view_size,
 )
@@ -82,13 +80,13 @@ __all__ = [
     "add_calibration", "calibrations", "camera_by_token", "camera_id_by_token_hash", "camera_ids", "camera_views",
     "cameras", "create_camera", "delete_camera_rows", "get_camera", "has_calibration", "models_for_update",
     "set_view_regions", "use_models", "view_regions",
-    "WRITE_CHUNK", "add_estimate", "camera_history", "drop_estimates", "estimate_non_daylight", "estimate_out",
+    "add_estimate", "camera_history", "drop_estimates", "estimate_non_daylight", "estimate_out",
     "estimate_rows", "estimated_frame_ids", "estimates_between", "latest_estimate", "nearest_estimate",
     "recent_estimate_ids", "replace_estimates",
     "add_frame", "delete_frame", "frame_count", "frame_of", "frame_out", "frames_between", "frames_not_read",
     "history_rows", "last_thumbnail", "latest_frame", "mark_not_estimated", "not_estimated_counts", "recent_frames",
     "thumbnail_frames",
-    "view_filter", "view_frames", "view_size",
+    "view_frames", "view_size",
     "add_job", "beat_jobs", "claim_job", "get_job", "latest_job", "refit_warnings", "set_job", "unfinished_jobs",
     "add_idempotency_key", "add_login", "delete_login", "get_login", "idempotency_key",
     "delete_expired_logins", "delete_frames_before", "delete_jobs_finished_before", "delete_keys_created_before",

@@ -13,13 +13,13 @@ from sqlalchemy.orm import Session
 from ..storage import Estimate, Frame, as_utc
 
 __all__ = [
-    "view_filter", "add_frame", "mark_not_estimated", "frame_of", "delete_frame", "frames_between", "frame_out", "latest_frame",
+    "add_frame", "mark_not_estimated", "frame_of", "delete_frame", "frames_between", "frame_out", "latest_frame",
     "recent_frames", "frame_count", "view_size", "last_thumbnail", "thumbnail_frames", "view_frames",
     "history_rows", "frames_not_read", "not_estimated_counts",
 ]
 
 
-def view_filter(view: str | None):  # noqa: ANN201 - a SQLAlchemy clause
+def _view_filter(view: str | None):  # noqa: ANN202 - a SQLAlchemy clause
     """The frames of one view (``None``: the default view)."""
     return Frame.view.is_(None) if view is None else Frame.view == view
 
@@ -76,7 +76,7 @@ def frame_out(f: Frame, estimated: bool) -> dict:
 
 def latest_frame(session: Session, camera_id: int, view: str | None, with_thumbnail: bool = False) -> Frame | None:
     """The view's latest stored frame (with ``with_thumbnail``, the latest whose thumbnail is kept), or ``None``."""
-    q = select(Frame).where(Frame.camera_id == camera_id, view_filter(view))
+    q = select(Frame).where(Frame.camera_id == camera_id, _view_filter(view))
     if with_thumbnail:
         q = q.where(Frame.thumb_path.is_not(None))
     return session.scalars(q.order_by(*_NEWEST_FIRST).limit(1)).first()
@@ -97,7 +97,7 @@ def view_size(session: Session, camera_id: int, view: str | None) -> tuple[int, 
     """(width, height) of the view's images: those of its latest stored frame that came with an image (``None``
     when it has none yet, e.g. a camera that sends region means)."""
     row = session.execute(
-        select(Frame.width, Frame.height).where(Frame.camera_id == camera_id, view_filter(view),
+        select(Frame.width, Frame.height).where(Frame.camera_id == camera_id, _view_filter(view),
                                                 Frame.width.is_not(None), Frame.height.is_not(None))
         .order_by(*_NEWEST_FIRST).limit(1)).first()
     return None if row is None else (int(row.width), int(row.height))
@@ -107,7 +107,7 @@ def last_thumbnail(session: Session, camera_id: int, view: str | None) -> Row | 
     """``(taken_at, registration)`` of the view's latest frame whose thumbnail is kept, or ``None``."""
     return session.execute(
         select(Frame.taken_at, Frame.registration)
-        .where(Frame.camera_id == camera_id, Frame.thumb_path.is_not(None), view_filter(view))
+        .where(Frame.camera_id == camera_id, Frame.thumb_path.is_not(None), _view_filter(view))
         .order_by(*_NEWEST_FIRST).limit(1)
     ).first()
 
@@ -115,7 +115,7 @@ def last_thumbnail(session: Session, camera_id: int, view: str | None) -> Row | 
 def thumbnail_frames(session: Session, camera_id: int, view: str | None) -> Sequence[Frame]:
     """The view's frames whose thumbnail is kept, newest first."""
     return session.scalars(
-        select(Frame).where(Frame.camera_id == camera_id, Frame.thumb_path.is_not(None), view_filter(view))
+        select(Frame).where(Frame.camera_id == camera_id, Frame.thumb_path.is_not(None), _view_filter(view))
         .order_by(*_NEWEST_FIRST)
     ).all()
 
@@ -123,7 +123,7 @@ def thumbnail_frames(session: Session, camera_id: int, view: str | None) -> Sequ
 def view_frames(session: Session, camera_id: int, view: str | None, frame_ids: Sequence[int]) -> Sequence[Frame]:
     """Those of ``frame_ids`` that are frames of the camera's view, by id."""
     return session.scalars(select(Frame).where(
-        Frame.camera_id == camera_id, Frame.id.in_(frame_ids), view_filter(view)).order_by(Frame.id)).all()
+        Frame.camera_id == camera_id, Frame.id.in_(frame_ids), _view_filter(view)).order_by(Frame.id)).all()
 
 
 _HISTORY = (Frame.id, Frame.taken_at, Frame.patches, Frame.applied_gains, Frame.exposure, Frame.view,

@@ -1,5 +1,6 @@
-"""Managing a camera's stored data: its regions (checked against the view's image), and deleting a frame or a whole
-camera with everything stored for it (admin). Shared by the JSON routes and the regions page, so they cannot differ."""
+"""Managing a camera's stored data: its regions (checked against the view's image), deleting a frame or a whole camera
+with everything stored for it (admin), and a view's region proposals. Shared by the JSON routes and the regions page,
+so they cannot differ."""
 
 from __future__ import annotations
 

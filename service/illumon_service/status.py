@@ -1,6 +1,6 @@
 """What the status page shows: each camera's latest estimate, last frame and alerts, and one camera's history.
 
-Reads the same tables as the JSON API (:mod:`.storage`) and formats estimates with the API's own
+Reads the same rows as the JSON API, through the same queries (:mod:`.crud`), and formats estimates with the API's own
 :func:`~.crud.estimate_out`, so the page and ``GET /v1/cameras/{id}/estimates`` cannot disagree.
 
 Alerts

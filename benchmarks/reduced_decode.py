@@ -132,7 +132,7 @@ def run(kind: str, n: int) -> dict:
         times = [f"2025-06-01T{5 + f // 6:02d}:{(f % 6) * 10:02d}:00+00:00" for f in range(n)]
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            estimation._fit_model(estimation.build_observations(  # noqa: SLF001 - the refit's own fit
+            estimation.fit_model(estimation.build_observations(  # the refit's own fit
                 [(str(f), times[f], full[f]) for f in range(12)], ids), css, path)
 
             def whites(rows: list[dict]) -> np.ndarray:

@@ -10,7 +10,7 @@ reported as ``peak MiB``; ``check s`` is the tone-response check's part of ``fit
 Each history is simulated from measured data (Nikon D5100 sensitivities, Granada daylight in sequence, 16 Munsell
 reflectances, 10 % of patches missing) when ``../shared/data`` is present, from synthetic spectra otherwise. Frames
 are stored straight into the service's SQLite database (not timed); the timed part is
-:func:`illumon_service.jobs.refit_camera` — read the history, fit the scene model (reflectances on 300 frames spread
+:func:`illumon_service.refit.refit_camera` — read the history, fit the scene model (reflectances on 300 frames spread
 over the illuminant range), estimate every frame, write the estimates — with the service's default settings.
 
 Fleet: serial is ``refit_camera`` camera after camera in this process; Dask is :func:`illumon_service.jobs.run_batch`

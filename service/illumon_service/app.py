@@ -16,8 +16,8 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.exc import DataError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
+from . import crud
 from .api.routes import calibration, cameras, estimates, frames, gains, health, jobs, pages, proposals
-from .datafiles import relativize_paths
 from .jobs import JobRunner
 from .metrics import Metrics
 from .retention import Housekeeper
@@ -83,7 +83,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     settings = settings or Settings()
     Path(settings.data_dir).mkdir(parents=True, exist_ok=True, mode=0o700)  # a new data dir: its owner's only
     engine = make_engine(settings.resolved_database_url)
-    relativize_paths(engine, settings.data_dir)  # databases of older versions stored absolute file paths
+    crud.relativize_paths(engine, settings.data_dir)  # databases of older versions stored absolute file paths
     sessions = make_session_factory(engine)
     metrics = Metrics(settings.metrics_dir)
     runner = JobRunner(sessions, settings, metrics)

@@ -31,12 +31,11 @@ from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
 
-from sqlalchemy import func, select, update
 from sqlalchemy.engine import Engine, make_url
 
-from .datafiles import PATH_COLUMNS, data_file, relativize_paths
+from . import crud
 from .settings import Settings
-from .storage import Calibration, Camera, Estimate, Frame, IdempotencyKey, Job, make_engine
+from .storage import make_engine
 
 __all__ = ["BackupError", "backup", "restore", "FORMAT", "one_line_errors"]
 
@@ -107,35 +106,6 @@ def _copy_tree(src: Path, dst: Path, db_file: Path | None, only_new: bool = Fals
     return n
 
 
-def _counts(engine: Engine) -> dict[str, int]:
-    with engine.connect() as conn:
-        return {name: int(conn.execute(select(func.count()).select_from(model)).scalar_one())
-                for name, model in (("cameras", Camera), ("frames", Frame), ("estimates", Estimate), ("jobs", Job),
-                                    ("calibrations", Calibration), ("idempotency_keys", IdempotencyKey))}
-
-
-def forget_missing_files(engine: Engine, data_dir: Path) -> int:
-    """Clear the stored paths whose file is not under ``data_dir`` — frame thumbnails and kept images, and the
-    cameras' scene models in use (:attr:`~.storage.Camera.models`: a view whose model file is missing has none until
-    the next refit, rather than a name that cannot be read); returns how many."""
-    n = 0
-    with engine.begin() as conn:
-        for cid, models in conn.execute(select(Camera.id, Camera.models).where(Camera.models.is_not(None))).all():
-            kept = {k: v for k, v in (models or {}).items()
-                    if isinstance(v, dict) and (f := data_file(data_dir / "models", str(v.get("file") or "")))
-                    is not None and f.is_file()}
-            if kept != (models or {}):
-                conn.execute(update(Camera).where(Camera.id == cid).values(models=kept or None))
-                n += len(models or {}) - len(kept)
-        for col in PATH_COLUMNS:
-            for fid, value in conn.execute(select(Frame.id, col).where(col.is_not(None))).all():
-                path = data_file(data_dir, value)
-                if path is None or not path.is_file():
-                    conn.execute(update(Frame).where(Frame.id == fid).values({col.key: None}))
-                    n += 1
-    return n
-
-
 def _pg_command(name: str) -> str:
     found = shutil.which(name)
     if found is None:
@@ -168,7 +138,8 @@ def _settle_files(engine: Engine, data_dir: Path, files: Path) -> tuple[dict, in
     """Stored paths made relative to ``data_dir``, rows of files absent under ``files`` forgotten, the rows counted
     (then ``engine`` disposed)."""
     try:
-        return relativize_paths(engine, data_dir), forget_missing_files(engine, files), _counts(engine)
+        return (crud.relativize_paths(engine, data_dir), crud.forget_missing_files(engine, files),
+                crud.row_counts(engine))
     finally:
         engine.dispose()
 
@@ -269,15 +240,6 @@ def _write_backup(partial: Path, data_dir: Path, url: str, db_file: Path | None)
     return manifest
 
 
-def _has_illumon_data(engine: Engine) -> bool:
-    from sqlalchemy import inspect
-
-    if "cameras" not in inspect(engine).get_table_names():
-        return False
-    with engine.connect() as conn:
-        return conn.execute(select(func.count()).select_from(Camera)).scalar_one() > 0
-
-
 def restore(settings: Settings, src: Path | str, *, force: bool = False) -> dict:
     """Restore a backup made by :func:`backup` into the settings' data directory and database.
 
@@ -340,7 +302,7 @@ def restore(settings: Settings, src: Path | str, *, force: bool = False) -> dict
     else:
         engine = make_engine(url)
         try:
-            if not force and (_has_illumon_data(engine) or present):
+            if not force and (crud.has_cameras(engine) or present):
                 raise BackupError("the target database or data directory already holds illumon data; restore into an "
                                   "empty one, or pass --force to replace it")
         finally:

@@ -1,4 +1,5 @@
-"""Calibration images: a ColorChecker or a grey card seen once by a camera nobody measured (issue 15).
+"""Calibration images: a ColorChecker or a grey card seen once by a camera nobody measured, so that its estimates rest
+on a reference of known reflectance rather than on the prior from measured cameras alone.
 
 A calibration image is measured like a frame — decoded, linearised with the camera's pipeline, and each patch's robust
 mean taken by :func:`~.regions.region_means` (clipped pixels and outliers dropped) — but its "regions" are the
@@ -20,13 +21,20 @@ and passes their known reflectances to :func:`illumon.model.fit_scene_model` (se
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from fastapi import HTTPException
 from illumon.camera import ResponseCurve
 from numpy.typing import NDArray
+from sqlalchemy.orm import Session
 
-from .regions import Region, clipped_regions, region_means
+from . import crud
+from .decode import DecodedFrame, ImageError, decode_frame
+from .regions import Region, RegionError, clipped_regions, region_means, response_for
+from .settings import Settings
+from .storage import Camera
 
 __all__ = [
     "CalibrationError",
@@ -39,6 +47,8 @@ __all__ = [
     "measure_patches",
     "reference_box",
     "covered_regions",
+    "CalibrationUpload",
+    "store_calibration",
 ]
 
 CHART_ROWS, CHART_COLS = 4, 6
@@ -168,3 +178,78 @@ def measure_patches(
     if len(usable) < len(patches):
         warnings.append(f"{len(patches) - len(usable)} patches unusable (mostly clipped or occluded)")
     return patches, warnings
+
+
+@dataclass(frozen=True)
+class CalibrationUpload:
+    """An uploaded calibration image as the form gave it (:func:`~.api.forms.read_calibration_form`)."""
+
+    image: bytes | bytearray
+    kind: str
+    """``colorchecker`` or ``grey``."""
+    corners: object | None = None
+    """``colorchecker``: the patch area's four corners (checked by :func:`grid_from_corners`); found when ``None``."""
+    region: Region | None = None
+    """``grey``: the card's rectangle."""
+    reflectance: float | None = None
+    """``grey``: the card's reflectance."""
+    applied_gains: list[float] | None = None
+    exposure: float | None = None
+
+
+def _reference(frame: DecodedFrame, upload: CalibrationUpload) -> tuple[list[Region], tuple[float, float, float, float]]:
+    """The reference's patches in the image and the box they cover (:func:`reference_box`)."""
+    if upload.kind == "grey":
+        region, (w, h) = upload.region, frame.size
+        if region.x + region.width > w or region.y + region.height > h:
+            raise CalibrationError(f"region ({region.x},{region.y} {region.width}×{region.height}) lies "
+                                   f"outside the {w}×{h} image")
+        return [region], reference_box([region])
+    centres, pitch = (grid_from_corners(upload.corners) if upload.corners is not None
+                      else detect_colorchecker(frame.image, frame.full_scale))
+    regions = patch_regions(chart_patch_ids(), centres, pitch, frame.size)
+    return regions, reference_box(regions, margin=pitch)
+
+
+def _measure(settings: Settings, cam: Camera, upload: CalibrationUpload) -> tuple[list[dict], dict, list[str]]:
+    """The reference's patches (:func:`measure_patches`), the camera's own regions in the same image (those behind
+    the reference left out) and the warnings."""
+    frame = decode_frame(upload.image, [], max_pixels=settings.max_image_pixels, max_bytes=settings.max_decoded_bytes)
+    response = response_for(cam.response, frame.full_scale)
+    regions, box = _reference(frame, upload)
+    patches, warnings = measure_patches(frame.image, regions, response, clip_fraction=settings.clip_fraction,
+                                        min_fraction=settings.min_region_fraction)
+    try:  # the camera's own regions in the same image: the reference's daylight comes from them
+        scene = region_means(frame.image, [Region(**r) for r in cam.regions], response,
+                             clip_fraction=settings.clip_fraction, min_fraction=settings.min_region_fraction)
+    except RegionError:
+        scene = {}
+    hidden = covered_regions([Region(**r) for r in cam.regions], box) & set(scene)
+    if hidden:  # behind the reference: their values here are the reference's
+        scene.update(dict.fromkeys(hidden, None))
+        warnings.append(f"{len(hidden)} of the camera's regions overlap the reference and are not used from "
+                        f"this image ({', '.join(sorted(hidden)[:4])}{' …' if len(hidden) > 4 else ''})")
+    if sum(v is not None for v in scene.values()) < 2:
+        warnings.append("fewer than two of the camera's regions are usable in this image: a calibration "
+                        "counts only in an image from the camera itself, showing its scene around the "
+                        "reference; a refit leaves this one out")
+    return patches, scene, warnings
+
+
+def store_calibration(settings: Settings, session: Session, cam: Camera, upload: CalibrationUpload) -> dict:
+    """Measure a calibration image, store it (committed) and build the 201 answer: the patches, how many clipped,
+    how many of the camera's regions the image shows, and the warnings. 4xx for an image that cannot be decoded or
+    a reference that cannot be found or measured."""
+    try:
+        patches, scene, warnings = _measure(settings, cam, upload)
+    except ImageError as exc:
+        raise HTTPException(exc.status, str(exc)) from None
+    except CalibrationError as exc:
+        raise HTTPException(422, str(exc)) from None
+    row = crud.add_calibration(
+        session, camera_id=cam.id, kind=upload.kind, reflectance=upload.reflectance,
+        applied_gains=upload.applied_gains, exposure=upload.exposure, warnings=warnings,
+        patches={p["id"]: None if p["r"] is None else [p["r"], p["g"], p["b"]] for p in patches},
+        clipped=[p["id"] for p in patches if p["clipped"]], scene=scene)
+    return {"calibration_id": row.id, "kind": upload.kind, "patches": patches, "clipped": len(row.clipped),
+            "scene_regions": sum(v is not None for v in scene.values()), "warnings": warnings}

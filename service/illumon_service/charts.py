@@ -173,64 +173,86 @@ def time_chart(series: Sequence[Series], *, title: str, unit: str = "", refs: Se
     pad = (v1 - v0) * 0.08 or max(abs(v0) * 0.05, 1e-3)
     v0, v1 = v0 - pad, v1 + pad
     fr = _Frame(t0, t1, v0, v1, width, height)
-    parts = [head]
-    # grid and axes
-    yt = nice_ticks(v0, v1, 5)
+    parts = [head, *_axes(fr, refs, width, height)]
+    for s, ts, brk in zip(series, stamps, breaks_of, strict=True):  # bands, then lines and points
+        parts += _band(s, ts, brk, fr)
+    for s, ts, brk in zip(series, stamps, breaks_of, strict=True):
+        parts += _line(s, ts, brk, fr)
+    parts += _legend(series, label, width)
+    parts.append("</svg>")
+    return Markup("".join(parts))
+
+
+def _axes(fr: _Frame, refs: Sequence[float], width: int, height: int) -> list[str]:
+    """Grid lines with their ticks (values, and UTC times), the dashed reference lines in range and the frame."""
+    parts = []
+    yt = nice_ticks(fr.y0, fr.y1, 5)
     step = yt[1] - yt[0] if len(yt) > 1 else max(abs(yt[0]), 1.0)
     for v in yt:
         y = fr.y(v)
         parts.append(f'<line class="grid" x1="{LEFT}" x2="{width - RIGHT}" y1="{y:.1f}" y2="{y:.1f}"/>'
                      f'<text class="tick" x="{LEFT - 6}" y="{y + 4:.1f}" text-anchor="end">{escape(_fmt(v, step))}</text>')
-    xt, tlabel = time_ticks(t0, t1, 6 if width >= 600 else 4)
+    xt, tlabel = time_ticks(fr.t0, fr.t1, 6 if width >= 600 else 4)
     for t in xt:
         x = fr.x(t)
         parts.append(f'<line class="grid" x1="{x:.1f}" x2="{x:.1f}" y1="{TOP}" y2="{height - BOTTOM}"/>'
                      f'<text class="tick" x="{x:.1f}" y="{height - BOTTOM + 16}" text-anchor="middle">{tlabel(t)}</text>')
     parts.append(f'<text class="tick" x="{width - RIGHT}" y="{height - 2}" text-anchor="end">UTC</text>')
     for r in refs:
-        if v0 <= r <= v1:
+        if fr.y0 <= r <= fr.y1:
             y = fr.y(r)
             parts.append(f'<line class="ref" x1="{LEFT}" x2="{width - RIGHT}" y1="{y:.1f}" y2="{y:.1f}"/>')
     parts.append(f'<rect class="frame" x="{LEFT}" y="{TOP}" width="{width - LEFT - RIGHT}" height="{height - TOP - BOTTOM}"/>')
-    # bands, then lines and points
-    for s, ts, brk in zip(series, stamps, breaks_of, strict=True):
-        xs = [fr.x(t) for t in ts]
-        if s.lo is not None and s.hi is not None:
-            for run in _band_runs(xs, s.lo, s.hi, brk):
-                up = [f"{xs[i]:.1f},{fr.y(float(s.hi[i])):.1f}" for i in run]  # type: ignore[arg-type]
-                down = [f"{xs[i]:.1f},{fr.y(float(s.lo[i])):.1f}" for i in reversed(run)]  # type: ignore[arg-type]
-                if len(run) == 1:
-                    i = run[0]
-                    parts.append(f'<line class="{s.band_css} whisker" x1="{xs[i]:.1f}" x2="{xs[i]:.1f}" '
-                                 f'y1="{fr.y(float(s.lo[i])):.1f}" y2="{fr.y(float(s.hi[i])):.1f}"/>')  # type: ignore[arg-type]
-                else:
-                    parts.append(f'<polygon class="{s.band_css}" points="{" ".join(up + down)}"/>')
-    for s, ts, breaks in zip(series, stamps, breaks_of, strict=True):
-        pts, runs = [], [[]]
-        for i, (t, v) in enumerate(zip(ts, s.values, strict=True)):
-            if i in breaks and runs[-1]:
-                runs.append([])
-            if v is not None and math.isfinite(v):
-                pts.append((fr.x(t), fr.y(float(v))))
-                runs[-1].append(pts[-1])
-        if not pts:
-            continue
-        for run in runs:
-            if len(run) > 1:
-                parts.append(f'<polyline class="{s.css} line" points="{" ".join(f"{x:.1f},{y:.1f}" for x, y in run)}"/>')
-            elif run and len(pts) > 400:  # an isolated point, where dots are not drawn
-                parts.append(f'<circle class="{s.css} dot" cx="{run[0][0]:.1f}" cy="{run[0][1]:.1f}" r="2.2"/>')
-        if len(pts) <= 400:
-            parts.append("".join(f'<circle class="{s.css} dot" cx="{x:.1f}" cy="{y:.1f}" r="2.2"/>' for x, y in pts))
-    # legend
-    x = LEFT
-    parts.append(f'<text class="title" x="{LEFT}" y="16">{escape(label)}</text>')
+    return parts
+
+
+def _band(s: Series, ts: list[float], breaks: set[int], fr: _Frame) -> list[str]:
+    """A series' interval band: a polygon per run of points with both ends, a whisker for a lone point."""
+    if s.lo is None or s.hi is None:
+        return []
+    parts = []
+    xs = [fr.x(t) for t in ts]
+    for run in _band_runs(xs, s.lo, s.hi, breaks):
+        up = [f"{xs[i]:.1f},{fr.y(float(s.hi[i])):.1f}" for i in run]  # type: ignore[arg-type]
+        down = [f"{xs[i]:.1f},{fr.y(float(s.lo[i])):.1f}" for i in reversed(run)]  # type: ignore[arg-type]
+        if len(run) == 1:
+            i = run[0]
+            parts.append(f'<line class="{s.band_css} whisker" x1="{xs[i]:.1f}" x2="{xs[i]:.1f}" '
+                         f'y1="{fr.y(float(s.lo[i])):.1f}" y2="{fr.y(float(s.hi[i])):.1f}"/>')  # type: ignore[arg-type]
+        else:
+            parts.append(f'<polygon class="{s.band_css}" points="{" ".join(up + down)}"/>')
+    return parts
+
+
+def _line(s: Series, ts: list[float], breaks: set[int], fr: _Frame) -> list[str]:
+    """A series' line, broken at gaps and missing values, and its points (dots up to 400 points)."""
+    parts = []
+    pts, runs = [], [[]]
+    for i, (t, v) in enumerate(zip(ts, s.values, strict=True)):
+        if i in breaks and runs[-1]:
+            runs.append([])
+        if v is not None and math.isfinite(v):
+            pts.append((fr.x(t), fr.y(float(v))))
+            runs[-1].append(pts[-1])
+    if not pts:
+        return parts
+    for run in runs:
+        if len(run) > 1:
+            parts.append(f'<polyline class="{s.css} line" points="{" ".join(f"{x:.1f},{y:.1f}" for x, y in run)}"/>')
+        elif run and len(pts) > 400:  # an isolated point, where dots are not drawn
+            parts.append(f'<circle class="{s.css} dot" cx="{run[0][0]:.1f}" cy="{run[0][1]:.1f}" r="2.2"/>')
+    if len(pts) <= 400:
+        parts.append("".join(f'<circle class="{s.css} dot" cx="{x:.1f}" cy="{y:.1f}" r="2.2"/>' for x, y in pts))
+    return parts
+
+
+def _legend(series: Sequence[Series], label: str, width: int) -> list[str]:
+    """The chart's title (top left) and a key per series (top right)."""
+    parts = [f'<text class="title" x="{LEFT}" y="16">{escape(label)}</text>']
     x = width - RIGHT
     for s in reversed(series):
         w = 18 + 7.2 * len(s.name)
         x -= w
         parts.append(f'<rect class="{s.css} key" x="{x:.1f}" y="8" width="10" height="10"/>'
                      f'<text class="legend" x="{x + 13:.1f}" y="17">{escape(s.name)}</text>')
-    parts.append("</svg>")
-    return Markup("".join(parts))
-
+    return parts

@@ -3,24 +3,18 @@
 The database stores them relative to the data directory (``thumbs/camera-3/118.png``), so that a copy of the
 database and the data directory — a backup restored elsewhere, a data directory moved — refers to its own files,
 never to the original's (which it would otherwise read, and prune). Versions before this stored absolute paths:
-:func:`relativize_paths` rewrites those at start-up and in every backup.
+:func:`.crud.relativize_paths` rewrites those at start-up and in every backup.
 """
 
 from __future__ import annotations
 
-import logging
 import os
 import tempfile
 from pathlib import Path, PurePath
 
-from sqlalchemy import select, update
-from sqlalchemy.engine import Engine
-
 from .storage import Frame
 
-__all__ = ["PATH_COLUMNS", "atomic_write", "stored_path", "data_file", "relative_form", "relativize_paths"]
-
-log = logging.getLogger("illumon_service.datafiles")
+__all__ = ["PATH_COLUMNS", "atomic_write", "stored_path", "data_file", "relative_form"]
 
 PATH_COLUMNS = (Frame.thumb_path, Frame.image_path)
 """The columns holding paths of files under the data directory."""
@@ -87,20 +81,3 @@ def relative_form(data_dir: Path | str, stored: str) -> str | None:
         if parts[i] in _TOP_FOLDERS and parts[i + 1].startswith("camera-"):
             return PurePath(*parts[i:]).as_posix()
     return None
-
-
-def relativize_paths(engine: Engine, data_dir: Path | str) -> dict[str, int]:
-    """Rewrite the absolute file paths of an older database relative to ``data_dir`` (see :func:`relative_form`);
-    those that cannot be (outside any data directory) are cleared, as the file is not this data directory's.
-    Idempotent, one transaction; returns ``{"relativized": n, "cleared": m}``."""
-    counts = {"relativized": 0, "cleared": 0}
-    with engine.begin() as conn:
-        for col in PATH_COLUMNS:
-            rows = conn.execute(select(Frame.id, col).where(col.like("/%"))).all()  # POSIX absolute paths only
-            for fid, value in rows:
-                new = relative_form(data_dir, value)
-                conn.execute(update(Frame).where(Frame.id == fid).values({col.key: new}))
-                counts["relativized" if new is not None else "cleared"] += 1
-    if any(counts.values()):
-        log.info("file paths made relative to the data directory: %(relativized)d (cleared: %(cleared)d)", counts)
-    return counts

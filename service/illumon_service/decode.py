@@ -253,6 +253,8 @@ class DecodedFrame:
     """Full-resolution pixels per decoded pixel along each axis (1, or 2, 4, 8 for a reduced JPEG decode)."""
     size: tuple[int, int]
     """Full-resolution (width, height)."""
+    fmt: str | None = None
+    """The upload's format (:func:`sniff_format`: ``png``, ``jpeg`` or ``tiff``)."""
 
 
 def decode_frame(
@@ -270,4 +272,4 @@ def decode_frame(
             "regions, so a colour camera's frames must be RGB — is the camera in monochrome or night (IR) mode?"
         )
     size = declared_size(data, "jpeg") if scale > 1 else None
-    return DecodedFrame(image, full, scale, size or (int(image.shape[1]), int(image.shape[0])))
+    return DecodedFrame(image, full, scale, size or (int(image.shape[1]), int(image.shape[0])), sniff_format(data))

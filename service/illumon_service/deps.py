@@ -1,4 +1,4 @@
-"""FastAPI dependencies: database session and bearer-token authentication."""
+"""FastAPI dependencies: database session, bearer-token authentication and what a caller may see."""
 
 from __future__ import annotations
 
@@ -11,9 +11,11 @@ from typing import Annotated
 from fastapi import Depends, HTTPException, Request
 from sqlalchemy.orm import Session
 
-from .storage import Camera, Estimate, camera_by_token, hash_token
+from . import crud
+from .storage import Camera, Estimate, hash_token
 
-__all__ = ["nearest_estimate", "SessionDep", "Principal", "PrincipalDep", "AdminDep", "camera_for", "not_found"]
+__all__ = ["nearest_estimate", "SessionDep", "Principal", "PrincipalDep", "AdminDep", "camera_for", "not_found",
+           "visible_cameras", "visible_camera"]
 
 
 def get_session(request: Request) -> Iterator[Session]:
@@ -41,7 +43,7 @@ def principal_from_token(request: Request, session: Session, token: str) -> Prin
         return None
     if hmac.compare_digest(hash_token(token), request.app.state.admin_token_hash):
         return Principal(admin=True)
-    cam = camera_by_token(session, token)
+    cam = crud.camera_by_token(session, token)
     return None if cam is None else Principal(admin=False, camera_id=cam.id)
 
 
@@ -81,7 +83,7 @@ def camera_for(session: Session, principal: Principal, camera_id: int) -> Camera
         raise not_found(camera_id)
     if not 0 < camera_id < 2**63:  # beyond a 64-bit integer column: no such camera (not a database error)
         raise not_found(camera_id)
-    cam = session.get(Camera, camera_id)
+    cam = crud.get_camera(session, camera_id)
     if cam is None:
         raise not_found(camera_id)
     return cam
@@ -90,9 +92,17 @@ def camera_for(session: Session, principal: Principal, camera_id: int) -> Camera
 def nearest_estimate(session: Session, camera_id: int, at: datetime | None) -> Estimate:
     """:func:`.crud.nearest_estimate`, or 404 when the camera has no estimate yet (the routes ``illuminant`` and
     ``wb-gains`` share it)."""
-    from .crud import nearest_estimate as nearest
-
-    e = nearest(session, camera_id, at)
+    e = crud.nearest_estimate(session, camera_id, at)
     if e is None:
         raise HTTPException(404, f"no estimate yet for camera {camera_id}; POST /v1/cameras/{camera_id}/refit")
     return e
+
+
+def visible_cameras(session: Session, principal: Principal) -> list[Camera]:
+    """The cameras the caller may see: every camera for the admin, its own for a camera token."""
+    return crud.cameras(session, None if principal.admin else principal.camera_id)
+
+
+def visible_camera(session: Session, principal: Principal, camera_id: int) -> Camera | None:
+    """The camera if the caller may see it, else ``None`` (unknown, or another camera's)."""
+    return crud.get_camera(session, camera_id) if (principal.admin or principal.camera_id == camera_id) else None

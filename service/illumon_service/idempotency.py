@@ -25,10 +25,10 @@ from dataclasses import dataclass
 
 from fastapi import HTTPException, Request
 from fastapi.responses import JSONResponse
-from sqlalchemy import select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session, sessionmaker
 
+from . import crud
 from .storage import IdempotencyKey
 
 __all__ = ["HEADER", "REPLAYED", "IDEMPOTENCY_DOC", "Claim", "parse_key", "fingerprint", "form_fingerprint", "keyed",
@@ -44,11 +44,13 @@ MAX_KEY = 255
 
 @dataclass(frozen=True)
 class Claim:
-    """A key a frame post carries: the camera, the key and the request's fingerprint."""
+    """A key a frame post carries: the camera, the key, the request's fingerprint, and how its answer is kept (the
+    JSON values the route sends)."""
 
     camera_id: int
     key: str
     fingerprint: str
+    as_json: Callable[[dict], dict]
 
 
 def parse_key(request: Request) -> str | None:
@@ -78,18 +80,16 @@ def form_fingerprint(image: bytes | bytearray, fields: dict[str, str]) -> str:
     return fingerprint(image, json.dumps(sorted(fields.items())))
 
 
-def keyed(write: Callable[[Session], dict], claim: Claim, as_json: Callable[[dict], dict]) -> Callable[[Session], dict]:
+def keyed(write: Callable[[Session], dict], claim: Claim) -> Callable[[Session], dict]:
     """``write`` (a frame's insert, run by the group commit) with the key stored in the same transaction: the key's
     row first (flushed, so that a key another process stored meanwhile fails before any frame or file is written),
-    then the frame, then the key's frame id and answer (``as_json(answer)``)."""
+    then the frame, then the key's frame id and answer (``claim.as_json(answer)``)."""
 
     def run(session: Session) -> dict:
-        row = IdempotencyKey(camera_id=claim.camera_id, key=claim.key, fingerprint=claim.fingerprint)
-        session.add(row)
-        session.flush()
+        row = crud.add_idempotency_key(session, claim.camera_id, claim.key, claim.fingerprint)
         answer = write(session)
         row.frame_id = answer["frame_id"]
-        row.answer = as_json(answer)
+        row.answer = claim.as_json(answer)
         return answer
 
     return run
@@ -97,11 +97,10 @@ def keyed(write: Callable[[Session], dict], claim: Claim, as_json: Callable[[dic
 
 def stored(sessions: sessionmaker[Session] | Session, claim: Claim) -> IdempotencyKey | None:
     """The stored key of ``claim``'s camera, if a frame was stored with it."""
-    q = select(IdempotencyKey).where(IdempotencyKey.camera_id == claim.camera_id, IdempotencyKey.key == claim.key)
     if isinstance(sessions, Session):
-        return sessions.scalars(q).first()
+        return crud.idempotency_key(sessions, claim.camera_id, claim.key)
     with sessions() as s:
-        return s.scalars(q).first()
+        return crud.idempotency_key(s, claim.camera_id, claim.key)
 
 
 def replay(row: IdempotencyKey, claim: Claim) -> JSONResponse:

@@ -1,5 +1,5 @@
 """What the service accepts at the door: the ranges of every number a client sends, and text without control
-characters (issue 27, "nothing accepted can break a camera").
+characters, so that nothing a client sends and the service accepts can later break the camera's refit or a database.
 
 Every value is checked where it enters (request bodies, form fields, the regions page) and refused with a 422 that
 names the field; the refit checks the stored history again with :func:`frame_problem` (rows stored by older versions,

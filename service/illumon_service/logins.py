@@ -15,11 +15,11 @@ import hmac
 from datetime import timedelta
 
 from fastapi import Request
-from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
+from . import crud
 from .deps import Principal
-from .storage import Camera, LoginSession, as_utc, hash_token, new_token, utcnow
+from .storage import as_utc, hash_token, new_token, utcnow
 
 __all__ = ["MAX_AGE", "create_login", "principal_from_login", "end_login"]
 
@@ -30,9 +30,7 @@ MAX_AGE = timedelta(days=7)
 def create_login(session: Session, token: str) -> str:
     """Store a login for ``token`` (already checked) and commit; returns the session id for the cookie."""
     sid = new_token()
-    session.add(LoginSession(id_hash=hash_token(sid), token_hash=hash_token(token.strip()),
-                             expires_at=utcnow() + MAX_AGE))
-    session.commit()
+    crud.add_login(session, hash_token(sid), hash_token(token.strip()), utcnow() + MAX_AGE)
     return sid
 
 
@@ -42,17 +40,16 @@ def principal_from_login(request: Request, session: Session, sid: str) -> Princi
     sid = sid.strip()
     if not sid:
         return None
-    row = session.get(LoginSession, hash_token(sid))
+    row = crud.get_login(session, hash_token(sid))
     if row is None or as_utc(row.expires_at) <= utcnow():
         return None
     if hmac.compare_digest(row.token_hash, request.app.state.admin_token_hash):
         return Principal(admin=True)
-    cam = session.execute(select(Camera.id).where(Camera.token_hash == row.token_hash)).first()
-    return None if cam is None else Principal(admin=False, camera_id=cam.id)
+    camera_id = crud.camera_id_by_token_hash(session, row.token_hash)
+    return None if camera_id is None else Principal(admin=False, camera_id=camera_id)
 
 
 def end_login(session: Session, sid: str) -> None:
     """Delete the session (logout) and commit."""
     if sid.strip():
-        session.execute(delete(LoginSession).where(LoginSession.id_hash == hash_token(sid.strip())))
-        session.commit()
+        crud.delete_login(session, hash_token(sid.strip()))

@@ -1,5 +1,6 @@
-"""Managing a camera's stored data: its regions (checked against the view's image), and deleting a frame or a whole
-camera with everything stored for it (admin). Shared by the JSON routes and the regions page, so they cannot differ."""
+"""Managing a camera's stored data: its regions (checked against the view's image), deleting a frame or a whole camera
+with everything stored for it (admin), and a view's region proposals. Shared by the JSON routes and the regions page,
+so they cannot differ."""
 
 from __future__ import annotations
 
@@ -7,30 +8,16 @@ import shutil
 from pathlib import Path
 
 from fastapi import HTTPException
-from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
+from . import crud
 from .limits import regions_outside
-from .registration import reference_path, set_reference, set_view_regions, thumbs_dir
+from .registration import reference_path, set_reference, thumbs_dir
 from .settings import Settings
 from .storage import Camera, Frame
 
-__all__ = ["proposals_for", "MIN_HOURS", "view_size",
+__all__ = ["proposals_for", "MIN_HOURS",
            "save_regions", "save_regions_and_measure", "delete_frame", "delete_camera", "camera_files"]
-
-
-def _view_filter(view: str | None):  # noqa: ANN202 - a SQLAlchemy clause
-    return Frame.view.is_(None) if view is None else Frame.view == view
-
-
-def view_size(session: Session, camera_id: int, view: str | None) -> tuple[int, int] | None:
-    """(width, height) of the view's images: those of its latest stored frame that came with an image (``None``
-    when it has none yet, e.g. a camera that sends region means)."""
-    row = session.execute(
-        select(Frame.width, Frame.height).where(Frame.camera_id == camera_id, _view_filter(view),
-                                                Frame.width.is_not(None), Frame.height.is_not(None))
-        .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(1)).first()
-    return None if row is None else (int(row.width), int(row.height))
 
 
 def save_regions(session: Session, cam: Camera, regions: list[dict], view: str | None, data_dir: Path | str,
@@ -42,7 +29,7 @@ def save_regions(session: Session, cam: Camera, regions: list[dict], view: str |
     view's latest frame becomes its reference frame (the camera was moved for good: the regions were drawn on that
     frame); 409 when the view has no stored frame thumbnail.
     """
-    size = view_size(session, cam.id, view)
+    size = crud.view_size(session, cam.id, view)
     if size is None and view is None and getattr(cam, "image_size", None):
         size = (int(cam.image_size[0]), int(cam.image_size[1]))  # declared at registration, no frame yet
     outside = regions_outside(regions, size)
@@ -51,13 +38,11 @@ def save_regions(session: Session, cam: Camera, regions: list[dict], view: str |
         raise HTTPException(422, f"region(s) {shown} lie outside the view's {size[0]}×{size[1]} image: regions are "
                                  "rectangles in the image's pixels (x + width ≤ image width, y + height ≤ height)")
     if reference_latest:
-        latest = session.scalars(
-            select(Frame).where(Frame.camera_id == cam.id, Frame.thumb_path.is_not(None), _view_filter(view))
-            .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(1)).first()
+        latest = crud.latest_frame(session, cam.id, view, with_thumbnail=True)
         if latest is None or not set_reference(data_dir, cam.id, view, latest.thumb_path):
             raise HTTPException(409, "no stored frame of this view to take as the reference frame")
         latest.registration = {"state": "reference", "shift": [0.0, 0.0], "response": None}
-    set_view_regions(session, cam, view, regions)
+    crud.set_view_regions(session, cam, view, regions)
     session.commit()
 
 
@@ -91,18 +76,14 @@ def _frame_files(data_dir: Path | str, frame: Frame) -> list[Path]:
 def delete_frame(session: Session, data_dir: Path | str, cam: Camera, frame_id: int) -> dict[str, int]:
     """Delete one stored frame of ``cam`` with its estimate and files (committed); 404 for a frame of another
     camera or none. Returns the rows deleted by kind."""
-    frame = session.get(Frame, frame_id) if 0 < frame_id < 2**63 else None
-    if frame is None or frame.camera_id != cam.id:
+    frame = crud.frame_of(session, cam.id, frame_id)
+    if frame is None:
         raise HTTPException(404, f"unknown frame {frame_id} of camera {cam.id}")
     files = _frame_files(data_dir, frame)
-    from .storage import Estimate
-
-    estimates = session.execute(delete(Estimate).where(Estimate.frame_id == frame_id)).rowcount
-    session.delete(frame)
-    session.commit()
+    estimates = crud.delete_frame(session, frame)
     for f in files:  # after the commit: a failed commit leaves the frame whole
         f.unlink(missing_ok=True)
-    return {"frames": 1, "estimates": int(estimates or 0)}
+    return {"frames": 1, "estimates": estimates}
 
 
 def camera_files(data_dir: Path | str, camera_id: int) -> list[Path]:
@@ -120,17 +101,7 @@ def camera_files(data_dir: Path | str, camera_id: int) -> list[Path]:
 def delete_camera(session: Session, data_dir: Path | str, cam: Camera) -> dict:
     """Delete a camera and everything stored for it: frames, estimates, jobs, calibrations, views (database rows,
     committed together) and its files. Returns what was deleted (counts)."""
-    from sqlalchemy import func
-
-    from .storage import Calibration, CameraView, Estimate, Job
-
-    counts = {name: int(session.scalar(select(func.count()).select_from(model).where(model.camera_id == cam.id)) or 0)
-              for name, model in (("frames", Frame), ("estimates", Estimate), ("jobs", Job),
-                                  ("calibrations", Calibration))}
-    for model in (Estimate, Frame, Job, Calibration, CameraView):  # explicit: not every database cascades
-        session.execute(delete(model).where(model.camera_id == cam.id))
-    session.delete(cam)
-    session.commit()
+    counts = crud.delete_camera_rows(session, cam)
     for path in camera_files(data_dir, cam.id):
         if path.is_dir():
             shutil.rmtree(path, ignore_errors=True)

@@ -1,5 +1,5 @@
-"""Frames posted before a view has regions (issue 26, "no installer frame wasted"): their original images are kept,
-at most :attr:`~.settings.Settings.pending_max_frames` per camera view (the oldest dropped first), under
+"""Frames posted before a view has regions, so that an installer's first frames are not wasted: their original images
+are kept, at most :attr:`~.settings.Settings.pending_max_frames` per camera view (the oldest dropped first), under
 ``<data dir>/pending/camera-<id>/<frame id>.<format>``, and measured with the regions once they are confirmed
 (``PUT …/regions`` or the regions page); their files are deleted then. A frame whose original was dropped stays
 stored without region values (its reason: ``no_regions``)."""
@@ -9,9 +9,9 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from . import crud
 from .datafiles import atomic_write
 from .settings import Settings
 from .storage import Frame
@@ -45,9 +45,7 @@ def keep_original(session: Session, data_dir: Path | str, camera_id: int, view: 
     folder = pending_dir(data_dir, camera_id)
     atomic_write(folder / f"{frame_id}.{fmt}", data)
     kept = _kept_ids(folder)
-    view_ids = sorted(set(session.scalars(select(Frame.id).where(
-        Frame.camera_id == camera_id, Frame.id.in_(kept),
-        Frame.view.is_(None) if view is None else Frame.view == view)).all()) | {frame_id})
+    view_ids = sorted({f.id for f in crud.view_frames(session, camera_id, view, kept)} | {frame_id})
     sizes = {i: sum(p.stat().st_size for p in pending_files(data_dir, camera_id, i)) for i in view_ids}
     total = sum(sizes.values())
     for old in view_ids:  # oldest first
@@ -79,9 +77,7 @@ def measure_pending(session: Session, data_dir: Path | str, camera_id: int, view
     kept = _kept_ids(folder)
     if not kept:
         return 0
-    frames = session.scalars(select(Frame).where(
-        Frame.camera_id == camera_id, Frame.id.in_(kept),
-        Frame.view.is_(None) if view is None else Frame.view == view).order_by(Frame.id)).all()
+    frames = crud.view_frames(session, camera_id, view, kept)
     done, files = 0, []
     for f in frames:
         paths = pending_files(data_dir, camera_id, f.id)
@@ -107,8 +103,8 @@ def measure_original(data: bytes, regions: list[dict], response: dict, registrat
     """Region means and standard errors of a kept original, its regions moved by the frame's stored registration
     shift (as at ingest); ``None`` when the image no longer decodes."""
     from .decode import ImageError, decode_frame
-    from .regions import Region, region_stats, response_for
-    from .registration import Registration, shift_regions
+    from .regions import Region, response_for
+    from .registration import Registration, measure_shifted
 
     try:
         frame = decode_frame(data, [Region(**r) for r in regions], max_pixels=settings.max_image_pixels,
@@ -117,13 +113,6 @@ def measure_original(data: bytes, regions: list[dict], response: dict, registrat
         return None
     reg = registration or {}
     shift = reg.get("shift") or (0.0, 0.0)
-    moved, outside = shift_regions(regions, Registration(str(reg.get("state") or "ok"), (float(shift[0]),
-                                                                                        float(shift[1])), None),
-                                   frame.size)
-    stats = region_stats(frame.image, moved, response_for(response, frame.full_scale), scale=frame.scale,
-                         size=frame.size, clip_fraction=settings.clip_fraction,
-                         min_fraction=settings.min_region_fraction)
-    stats.update({rid: None for rid in outside})
-    patches = {r["id"]: None if stats[r["id"]] is None else stats[r["id"]][0] for r in regions}
-    sd = {r["id"]: None if stats[r["id"]] is None else stats[r["id"]][1] for r in regions}
-    return patches, sd
+    return measure_shifted(frame, regions, response_for(response, frame.full_scale),
+                           Registration(str(reg.get("state") or "ok"), (float(shift[0]), float(shift[1])), None),
+                           settings.clip_fraction, settings.min_region_fraction)

@@ -1,4 +1,5 @@
-"""Reference-region proposals from a camera's stored frames (issue 17), computed with OpenCV and numpy.
+"""Reference-region proposals from a camera's stored frames, so that an installer confirms regions rather than
+drawing them, computed with OpenCV and numpy.
 
 The service keeps a small *thumbnail* of every frame (:func:`make_thumbnail`): the frame linearised through the
 camera's response and downscaled by area averaging (``cv2.INTER_AREA`` on linear values, so a thumbnail pixel is the
@@ -212,8 +213,20 @@ def propose_regions(thumbs: Sequence[Thumbnail], count: int = 12, full_size: tup
         raise ValueError(f"{len(thumbs)} frames; proposals need at least {MIN_FRAMES}")
     x = np.stack([t.linear for t in thumbs]).astype(np.float64)  # T × h × w × 3
     ok = np.stack([t.unclipped for t in thumbs]) > 0.999  # T × h × w
-    t_n, h, w, _ = x.shape
+    cands = _scored_windows(x, ok)
+    if not cands:
+        return []
+    _, h, w, _ = x.shape
     factor = thumbs[0].factor
+    fw, fh = full_size if full_size else (round(w * factor), round(h * factor))
+    return _choose(cands, count, factor, fw, fh)
+
+
+def _scored_windows(x: NDArray[np.float64], ok: NDArray[np.bool_]) -> list[tuple]:
+    """Every window of the grid scoring above 0.02: ``(x, y, width, height, score, change, drift, texture, clipped,
+    dark, chroma, rank)`` in thumbnail pixels, from the thumbnails' linear values ``x`` (T × h × w × 3) and their
+    unclipped pixels ``ok`` (T × h × w)."""
+    t_n, h, w, _ = x.shape
     # Divide out each frame's exposure and illuminant: channel medians over the unclipped, not black pixels.
     norm = np.empty((t_n, 3))
     for i in range(t_n):
@@ -258,8 +271,13 @@ def propose_regions(thumbs: Sequence[Thumbnail], count: int = 12, full_size: tup
             for j in np.flatnonzero(score > 0.02):
                 cands.append((int(xs[j]), int(ys[j]), sw, sh, float(score[j]), float(change[j]), float(drift[j]),
                               float(tex[j]), float(clip[j]), float(dark[j]), chroma[j], float(rank[j])))
-    if not cands:
-        return []
+    return cands
+
+
+def _choose(cands: list[tuple], count: int, factor: float, fw: int, fh: int) -> list[Proposal]:
+    """The ``count`` best windows, greedily best first without overlaps, each candidate's score multiplied by its
+    chromatic distance to those already chosen; rectangles in full-resolution pixels (``factor`` per thumbnail pixel)
+    inside the ``fw`` × ``fh`` image."""
     cands.sort(key=lambda c: -c[11])
     cands = cands[:5000]
     box = np.array([c[:4] for c in cands])
@@ -268,7 +286,6 @@ def propose_regions(thumbs: Sequence[Thumbnail], count: int = 12, full_size: tup
     alive = np.ones(len(cands), dtype=bool)
     div = np.ones(len(cands))
     chosen: list[Proposal] = []
-    fw, fh = full_size if full_size else (round(w * factor), round(h * factor))
     while len(chosen) < count and alive.any():
         eff = np.where(alive, base * div, -1.0)
         j = int(np.argmax(eff))

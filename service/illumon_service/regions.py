@@ -35,7 +35,6 @@ from numpy.typing import NDArray
 __all__ = ["RegionError", "Region", "region_means", "region_stats", "response_for", "clip_level", "clipped_regions"]
 
 
-
 MeanSE = tuple[NDArray[np.float64], NDArray[np.float64]]
 """A region's mean linear r g b and its standard error (pixel standard deviation over √pixels)."""
 
@@ -69,13 +68,8 @@ def response_for(response: Mapping, full_scale: float) -> ResponseCurve:
     white = full_scale if white is None else float(white)
     if full_scale > 255 and white <= 255:
         black, white = black * 257.0, white * 257.0
-    return ResponseCurve(
-        encoding=response.get("encoding", "linear"),
-        gamma=float(response.get("gamma") or 2.2),
-        black_level=black,
-        white_level=white,
-        table=tuple(response.get("table") or ()),
-    )
+    return ResponseCurve(encoding=response.get("encoding", "linear"), gamma=float(response.get("gamma") or 2.2),
+                         black_level=black, white_level=white, table=tuple(response.get("table") or ()))
 
 
 def clip_level(response: ResponseCurve, clip_fraction: float) -> float:
@@ -122,7 +116,7 @@ def _code_width(lut: NDArray[np.float64], med: NDArray[np.float64]) -> NDArray[n
 
     The trimming scale is at least this: when the pixels' noise is below a code (a clean 8-bit region), the robust
     σ from the MAD is 0 or a fraction of a code, and trimming at ``k`` such σ keeps only the median code, so the
-    region's mean becomes its median code, off by up to half a code (issue 16: found on the image-based simulator,
+    region's mean becomes its median code, off by up to half a code (seen on the image-based simulator,
     ``benchmarks/imgsim.py``, where dark linear 8-bit regions read as a tone curve). ``k`` codes either side are kept.
     """
     i = np.clip(np.searchsorted(lut, med, side="left"), 0, lut.size - 1)
@@ -395,7 +389,6 @@ def region_stats(
             raise RegionError(
                 f"region {r.id!r} ({r.x},{r.y} {r.width}×{r.height}) lies outside the {w}×{h} image"
             )
-    out: dict[str, tuple[list[float], list[float]] | None] = {}
     weights: list[NDArray[np.float64] | None] | None = None
     if scale > 1:
         regions, weights = _decoded_regions(regions, scale)
@@ -413,6 +406,16 @@ def region_stats(
         stats = _region_means_cv(base, regions, lut, limit, k, min_fraction, weights)
         return {r.id: None if m is None else (_floats(m[0], flip), _floats(m[1], flip))
                 for r, m in zip(regions, stats, strict=True)}
+    return _region_stats_per_region(image, regions, response, lut, clip_at, k, min_fraction)
+
+
+def _region_stats_per_region(image: NDArray, regions: list[Region], response: ResponseCurve,
+                             lut: NDArray[np.float64] | None, clip_at: float, k: float, min_fraction: float
+                             ) -> dict[str, tuple[list[float], list[float]] | None]:
+    """:func:`region_stats` region by region in numpy (the reference path, and the path of float images); ``lut``:
+    the response's lookup table for an integer image, ``None`` for a float one."""
+    integer = lut is not None
+    out: dict[str, tuple[list[float], list[float]] | None] = {}
     for r in regions:
         block = image[r.y : r.y + r.height, r.x : r.x + r.width]
         n = r.width * r.height

@@ -1,5 +1,5 @@
-"""Keeping regions on their surfaces when the view moves (issue 17): registration of each frame to its view's
-reference frame, per-view regions, and frame thumbnails on disk.
+"""Keeping regions on their surfaces when the view moves (a PTZ preset, a knocked or re-aimed camera): registration
+of each frame to its view's reference frame, per-view regions, and frame thumbnails on disk.
 
 Each camera view (``view`` form field of an upload, a PTZ preset id; ``None`` for a fixed camera) has a *reference
 frame*: the thumbnail (:mod:`.proposals`) of the first frame stored for that view, kept as
@@ -26,19 +26,21 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from illumon.camera import ResponseCurve
 from numpy.typing import NDArray
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 
+from . import crud
 from .datafiles import data_file
+from .decode import DecodedFrame
 from .proposals import KEEP_RECENT, Thumbnail, load_thumbnail, save_thumbnail, thumbnail_grey
-from .regions import Region
-from .storage import Camera, CameraView, Frame, as_utc
+from .regions import Region, region_stats
+from .storage import Camera, Frame, as_utc
 
 __all__ = [
     "MAX_SHIFT_FRACTION", "MIN_RESPONSE", "MIN_STRUCTURE", "MATCH_SCORE", "match_score",
     "Registration", "thumbs_dir", "reference_path", "view_key",
-    "parse_view", "view_regions", "set_view_regions", "register_frame", "shift_regions", "prune_thumbnails", "set_reference",
+    "parse_view", "register_frame", "shift_regions", "measure_shifted", "prune_thumbnails", "set_reference",
     "view_thumbnails", "phase_shift", "thumbnail_due", "THUMB_EVERY",
 ]
 
@@ -116,26 +118,6 @@ def thumbs_dir(data_dir: Path | str, camera_id: int) -> Path:
 def reference_path(data_dir: Path | str, camera_id: int, view: str | None) -> Path:
     """The view's reference-frame thumbnail."""
     return thumbs_dir(data_dir, camera_id) / f"reference-{view_key(view)}.png"
-
-
-def view_regions(session: Session, cam: Camera, view: str | None) -> list[dict]:
-    """The regions of a view (the camera's own for ``None``)."""
-    if view is None:
-        return list(cam.regions)
-    row = session.scalars(select(CameraView).where(CameraView.camera_id == cam.id, CameraView.view == view)).first()
-    return list(row.regions) if row is not None else []
-
-
-def set_view_regions(session: Session, cam: Camera, view: str | None, regions: list[dict]) -> None:
-    """Replace a view's regions (not committed)."""
-    if view is None:
-        cam.regions = regions
-        return
-    row = session.scalars(select(CameraView).where(CameraView.camera_id == cam.id, CameraView.view == view)).first()
-    if row is None:
-        session.add(CameraView(camera_id=cam.id, view=view, regions=regions))
-    else:
-        row.regions = regions
 
 
 def _weights(ref: Thumbnail, regions: list[dict]) -> np.ndarray:
@@ -307,17 +289,25 @@ def shift_regions(regions: list[dict], reg: Registration, size: tuple[int, int])
     return inside, outside
 
 
+def measure_shifted(frame: DecodedFrame, regions: list[dict], response: ResponseCurve, reg: Registration,
+                    clip_fraction: float, min_fraction: float) -> tuple[dict, dict]:
+    """Region means and their standard errors of a decoded frame (:func:`~.regions.region_stats`), the regions moved
+    by the frame's registration shift; a region the shift takes out of the image is missing (``None``)."""
+    moved, outside = shift_regions(regions, reg, frame.size)
+    stats = region_stats(frame.image, moved, response, scale=frame.scale, size=frame.size,
+                         clip_fraction=clip_fraction, min_fraction=min_fraction)
+    stats.update({rid: None for rid in outside})
+    patches = {r["id"]: None if stats[r["id"]] is None else stats[r["id"]][0] for r in regions}
+    sd = {r["id"]: None if stats[r["id"]] is None else stats[r["id"]][1] for r in regions}
+    return patches, sd
+
+
 def thumbnail_due(session: Session, camera_id: int, view: str | None, taken_at: datetime,
                   reg: Registration | None) -> bool:
     """Whether a new frame's thumbnail is kept: when the view's latest kept one is :data:`THUMB_EVERY` away in time,
     or was registered otherwise (the first frame after a view change, or back), so a camera posting every few seconds
     writes one small file per ten minutes, not one per frame."""
-    last = session.execute(
-        select(Frame.taken_at, Frame.registration)
-        .where(Frame.camera_id == camera_id, Frame.thumb_path.is_not(None),
-               Frame.view.is_(None) if view is None else Frame.view == view)
-        .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(1)
-    ).first()
+    last = crud.last_thumbnail(session, camera_id, view)
     if last is None:
         return True
     moved = (last.registration or {}).get("state") == "view_change"
@@ -329,11 +319,7 @@ def thumbnail_due(session: Session, camera_id: int, view: str | None, taken_at: 
 def prune_thumbnails(session: Session, camera_id: int, view: str | None, data_dir: Path | str) -> None:
     """Keep a view's :data:`~.proposals.KEEP_RECENT` most recent thumbnails and the latest one of every hour of the
     day (UTC); delete the others' files (under ``data_dir``) and forget their paths (not committed)."""
-    rows = session.scalars(
-        select(Frame).where(Frame.camera_id == camera_id, Frame.thumb_path.is_not(None),
-                            Frame.view.is_(None) if view is None else Frame.view == view)
-        .order_by(Frame.taken_at.desc(), Frame.id.desc())
-    ).all()
+    rows = crud.thumbnail_frames(session, camera_id, view)
     hours: set[int] = set()
     for i, f in enumerate(rows):
         hour = (as_utc(f.taken_at) or datetime.min).hour
@@ -352,11 +338,7 @@ def view_thumbnails(session: Session, cam: Camera, view: str | None, data_dir: P
     moved back by its stored shift into the reference frame's pixels, and their frames."""
     from .proposals import shifted
 
-    rows = session.scalars(
-        select(Frame).where(Frame.camera_id == cam.id, Frame.thumb_path.is_not(None),
-                            Frame.view.is_(None) if view is None else Frame.view == view)
-        .order_by(Frame.taken_at.desc(), Frame.id.desc())
-    ).all()
+    rows = crud.thumbnail_frames(session, cam.id, view)
     thumbs, frames = [], []
     for f in rows:
         reg = f.registration or {}

@@ -19,14 +19,14 @@ import threading
 from datetime import datetime, timedelta
 from pathlib import Path
 
-from sqlalchemy import delete, select
 from sqlalchemy.orm import Session, sessionmaker
 
+from . import crud
 from .datafiles import data_file
 from .locks import take_process_lock
 from .pending import pending_files
 from .settings import Settings
-from .storage import Estimate, Frame, IdempotencyKey, Job, LoginSession, make_engine, make_session_factory, utcnow
+from .storage import make_engine, make_session_factory, utcnow
 
 __all__ = ["prune", "prune_once", "Housekeeper", "IDEMPOTENCY_TTL", "EVERY", "CHUNK"]
 
@@ -67,15 +67,11 @@ def prune(sessions: sessionmaker[Session], data_dir: Path | str, retain_days: fl
         cutoff = now - timedelta(days=retain_days)
         while True:
             with sessions() as s, s.begin():
-                rows = s.execute(select(Frame.id, Frame.camera_id, Frame.thumb_path, Frame.image_path)
-                                 .where(Frame.taken_at < cutoff).order_by(Frame.id).limit(CHUNK)).all()
-                if not rows:
-                    break
-                ids = [r.id for r in rows]
-                out["estimates"] += s.execute(delete(Estimate).where(Estimate.frame_id.in_(ids))).rowcount or 0
-                out["idempotency_keys"] += s.execute(
-                    delete(IdempotencyKey).where(IdempotencyKey.frame_id.in_(ids))).rowcount or 0
-                out["frames"] += s.execute(delete(Frame).where(Frame.id.in_(ids))).rowcount or 0
+                rows, counts = crud.delete_frames_before(s, cutoff, CHUNK)
+            if not rows:
+                break
+            for k, n in counts.items():
+                out[k] += n
             for r in rows:  # committed: now the files (and an original kept while the view had no regions)
                 paths = [data_file(data_dir, stored) for stored in (r.thumb_path, r.image_path)]
                 pending = Path(data_dir) / "pending" / f"camera-{r.camera_id}"
@@ -89,12 +85,10 @@ def prune(sessions: sessionmaker[Session], data_dir: Path | str, retain_days: fl
                     path.unlink(missing_ok=True)
                     out["files"] += 1
         with sessions() as s, s.begin():
-            out["jobs"] = s.execute(delete(Job).where(Job.state.in_(("done", "failed")),
-                                                      Job.finished_at < cutoff)).rowcount or 0
+            out["jobs"] = crud.delete_jobs_finished_before(s, cutoff)
     with sessions() as s, s.begin():
-        out["idempotency_keys"] += s.execute(
-            delete(IdempotencyKey).where(IdempotencyKey.created_at < now - IDEMPOTENCY_TTL)).rowcount or 0
-        out["login_sessions"] = s.execute(delete(LoginSession).where(LoginSession.expires_at < now)).rowcount or 0
+        out["idempotency_keys"] += crud.delete_keys_created_before(s, now - IDEMPOTENCY_TTL)
+        out["login_sessions"] = crud.delete_expired_logins(s, now)
     if out["frames"] or out["jobs"]:
         log.info("retention (%s days): deleted %d frames, %d estimates, %d files, %d jobs", retain_days,
                  out["frames"], out["estimates"], out["files"], out["jobs"])

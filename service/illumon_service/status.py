@@ -1,6 +1,6 @@
 """What the status page shows: each camera's latest estimate, last frame and alerts, and one camera's history.
 
-Reads the same tables as the JSON API (:mod:`.storage`) and formats estimates with the API's own
+Reads the same rows as the JSON API, through the same queries (:mod:`.crud`), and formats estimates with the API's own
 :func:`~.crud.estimate_out`, so the page and ``GET /v1/cameras/{id}/estimates`` cannot disagree.
 
 Alerts
@@ -40,13 +40,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from datetime import datetime
 
-from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
+from . import crud
 from .crud import estimate_non_daylight, estimate_out
-from .deps import Principal
+from .deps import Principal, visible_cameras
 from .settings import Settings
-from .storage import Calibration, Camera, Estimate, Frame, Job, as_utc, refit_warnings
+from .storage import Camera, Estimate, Frame, Job, as_utc
 
 __all__ = [
     "Alert",
@@ -59,12 +59,8 @@ __all__ = [
     "LOW_CONFIDENCE",
     "MISSING_FRACTION",
     "MISSING_MIN_FRAMES",
-    "visible_cameras",
     "camera_status",
     "fleet_status",
-    "camera_history",
-    "not_estimated_counts",
-    "latest_job",
     "chart_history",
     "MAX_CHART_POINTS",
 ]
@@ -104,11 +100,11 @@ class AlertContext:
     settings: Settings
     frame_count: int
     refit_warnings: list[str] = field(default_factory=list)
-    """Warnings of the camera's latest finished refit (:func:`~.storage.refit_warnings`)."""
+    """Warnings of the camera's latest finished refit (:func:`~.crud.refit_warnings`)."""
     uncalibrated: bool = False
     """No measured sensitivities and no calibration image."""
     not_estimated: dict[str, int] = field(default_factory=dict)
-    """Stored frames without an estimate, by reason (:func:`not_estimated_counts`)."""
+    """Stored frames without an estimate, by reason (:func:`~.crud.not_estimated_counts`)."""
     last_job: Job | None = None
     """The camera's latest finished refit job (done or failed)."""
 
@@ -154,7 +150,7 @@ def _non_daylight(ctx: AlertContext) -> list[Alert]:
     if e is None:
         return []
     p = estimate_non_daylight(e)
-    if p is not None:  # the model's posterior (issue 28); the Duv rule for estimates made without it
+    if p is not None:  # the model's posterior of non-daylight light; the Duv rule for estimates made without it
         if p < NON_DAYLIGHT_PROBABILITY:
             return []
         return [Alert("non_daylight", "Non-daylight light",
@@ -273,100 +269,30 @@ class CameraStatus:
     """Every warning of the latest refit (one list: tone response, calibration, identifiability, white balance)."""
 
 
-def not_estimated_counts(session: Session, camera_id: int, frames: int | None = None) -> dict[str, int]:
-    """The camera's stored frames that have no estimate, counted by reason (:attr:`.storage.Frame.not_estimated`;
-    ``pending`` for frames of older versions, which recorded none).
-
-    Without a pass over the history's rows: frames with a reason are a range of the partial index
-    ``ix_frames_camera_not_estimated`` (each checked for an estimate by key); frames without a reason and without an
-    estimate are counted as the camera's frames less its estimates (index-only counts), corrected for the frames with
-    a reason that do have an estimate. ``frames`` is the camera's frame count when the caller has it already.
-    """
-    marked = Frame.not_estimated.is_not(None)
-    rows = session.execute(
-        select(Frame.not_estimated, Estimate.frame_id.is_not(None), func.count()).select_from(Frame)
-        .outerjoin(Estimate, Estimate.frame_id == Frame.id)
-        .where(Frame.camera_id == camera_id, marked)
-        .group_by(Frame.not_estimated, Estimate.frame_id.is_not(None))).all()
-    out: dict[str, int] = {}
-    marked_frames = marked_estimated = 0
-    for reason, estimated, n in rows:
-        marked_frames += int(n)
-        if estimated:
-            marked_estimated += int(n)
-        else:
-            out[reason] = out.get(reason, 0) + int(n)
-    if frames is None:
-        frames = session.scalar(select(func.count()).select_from(Frame).where(Frame.camera_id == camera_id)) or 0
-    estimates = session.scalar(select(func.count()).select_from(Estimate).where(Estimate.camera_id == camera_id)) or 0
-    pending = (int(frames) - marked_frames) - (int(estimates) - marked_estimated)
-    if pending > 0:
-        out["pending"] = pending
-    return dict(sorted(out.items()))
-
-
-def latest_job(session: Session, camera_id: int) -> Job | None:
-    """The camera's latest finished refit job (``done`` or ``failed``), or ``None``."""
-    return session.scalars(
-        select(Job).where(Job.camera_id == camera_id, Job.state.in_(("done", "failed")))
-        .order_by(Job.finished_at.desc(), Job.created_at.desc()).limit(1)).first()
-
-
-def visible_cameras(session: Session, principal: Principal) -> list[Camera]:
-    """The cameras the caller may see: every camera for the admin, its own for a camera token."""
-    q = select(Camera).order_by(Camera.id)
-    if not principal.admin:
-        q = q.where(Camera.id == principal.camera_id)
-    return list(session.scalars(q).all())
-
-
-def _latest_estimate(session: Session, camera_id: int) -> Estimate | None:
-    q = select(Estimate).where(Estimate.camera_id == camera_id)
-    return session.scalars(q.order_by(Estimate.taken_at.desc(), Estimate.frame_id.desc()).limit(1)).first()
-
-
 def camera_status(session: Session, cam: Camera, settings: Settings) -> CameraStatus:
     """Latest estimate, last frame, frame count and alerts of ``cam``."""
-    frames = list(session.scalars(
-        select(Frame).where(Frame.camera_id == cam.id).order_by(Frame.taken_at.desc(), Frame.id.desc())
-        .limit(RECENT_FRAMES)
-    ).all())
-    count = session.scalar(select(func.count()).select_from(Frame).where(Frame.camera_id == cam.id)) or 0
-    latest = _latest_estimate(session, cam.id)
-    calibrated = bool(cam.sensitivities) or session.scalar(
-        select(func.count()).select_from(Calibration).where(Calibration.camera_id == cam.id)) > 0
-    counts = not_estimated_counts(session, cam.id, int(count))
-    ctx = AlertContext(cam, frames, latest, settings, int(count), refit_warnings(session, cam.id), not calibrated,
-                       counts, latest_job(session, cam.id))
+    frames = crud.recent_frames(session, cam.id, RECENT_FRAMES)
+    count = crud.frame_count(session, cam.id)
+    latest = crud.latest_estimate(session, cam.id)
+    calibrated = bool(cam.sensitivities) or crud.has_calibration(session, cam.id)
+    counts = crud.not_estimated_counts(session, cam.id, count)
+    ctx = AlertContext(cam, frames, latest, settings, count, crud.refit_warnings(session, cam.id), not calibrated,
+                       counts, crud.latest_job(session, cam.id))
     alerts = [a for rule in ALERT_RULES for a in rule(ctx)]
     out = None
     if latest is not None:
         out = estimate_out(latest)
         out["intervals"] = latest.intervals
     return CameraStatus(
-        id=cam.id, name=cam.name, regions=len(cam.regions), frames=int(count),
+        id=cam.id, name=cam.name, regions=len(cam.regions), frames=count,
         last_frame_at=as_utc(frames[0].taken_at) if frames else None, latest=out, alerts=alerts,
-        not_estimated=counts, warnings=refit_warnings(session, cam.id),
+        not_estimated=counts, warnings=crud.refit_warnings(session, cam.id),
     )
 
 
 def fleet_status(session: Session, principal: Principal, settings: Settings) -> list[CameraStatus]:
     """A :class:`CameraStatus` for every camera the caller may see."""
     return [camera_status(session, cam, settings) for cam in visible_cameras(session, principal)]
-
-
-def camera_history(session: Session, camera_id: int, limit: int = 2000) -> list[dict]:
-    """The camera's most recent ``limit`` estimates, oldest first, as the JSON API gives them plus ``intervals``."""
-    rows = session.scalars(
-        select(Estimate).where(Estimate.camera_id == camera_id)
-        .order_by(Estimate.taken_at.desc(), Estimate.frame_id.desc()).limit(max(1, limit))
-    ).all()
-    out = []
-    for e in reversed(rows):
-        d = estimate_out(e)
-        d["intervals"] = e.intervals
-        out.append(d)
-    return out
 
 
 MAX_CHART_POINTS = 640
@@ -416,20 +342,13 @@ def chart_history(session: Session, camera_id: int, limit: int = 2000, max_point
     -------
     ChartHistory
     """
-    order = (Estimate.taken_at.desc(), Estimate.frame_id.desc())
-    ids = list(session.scalars(select(Estimate.frame_id).where(Estimate.camera_id == camera_id).order_by(*order)
-                               .limit(max(1, limit))).all())
+    ids = crud.recent_estimate_ids(session, camera_id, max(1, limit))
     stride = max(1, math.ceil(len(ids) / max(1, max_points)))
     drawn = ids[::stride]
-    want = set(drawn) | set(ids[:recent])
     rows: dict[int, dict] = {}
-    chunk = 900  # under SQLite's default limit of bound parameters of old versions (999)
-    wanted = sorted(want)
-    columns = [c for c in Estimate.__table__.columns if c.name != "spectrum"]  # rows, not ORM objects: 3 × faster
-    for start in range(0, len(wanted), chunk):
-        for e in session.execute(select(*columns).where(Estimate.frame_id.in_(wanted[start : start + chunk]))).all():
-            d = estimate_out(e)  # type: ignore[arg-type] - a row with the estimate's columns by name
-            d["intervals"] = e.intervals
-            rows[e.frame_id] = d
+    for e in crud.estimate_rows(session, set(drawn) | set(ids[:recent])):
+        d = estimate_out(e)  # type: ignore[arg-type] - a row with the estimate's columns by name
+        d["intervals"] = e.intervals
+        rows[e.frame_id] = d
     return ChartHistory(points=[rows[i] for i in reversed(drawn) if i in rows],
                         recent=[rows[i] for i in ids[:recent] if i in rows], count=len(ids), stride=stride)

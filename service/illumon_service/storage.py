@@ -27,7 +27,6 @@ from sqlalchemy import (
     UniqueConstraint,
     create_engine,
     event,
-    select,
     text,
 )
 from sqlalchemy.engine import Engine
@@ -47,8 +46,6 @@ __all__ = [
     "new_token",
     "utcnow",
     "as_utc",
-    "camera_by_token",
-    "refit_warnings",
     "GroupCommit",
     "IdempotencyKey",
     "LoginSession",
@@ -103,7 +100,7 @@ class Camera(Base):
     models: Mapped[dict | None] = mapped_column(JSON, nullable=True)
     """The scene models in use, by view (``default`` or ``v-<view>``): ``{"file": name under <data dir>/models,
     "version": id}``. A refit writes a new versioned file and switches to it in the transaction that stores its
-    estimates, so estimates and model change together (:mod:`.jobs`); ``None`` before the first refit."""
+    estimates, so estimates and model change together (:mod:`.refit`); ``None`` before the first refit."""
 
 
 class Frame(Base):
@@ -233,7 +230,7 @@ class IdempotencyKey(Base):
 
 
 class LoginSession(Base):
-    """A status-page login (:mod:`.sessions`): the SHA-256 of the random session id the cookie holds, and the hash
+    """A status-page login (:mod:`.logins`): the SHA-256 of the random session id the cookie holds, and the hash
     of the token that logged in (a session ends when that token no longer authenticates)."""
 
     __tablename__ = "login_sessions"
@@ -337,22 +334,6 @@ def add_missing_indexes(engine: Engine) -> list[str]:
 def make_session_factory(engine: Engine) -> sessionmaker[Session]:
     """Session factory bound to ``engine`` (objects stay usable after commit)."""
     return sessionmaker(engine, expire_on_commit=False)
-
-
-def camera_by_token(session: Session, token: str) -> Camera | None:
-    """The camera whose token is ``token``, or ``None``."""
-    return session.scalars(select(Camera).where(Camera.token_hash == hash_token(token))).first()
-
-
-def refit_warnings(session: Session, camera_id: int) -> list[str]:
-    """The warnings of the camera's latest finished refit (e.g. a tone response that does not match the frames)."""
-    job = session.scalars(
-        select(Job).where(Job.camera_id == camera_id, Job.state == "done")
-        .order_by(Job.finished_at.desc(), Job.created_at.desc()).limit(1)
-    ).first()
-    if job is None or not job.summary:
-        return []
-    return [str(w) for w in job.summary.get("warnings") or []]
 
 
 class GroupCommit:

@@ -95,14 +95,14 @@ def test_new_frame_estimated_by_scene_model(populated):
 def test_unbounded_interval_is_null():
     """A 95 % CCT interval reaching past infinite temperature has no upper end: JSON null, which PostgreSQL's JSON
     type and strict parsers accept (``Infinity`` made PostgreSQL refuse the frame: a 500 in the crash test)."""
-    from illumon_service.estimation import _intervals, json_safe
+    from illumon_service.estimation.frame import frame_intervals, json_safe
 
     class Result:
         info = {"gain_lo": np.array([[0.9, 1.0, 0.8]]), "gain_hi": np.array([[1.1, 1.0, np.inf]])}
 
     extra = {"cct_lo": np.array([6766.7]), "cct_hi": np.array([np.inf]), "duv_lo": np.array([-0.002]),
              "duv_hi": np.array([0.004]), "confidence": np.array([0.03])}
-    out = _intervals(Result(), extra, 0)
+    out = frame_intervals(Result(), extra, 0)
     assert out == {"cct_lo": 6766.7, "cct_hi": None, "duv_lo": -0.002, "duv_hi": 0.004,
                    "gain_lo": [0.9, 1.0, 0.8], "gain_hi": [1.1, 1.0, None]}
     assert json_safe({"a": [float("nan"), -float("inf"), 1.5], "b": "x", "c": None}) == {"a": [None, None, 1.5],

@@ -10,8 +10,8 @@ from datetime import datetime, timedelta, timezone
 import pytest
 from fastapi.testclient import TestClient
 from illumon_service.app import create_app
-from illumon_service.crud import estimates_between, nearest_estimate
-from illumon_service.status import MAX_CHART_POINTS, camera_history, chart_history
+from illumon_service.crud import camera_history, estimates_between, nearest_estimate
+from illumon_service.status import MAX_CHART_POINTS, chart_history
 from illumon_service.storage import Camera, Estimate, Frame, hash_token, make_engine, make_session_factory
 from sqlalchemy import insert, inspect, text
 from svc_helpers import ADMIN, make_settings
@@ -146,7 +146,7 @@ def test_camera_page_draws_a_bounded_number_of_points(tmp_path) -> None:
 def test_not_estimated_counts_match_the_join(tmp_path) -> None:
     """The counts without a pass over the rows equal those of the outer join of frames and estimates, also for rows
     that break the usual pattern (a frame with a reason and an estimate, frames of older versions without either)."""
-    from illumon_service.status import not_estimated_counts
+    from illumon_service.crud import not_estimated_counts
     from sqlalchemy import delete, func, select, update
 
     url = f"sqlite:///{tmp_path / 'db.sqlite3'}"

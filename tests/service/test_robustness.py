@@ -237,7 +237,7 @@ def _versions(sessions, cid: int) -> set[str | None]:
 def test_refit_estimates_and_model_change_together(tmp_path, history, monkeypatch):
     """A refit that dies inside its commit leaves the previous estimates and model in use, all of one version; the
     next refit switches both, and a frame posted afterwards is estimated by the new model."""
-    import illumon_service.jobs as jobs
+    import illumon_service.refit as refit
 
     css, lin = history
     app = create_app(make_settings(tmp_path))
@@ -251,14 +251,14 @@ def test_refit_estimates_and_model_change_together(tmp_path, history, monkeypatc
         def crash() -> None:
             raise RuntimeError("simulated crash inside the refit's transaction")
 
-        monkeypatch.setattr(jobs, "_commit_hook", crash)
+        monkeypatch.setattr(refit, "_commit_hook", crash)
         assert _refit(c, cid, token)["state"] == "failed"
         assert _versions(app.state.sessions, cid) == {v1}
         cam = c.get(f"/v1/cameras/{cid}", headers=bearer(token)).json()
         assert "refit_failed" in [a["kind"] for a in cam["alerts"]]
         r = c.post(f"/v1/cameras/{cid}/observations", json=_observation(lin, 5), headers=bearer(token))
         assert r.json()["estimate"] is not None
-        monkeypatch.setattr(jobs, "_commit_hook", None)
+        monkeypatch.setattr(refit, "_commit_hook", None)
         second = _refit(c, cid, token)
         v2 = second["summary"]["version"]
         assert second["state"] == "done" and v2 != v1
@@ -274,11 +274,11 @@ def test_refit_estimates_and_model_change_together(tmp_path, history, monkeypatc
 KILL_SCRIPT = """
 import os, signal, sys
 from pathlib import Path
-import illumon_service.jobs as jobs
+import illumon_service.refit as refit
 from illumon_service.storage import make_engine, make_session_factory
-jobs._commit_hook = lambda: os.kill(os.getpid(), signal.SIGKILL)
+refit._commit_hook = lambda: os.kill(os.getpid(), signal.SIGKILL)
 sessions = make_session_factory(make_engine(sys.argv[1]))
-jobs.refit_camera(sessions, int(sys.argv[2]), data_dir=Path(sys.argv[3]))
+refit.refit_camera(sessions, int(sys.argv[2]), data_dir=Path(sys.argv[3]))
 """
 
 

@@ -7,15 +7,15 @@ from typing import Literal
 import numpy as np
 from fastapi import APIRouter, HTTPException, Query, Request, status
 from illumon.spectra import SpectralInputError, sensitivities_from_arrays
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 
-from ...deps import AdminDep, PrincipalDep, SessionDep, camera_for
+from ... import crud
+from ...deps import AdminDep, PrincipalDep, SessionDep, camera_for, visible_cameras
 from ...manage import delete_camera, save_regions_and_measure
-from ...registration import parse_view
 from ...settings import Settings
-from ...status import camera_status, not_estimated_counts, visible_cameras
-from ...storage import Calibration, Camera, CameraView, as_utc, hash_token, new_token, refit_warnings
+from ...status import camera_status
+from ...storage import Camera, as_utc, hash_token, new_token
+from ..forms import parse_view_field
 from ..schemas import ERROR_RESPONSES, CameraCreated, CameraIn, CameraOut, DeletedOut, ErrorOut, RegionsIn
 
 router = APIRouter(prefix="/v1/cameras", tags=["cameras"], responses=ERROR_RESPONSES)
@@ -26,7 +26,7 @@ def camera_out(cam: Camera, session: Session, settings: Settings | None = None) 
     calibrations, what calibrates it (``calibration``: ``chart`` | ``grey`` | ``measured`` | ``none``), the
     warnings of its latest refit, the regions of its other views (PTZ presets) and, with ``settings``, its alerts (those
     of the status page)."""
-    cals = session.scalars(select(Calibration).where(Calibration.camera_id == cam.id).order_by(Calibration.id)).all()
+    cals = crud.calibrations(session, cam.id)
     kinds = {c.kind for c in cals}
     measured = bool(cam.sensitivities)
     return {
@@ -40,10 +40,9 @@ def camera_out(cam: Camera, session: Session, settings: Settings | None = None) 
         "calibrations": [{"calibration_id": c.id, "kind": c.kind, "created_at": as_utc(c.created_at).isoformat()}
                          for c in cals],
         "created_at": as_utc(cam.created_at).isoformat(),
-        "warnings": refit_warnings(session, cam.id),
-        "not_estimated": not_estimated_counts(session, cam.id),
-        "views": {v.view: v.regions for v in session.scalars(
-            select(CameraView).where(CameraView.camera_id == cam.id).order_by(CameraView.view)).all()},
+        "warnings": crud.refit_warnings(session, cam.id),
+        "not_estimated": crud.not_estimated_counts(session, cam.id),
+        "views": crud.camera_views(session, cam.id),
         **({} if settings is None else {"alerts": [
             {"kind": a.kind, "label": a.label, "message": a.message, "severity": a.severity}
             for a in camera_status(session, cam, settings).alerts]}),
@@ -71,7 +70,8 @@ def register_camera(body: CameraIn, session: SessionDep, _admin: AdminDep) -> di
         except (ValueError, AssertionError) as exc:  # colour-science's interpolators reject some samplings this way
             raise HTTPException(422, f"sensitivities: cannot be resampled onto 400–700 nm at 5 nm ({exc})") from None
     token = new_token()
-    cam = Camera(
+    cam = crud.create_camera(
+        session,
         name=body.name,
         token_hash=hash_token(token),
         sensitivities=css,
@@ -79,8 +79,6 @@ def register_camera(body: CameraIn, session: SessionDep, _admin: AdminDep) -> di
         response=body.response.resolved(measured=body.sensitivities is not None),
         image_size=None if body.image_size is None else [body.image_size.width, body.image_size.height],
     )
-    session.add(cam)
-    session.commit()
     return {"id": cam.id, "token": token}
 
 
@@ -101,10 +99,7 @@ def put_regions(camera_id: int, body: RegionsIn, request: Request, session: Sess
     """Replace the regions of a camera's view, in its reference frame's pixels (stored frames keep their old region
     values)."""
     cam = camera_for(session, principal, camera_id)
-    try:
-        v = parse_view(view)
-    except ValueError as exc:
-        raise HTTPException(422, str(exc)) from None
+    v = parse_view_field(view)
     save_regions_and_measure(session, cam, [r.model_dump() for r in body.regions], v, request.app.state.settings,
                              reference == "latest")
     return camera_out(cam, session, request.app.state.settings)

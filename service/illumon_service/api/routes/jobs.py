@@ -4,8 +4,9 @@ from __future__ import annotations
 
 from fastapi import APIRouter, HTTPException, Request, status
 
+from ... import crud
 from ...deps import PrincipalDep, SessionDep, camera_for
-from ...storage import Job, as_utc
+from ...storage import as_utc
 from ..schemas import ERROR_RESPONSES, JobOut, JobRef
 
 router = APIRouter(tags=["jobs"], responses=ERROR_RESPONSES)
@@ -22,7 +23,7 @@ def refit(camera_id: int, request: Request, session: SessionDep, principal: Prin
 @router.get("/v1/jobs/{job_id}", response_model=JobOut)
 def get_job(job_id: str, session: SessionDep, principal: PrincipalDep) -> dict:
     """A job's state (queued, running, done, failed), progress (0…1) and summary."""
-    job = session.get(Job, job_id)
+    job = crud.get_job(session, job_id)
     if job is None or (not principal.admin and principal.camera_id != job.camera_id):
         raise HTTPException(404, f"unknown job {job_id}")
     return {

@@ -23,20 +23,21 @@ from fastapi.responses import HTMLResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
 from fastapi.templating import Jinja2Templates
 from markupsafe import Markup
-from sqlalchemy import select
 from sqlalchemy.orm import Session
 from starlette.concurrency import run_in_threadpool
 
+from ... import crud
 from ...charts import Series, time_chart
-from ...deps import Principal, SessionDep, principal_from_token
+from ...deps import Principal, SessionDep, principal_from_token, visible_camera
 from ...estimation import camera_primaries
 from ...logins import MAX_AGE as LOGIN_MAX_AGE
 from ...logins import create_login, end_login, principal_from_login
 from ...manage import proposals_for, save_regions_and_measure
 from ...proposals import MAX_FRAMES, preview_jpeg
-from ...registration import parse_view, view_regions, view_thumbnails
+from ...registration import parse_view, view_thumbnails
 from ...status import NON_DAYLIGHT_DUV, REASON_WORDS, camera_status, chart_history, fleet_status
-from ...storage import Camera, Frame, as_utc
+from ...storage import Camera, as_utc
+from ..forms import regions_from_form
 from ..schemas import RegionsIn
 
 __all__ = ["router", "install", "COOKIE"]
@@ -195,7 +196,7 @@ def camera_page(camera_id: int, request: Request, session: SessionDep, limit: in
     principal = _principal(request, session)
     if principal is None:
         return _to_login(request)
-    cam = session.get(Camera, camera_id) if (principal.admin or principal.camera_id == camera_id) else None
+    cam = visible_camera(session, principal, camera_id)
     if cam is None:
         return _render(request, "not_found.html", {"camera_id": camera_id, "principal": principal}, status_code=404)
     status = camera_status(session, cam, request.app.state.settings)
@@ -230,15 +231,13 @@ def _view_arg(view: str | None) -> str | None:
 def _regions_context(session: Session, cam: Camera, view: str | None, data_dir: Path) -> dict:
     """What the regions page shows: the view's regions, the latest frame's size and time, and proposals."""
     thumbs, frames = view_thumbnails(session, cam, view, data_dir, MAX_FRAMES)
-    ctx: dict = {"cam": cam, "view": view, "regions": view_regions(session, cam, view), "proposals": [],
+    ctx: dict = {"cam": cam, "view": view, "regions": crud.view_regions(session, cam, view), "proposals": [],
                  "frames_used": 0, "proposal_error": None, "size": None, "latest_at": None, "view_changed": False,
                  "error": None, "saved": False, "keep_score": 0.0}
     if frames:
         ctx["size"] = (frames[0].width, frames[0].height)
         ctx["latest_at"] = as_utc(frames[0].taken_at)
-    latest = session.scalars(select(Frame).where(Frame.camera_id == cam.id, Frame.view.is_(None) if view is None
-                                                 else Frame.view == view)
-                             .order_by(Frame.taken_at.desc(), Frame.id.desc()).limit(1)).first()
+    latest = crud.latest_frame(session, cam.id, view)
     ctx["view_changed"] = bool(latest is not None and (latest.registration or {}).get("state") == "view_change")
     try:
         out = proposals_for(session, cam, view, 12, data_dir)
@@ -253,8 +252,7 @@ def _page_camera(request: Request, session: Session, camera_id: int) -> tuple[Pr
     principal = _principal(request, session)
     if principal is None:
         return None, None
-    cam = session.get(Camera, camera_id) if (principal.admin or principal.camera_id == camera_id) else None
-    return principal, cam
+    return principal, visible_camera(session, principal, camera_id)
 
 
 @router.get("/cameras/{camera_id}/regions", response_class=HTMLResponse)
@@ -284,23 +282,6 @@ def latest_frame_jpeg(camera_id: int, request: Request, session: SessionDep, vie
     return Response(preview_jpeg(thumbs[0]), media_type="image/jpeg", headers=HEADERS)
 
 
-def _form_regions(form: dict) -> list[dict]:
-    """Regions kept, renamed or added in the regions form (``ValueError`` for a malformed number)."""
-    out = []
-    for prefix, count in (("r", form.get("n_regions")), ("p", form.get("n_proposals"))):
-        for i in range(min(int(count or 0), 500)):
-            if form.get(f"{prefix}{i}_keep") != "1":
-                continue
-            out.append({"id": str(form.get(f"{prefix}{i}_id", "")).strip(),
-                        **{k: int(form.get(f"{prefix}{i}_{f}", "")) for k, f in
-                           (("x", "x"), ("y", "y"), ("width", "w"), ("height", "h"))}})
-    if any(str(form.get(f"new_{f}", "")).strip() for f in ("id", "x", "y", "w", "h")):
-        out.append({"id": str(form.get("new_id", "")).strip(),
-                    **{k: int(str(form.get(f"new_{f}", "")).strip() or "-1") for k, f in
-                       (("x", "x"), ("y", "y"), ("width", "w"), ("height", "h"))}})
-    return out
-
-
 @router.post("/cameras/{camera_id}/regions", response_class=HTMLResponse)
 async def save_regions_form(camera_id: int, request: Request, session: SessionDep, view: str | None = None) -> Response:
     """Save the regions form through the code of ``PUT /v1/cameras/{id}/regions``; forms from other sites: 403."""
@@ -317,7 +298,7 @@ async def save_regions_form(camera_id: int, request: Request, session: SessionDe
         v = _view_arg(view)
         error = None
         try:
-            body = RegionsIn(regions=_form_regions(form))
+            body = RegionsIn(regions=regions_from_form(form))
             save_regions_and_measure(session, cam, [r.model_dump() for r in body.regions], v,
                                      request.app.state.settings, form.get("reference_latest") == "1")
         except ValueError as exc:  # a malformed number, or pydantic's ValidationError

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from fastapi import APIRouter, HTTPException, Query, Request
+from fastapi import APIRouter, Query, Request
 
 from ...deps import PrincipalDep, SessionDep, camera_for
 from ...manage import proposals_for
-from ...registration import parse_view
+from ..forms import parse_view_field
 from ..schemas import ERROR_RESPONSES, ErrorOut, ProposalsOut
 
 router = APIRouter(prefix="/v1/cameras", tags=["regions"], responses=ERROR_RESPONSES)
@@ -20,8 +20,5 @@ def region_proposals(camera_id: int, request: Request, session: SessionDep, prin
     """Rectangles of static, uniform, matte, unclipped surfaces of distinct colours, best first, from the stored
     frames of the view (at least 5; 409 otherwise), in the view's reference-frame pixels."""
     cam = camera_for(session, principal, camera_id)
-    try:
-        v = parse_view(view)
-    except ValueError as exc:
-        raise HTTPException(422, str(exc)) from None
+    v = parse_view_field(view)
     return proposals_for(session, cam, v, count, request.app.state.settings.data_dir)

@@ -1,0 +1,314 @@
+"""A refit of one camera, in four steps: **read** its stored history, **fit** a scene model per view and estimate
+every frame with it, **check** the declared tone response and gather the warnings, **write** the estimates and the
+switch to the new models in one transaction.
+
+:func:`refit_camera` runs the steps in order; the job runner (:mod:`.jobs`) runs it in a background thread, and
+``illumon refit`` runs it for one camera or fans cameras out over Dask (:func:`.jobs.run_batch`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import uuid
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sqlalchemy.engine import Row
+from sqlalchemy.orm import Session, sessionmaker
+
+from . import crud
+from .estimation import (
+    RefitInputError,
+    calibration_frames,
+    camera_primaries,
+    check_response,
+    estimate_frame,
+    history_row,
+    refit_estimates,
+    remove_old_models,
+    sensitivities_array,
+    versioned_model_path,
+    view_model_key,
+)
+from .limits import frame_problem
+
+__all__ = ["refit_camera", "read_history", "fit_views", "check_refit", "write_refit", "History", "Refitted",
+           "MAX_DROPPED_LISTED"]
+
+log = logging.getLogger("illumon_service.jobs")
+
+MAX_DROPPED_LISTED = 100
+"""Frames a refit's summary lists by id among those it left out (all are counted)."""
+
+
+def refit_camera(
+    sessions: sessionmaker[Session],
+    camera_id: int,
+    *,
+    data_dir: Path,
+    max_frames: int = 100_000,
+    method: str = "model",
+    max_fit_frames: int = 300,
+    progress: Callable[[float], None] | None = None,
+) -> dict:
+    """Re-estimate the most recent ``max_frames`` frames of a camera and store the estimates; returns a summary.
+
+    Frames it cannot use are left out and reported (``dropped``: frame id and reason — a value outside the ranges of
+    :mod:`.limits`, stored by an older version), never a reason to fail. Each view's new scene model is written to a
+    new versioned file; the estimates and the switch to the new models (:attr:`.storage.Camera.models`) are then
+    committed in one transaction (:func:`write_refit`), so a crash at any point leaves either the old estimates and
+    models or the new ones, never a mixture; frames stored while the fit ran are estimated with the new model in that
+    same transaction.
+
+    Parameters
+    ----------
+    sessions
+        Session factory of the service database.
+    camera_id
+        The camera to refit.
+    data_dir
+        Service data folder (the fitted scene models go to ``models/camera-<id>[-view-<view>].<version>.json``).
+    max_frames
+        At most this many of the most recent frames are re-estimated.
+    method
+        ``model`` (scene model fit + per-frame estimates) or a retrieval method; see
+        :func:`~.estimation.refit_estimates`.
+    max_fit_frames
+        Frames the scene model's reflectances are fitted on (spread over the illuminant range).
+    progress
+        Called with the fraction done (0…1).
+
+    Returns
+    -------
+    dict
+        Frames estimated, skipped, dropped (``dropped``: ``[{"frame_id", "reason"}]``, at most
+        :data:`MAX_DROPPED_LISTED`, ``dropped_frames`` their number), method, model ``version``, timings
+        (``seconds``, ``read_s``, ``fit_s``, ``write_s``), the check of the declared tone response
+        (``response_check``, :func:`~.estimation.check_response`) and ``warnings``: every warning of the refit in one
+        list (tone response, calibration images, views, the model's identifiability and white-balance warnings), shown
+        with the camera and on the status page.
+
+    Raises
+    ------
+    RefitInputError
+        Too few usable frames.
+    """
+    t0 = time.perf_counter()
+    started = time.time()
+    report = progress or (lambda _p: None)
+    history = read_history(sessions, camera_id, max_frames)
+    t_read = time.perf_counter()
+    report(0.1)
+    refitted = fit_views(history, data_dir, method, max_fit_frames)
+    summary = check_refit(history, refitted)
+    t_fit = time.perf_counter()
+    report(0.8)
+    written = write_refit(sessions, data_dir, history, refitted)
+    remove_old_models(data_dir, camera_id, refitted.models, started)
+    t_end = time.perf_counter()
+    summary.update({
+        "camera_id": camera_id,
+        "frames_written": written,
+        "seconds": round(t_end - t0, 3),
+        "read_s": round(t_read - t0, 3),
+        "fit_s": round(t_fit - t_read, 3),
+        "write_s": round(t_end - t_fit, 3),
+    })
+    report(1.0)
+    return summary
+
+
+@dataclass
+class History:
+    """What the read step gives the others: the camera's usable stored frames and what it needs to fit them."""
+
+    camera_id: int
+    rows: list[Row]
+    """Usable frames (the columns a refit reads), oldest first."""
+    read_ids: list[int]
+    """Every frame read, usable or not (frames stored later are estimated at the write step)."""
+    dropped: list[dict]
+    """Frames left out for values outside the accepted ranges: ``{"frame_id", "reason"}``."""
+    views: list[str]
+    """The camera's other views (PTZ presets) with usable frames."""
+    view_ids: dict[str, list[str]]
+    """Each of those views' region ids."""
+    region_ids: list[str]
+    """The default view's region ids."""
+    css: np.ndarray | None
+    encoding: str
+    matrix: list | None
+    primaries: str
+    calibrations: list[tuple[str, str, dict]]
+    known: dict[str, np.ndarray]
+    cal_warnings: list[str]
+    frames: list[tuple] = field(default_factory=list)
+    """The default view's history rows (:func:`~.estimation.history_row`)."""
+
+
+@dataclass
+class Refitted:
+    """What the fit step gives the others: the new model files by view, the estimates by frame id, the summary."""
+
+    version: str
+    models: dict[str | None, Path]
+    estimates: dict[str, dict]
+    summary: dict
+    view_warnings: list[str]
+
+
+def _usable(rows: Sequence[Row]) -> tuple[list[Row], list[dict]]:
+    """The frames a refit can use and those it leaves out (``{"frame_id", "reason"}``): frames of an unknown view (a
+    view change) or measured before any region existed carry no region values and are passed over."""
+    rows = [r for r in rows if r.patches and (r.registration or {}).get("state") != "view_change"]
+    usable, dropped = [], []
+    for r in rows:
+        problem = frame_problem(r.patches, r.patch_sd, r.applied_gains, r.exposure)
+        if problem is None:
+            usable.append(r)
+        else:
+            dropped.append({"frame_id": r.id, "reason": problem})
+    return usable, dropped
+
+
+def read_history(sessions: sessionmaker[Session], camera_id: int, max_frames: int) -> History:
+    """Read step: the camera's ``max_frames`` most recent frames, the regions of its views, its sensitivities,
+    output pipeline and calibration images. ``ValueError`` for an unknown camera."""
+    with sessions() as s:
+        cam = crud.get_camera(s, camera_id)
+        if cam is None:
+            raise ValueError(f"unknown camera {camera_id}")
+        rows = crud.history_rows(s, camera_id, max_frames)
+        usable, dropped = _usable(rows)
+        views = sorted({r.view for r in usable if r.view is not None})
+        view_ids = {v: [r["id"] for r in crud.view_regions(s, cam, v)] for v in views}
+        css = sensitivities_array(cam.sensitivities)
+        matrix = (cam.response or {}).get("matrix")
+        calibrations, known, cal_warnings = calibration_frames(crud.calibrations(s, camera_id), matrix)
+        history = History(
+            camera_id, [r for r in usable if r.view is None or view_ids.get(r.view)], [r.id for r in rows], dropped,
+            views, view_ids, [r["id"] for r in cam.regions], css, (cam.response or {}).get("encoding", "linear"),
+            matrix, camera_primaries(cam.response, css is not None), calibrations, known, cal_warnings)
+    if dropped:
+        log.warning("refit of camera %s: %d frame(s) left out (%s)", camera_id, len(dropped), dropped[0]["reason"])
+    history.rows.reverse()
+    history.frames = [history_row(r, matrix) for r in history.rows if r.view is None]
+    return history
+
+
+def fit_views(h: History, data_dir: Path, method: str, max_fit_frames: int) -> Refitted:
+    """Fit step: each view's scene model fitted and saved to a new versioned file, every usable frame estimated with
+    it (:func:`~.estimation.refit_estimates`). A view without enough frames is reported, not fatal; a failure of the
+    default view removes the files already written (nothing is committed yet) and raises."""
+    version = uuid.uuid4().hex[:16]
+    models: dict[str | None, Path] = {}
+    view_warnings: list[str] = []
+    estimates: dict = {}
+    for v in h.views:  # each PTZ preset: its own regions and scene model (calibration images are of the default view)
+        vf = [history_row(r, h.matrix) for r in h.rows if r.view == v]
+        path = versioned_model_path(data_dir, h.camera_id, v, version)
+        try:
+            est_v, summary_v = refit_estimates(vf, h.view_ids[v], h.css, method=method, model_file=path,
+                                               max_fit_frames=max_fit_frames, primaries=h.primaries)
+            estimates.update(est_v)
+            models[v] = path
+            view_warnings += [f"view {v!r}: {w}" for w in summary_v.get("identifiability_warnings") or []]
+        except RefitInputError as exc:
+            view_warnings.append(f"view {v!r} not refitted: {exc}")
+    if not h.frames and estimates:
+        summary = {"frames": 0, "method": method, "views": len(h.views)}
+    else:
+        path = versioned_model_path(data_dir, h.camera_id, None, version)
+        try:
+            est_d, summary = refit_estimates(
+                h.frames, h.region_ids, h.css, method=method, model_file=path, max_fit_frames=max_fit_frames,
+                calibrations=h.calibrations, known_reflectances=h.known, primaries=h.primaries,
+            )
+        except Exception:
+            for p in models.values():  # nothing committed: the new files of the other views go too
+                p.unlink(missing_ok=True)
+            path.unlink(missing_ok=True)
+            raise
+        estimates.update(est_d)
+        if path.is_file():
+            models[None] = path
+    return Refitted(version, models, estimates, summary, view_warnings)
+
+
+def check_refit(h: History, fit: Refitted) -> dict:
+    """Check step: the declared tone response against the default view's history
+    (:func:`~.estimation.check_response`), and every warning of the refit in one list; returns the summary."""
+    t_check = time.perf_counter()
+    summary = fit.summary
+    check = check_response(h.frames, h.region_ids, h.css, h.encoding) if h.frames else {"warnings": []}
+    summary["response_check"] = {k: v for k, v in check.items() if k != "warnings"}
+    summary["response_check_s"] = round(time.perf_counter() - t_check, 3)  # part of fit_s
+    model_warnings = [str(w) for w in summary.get("identifiability_warnings") or []]
+    if isinstance(summary.get("model"), str) and summary["model"].startswith("scene model fit failed"):
+        model_warnings.append(summary["model"])
+    summary["warnings"] = list(dict.fromkeys(h.cal_warnings + check["warnings"] + fit.view_warnings + model_warnings))
+    summary["views"] = len(h.views) + bool(h.frames)
+    summary["version"] = fit.version
+    summary["dropped_frames"] = len(h.dropped)
+    summary["dropped"] = h.dropped[:MAX_DROPPED_LISTED]
+    return summary
+
+
+def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit: Refitted) -> int:
+    """Write step, one transaction: switch the camera's views to their new model files, replace the estimates,
+    estimate with the new models the frames stored since the read step, and record why the others have none.
+    Returns the number of estimates written.
+
+    The camera row is updated first: on SQLite that takes the write lock before anything is read, on PostgreSQL it
+    locks the row that every ingest locks (:func:`.crud.models_for_update`) before storing an estimate, so no ingest
+    commits an estimate of the old model after this commit."""
+    ids_of = {v: (h.view_ids[v] if v is not None else h.region_ids) for v in fit.models}
+    used = {r.id: sum(r.patches.get(k) is not None for k in ids_of[r.view]) for r in h.rows if r.view in fit.models}
+    with sessions() as s, s.begin():
+        cam = crud.get_camera(s, h.camera_id, for_update=True)
+        if cam is None:  # deleted while the refit ran
+            for p in fit.models.values():
+                p.unlink(missing_ok=True)
+            return 0
+        crud.use_models(s, cam, {view_model_key(v): {"file": p.name, "version": fit.version}
+                                 for v, p in fit.models.items()})
+        times = {str(r.id): r.taken_at for r in h.rows}
+        rows = {fid: {"frame_id": int(fid), "camera_id": h.camera_id, "taken_at": times[fid], "model": fit.version,
+                      **est} for fid, est in fit.estimates.items()}
+        rows.update(_late_estimates(crud.frames_not_read(s, h.camera_id, set(h.read_ids)), data_dir, h, fit, ids_of))
+        crud.replace_estimates(s, rows)
+        # frames the refit used but could not estimate (fewer than two regions seen, a non-finite white), and those
+        # it left out: no estimate of the previous model stays behind
+        reasons = {i: "too_few_regions" if n < 2 else "estimate_failed" for i, n in used.items() if str(i) not in rows}
+        reasons.update({d["frame_id"]: "invalid_values" for d in h.dropped})
+        crud.drop_estimates(s, reasons)
+        if _commit_hook is not None:
+            _commit_hook()
+    return len(rows)
+
+
+_commit_hook: Callable[[], None] | None = None
+"""Called inside a refit's transaction just before it commits (tests simulate a crash there)."""
+
+
+def _late_estimates(late: Sequence[Any], data_dir: Path, h: History, fit: Refitted,
+                    ids_of: dict[str | None, list[str]]) -> dict[str, dict]:
+    """Estimates, with the new model of their view, of the frames stored while the refit fitted (``late``)."""
+    out = {}
+    for r in late:
+        if r.view not in fit.models or not r.patches or frame_problem(r.patches, r.patch_sd, r.applied_gains,
+                                                                      r.exposure):
+            continue
+        if (r.registration or {}).get("state") == "view_change":
+            continue
+        row = history_row(r, h.matrix)
+        est = estimate_frame(data_dir, h.camera_id, row[0], row[1], row[2], ids_of[r.view], r.view, row[3],
+                             model_file=fit.models[r.view])
+        if est is not None:
+            out[str(r.id)] = {"frame_id": r.id, "camera_id": h.camera_id, "taken_at": r.taken_at,
+                              "model": fit.version, **est}
+    return out

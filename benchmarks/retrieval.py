@@ -26,7 +26,7 @@ import numpy as np
 import rawsim
 from illumon import datasets
 from illumon.camera import angular_error_deg
-from illumon.daylight_models import daylight_model
+from illumon.daylight import daylight_model
 from illumon.reflectance import ReflectanceBasis, colourchecker_reflectances, reflectance_basis
 from illumon.retrieval import retrieve_illuminants
 from illumon.retrieval.joint import JointProblem

@@ -152,7 +152,7 @@ def test_joint_shared_exposure_reads_brightness_on_the_paper_protocol(shared_dat
 
 
 def test_joint_problem_whitens_by_the_noise_model_and_penalises_reflectances_outside_0_1(shared_data):
-    from illumon.daylight_models import daylight_model
+    from illumon.daylight import daylight_model
     from illumon.reflectance import reflectance_basis
     from illumon.retrieval.common import gray_world_mired
     from illumon.retrieval.joint import JointProblem

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from ..daylight_models import daylight_model
+from ..daylight import daylight_model
 from ..observations import Observations
 from ..reflectance import reflectance_basis
 from ..retrieval.common import gray_world_mired, imaging_operators

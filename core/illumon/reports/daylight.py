@@ -1,5 +1,5 @@
 """``illumon report daylight``: how well the product's daylight models fit measured daylight, why they fail, and what
-the measured-daylight model (:mod:`illumon.daylight_measured`) gains for the estimator.
+the measured-daylight model (:mod:`illumon.daylight.measured`) gains for the estimator.
 
 Models compared on every measured spectrum (unit-mean scale, best scale per fit):
 
@@ -36,7 +36,7 @@ from ..daylight import (
     theta_curve,
     xy_from_cct_duv,
 )
-from ..daylight_measured import (
+from ..daylight.measured import (
     MeasuredDaylight,
     MeasuredDaylightData,
     fit_measured_daylight,
@@ -412,7 +412,7 @@ def daylight_report(
     out_dir
         Output folder (created): ``report.md``, ``figures.json``, ``summary.json`` and PNG plots.
     split, seed
-        Training / held-out split of the file (:func:`illumon.daylight_measured.split_indices`): ``"time"`` (file
+        Training / held-out split of the file (:func:`illumon.daylight.measured.split_indices`): ``"time"`` (file
         order, first half trains) or ``"random"`` halves.
     n_histories, n_frames, n_patches
         Simulated fixed-camera histories for the gain: count, frames each (held-out spectra), static patches each

@@ -6,11 +6,11 @@ from illumon import datasets
 from illumon.daylight import (
     cct_duv_from_xy,
     daylight_locus_duv,
+    daylight_model,
     daylight_spectrum,
     spectrum_to_xy,
 )
-from illumon.daylight_measured import MeasuredDaylight, shipped_measured_daylight, split_indices, unit_mean
-from illumon.daylight_models import daylight_model
+from illumon.daylight.measured import MeasuredDaylight, shipped_measured_daylight, split_indices, unit_mean
 from illumon.reports.daylight import gfc
 
 needs_data = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="shared measured data not found")

@@ -24,7 +24,7 @@ from illumon import datasets  # noqa: E402
 from illumon.camera import angular_error_deg  # noqa: E402
 from illumon.daylight import cct_duv_from_xy, spectrum_to_xy  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
-from illumon.reflectance import colourchecker_reflectances  # noqa: E402
+from illumon.priors import colourchecker_reflectances  # noqa: E402
 from illumon.scenarios import measured_daylight_history  # noqa: E402
 from illumon.simulate import simulate_history  # noqa: E402
 

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 from illumon import datasets
 from illumon.observations import Observations
-from illumon.reflectance import unseen_reflectances
+from illumon.priors import unseen_reflectances
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
@@ -87,7 +87,7 @@ SFU), the ones the shipped reflectance basis and prior were built from (``core/i
 
 SCORE_REFLECTANCE_SETS: tuple[str, ...] = ("colourchecker_babel", "cie1995_tcs")
 """Score surfaces: colour-science's ColorChecker (BabelColor average) and CIE 1995 TCS01–14, never used to build a
-prior. The NIST CQS 9.0 VS1–15 of :func:`illumon.reflectance.unseen_reflectances` are left out: all fifteen are
+prior. The NIST CQS 9.0 VS1–15 of :func:`illumon.priors.unseen_reflectances` are left out: all fifteen are
 spectra of the Munsell matt set the shipped basis was built from (identical values, e.g. VS1 = 5R 4/14)."""
 
 DEV_DAYLIGHT = slice(0, 1300)

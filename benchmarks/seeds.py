@@ -37,14 +37,17 @@ import numpy as np  # noqa: E402
 from illumon import bayes, datasets  # noqa: E402
 from illumon.camera import angular_error_deg, render  # noqa: E402
 from illumon.daylight import CMFS, cie_d_cct, daylight_locus_xy, daylight_spectrum  # noqa: E402
-from illumon.reflectance import colourchecker_reflectances, reflectance_basis  # noqa: E402
+from illumon.priors import (  # noqa: E402
+    build_camera_prior,  # noqa: E402
+    colourchecker_reflectances,
+    reflectance_basis,
+)
 from illumon.retrieval import retrieve_illuminants  # noqa: E402
 from illumon.scenarios import PAPER_PATCH_SETS, PAPER_TABLES, paper_protocol  # noqa: E402
 from illumon.sensitivity import METHODS as CSS_METHODS  # noqa: E402
 from illumon.sensitivity import daylight_Han2012  # noqa: E402
 from illumon.sensitivity.daylight_recovery import daylight_basis  # noqa: E402
 from illumon.sensitivity.evaluate import camera_model, leave_one_out  # noqa: E402
-from illumon.sensitivity.prior import build_camera_prior  # noqa: E402
 from illumon.spectra import GRID, resample_columns  # noqa: E402
 from retrieval import _stats  # noqa: E402  (benchmarks/retrieval.py: median, p95, max, n)
 

@@ -50,8 +50,8 @@ from illumon.camera import angular_error_deg, camera_white, colorchecker_referen
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
+from illumon.priors import max_normalise  # noqa: E402
 from illumon.retrieval.common import gray_world  # noqa: E402
-from illumon.sensitivity.prior import max_normalise  # noqa: E402
 from illumon.simulate import simulate_history  # noqa: E402
 
 CASES = ("grey", "chart+matrix", "none", "none+matrix", "none+rendered", "grey+rendered", "none+awb", "grey+awb")

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from illumon import datasets
 from illumon.daylight.measured import split_indices
-from illumon.sensitivity.prior import default_daylight_prior
+from illumon.priors import default_daylight_prior
 from numpy.typing import NDArray
 
 OUT = Path(__file__).resolve().parents[1] / "core" / "illumon" / "data" / "daylight_mixture.json"

@@ -11,7 +11,7 @@ import pytest
 from illumon import datasets
 from illumon.cli import main
 from illumon.observations import Observations, write_observations
-from illumon.reflectance import colourchecker_reflectances
+from illumon.priors import colourchecker_reflectances
 from illumon.simulate import simulate_history
 from illumon.spectra import WAVELENGTHS
 

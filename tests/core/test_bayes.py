@@ -7,7 +7,7 @@ import colour
 import numpy as np
 import pytest
 from illumon import bayes, datasets
-from illumon.reflectance import colourchecker_reflectances, reflectance_basis
+from illumon.priors import colourchecker_reflectances, reflectance_basis
 from illumon.spectra import GRID, resample_columns
 
 pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="measured data (shared/data) not available")

@@ -21,8 +21,8 @@ from illumon.camera.references import references_kind
 from illumon.daylight import CIEDaylight
 from illumon.model import SceneModel, fit_scene_model
 from illumon.observations import Observations
+from illumon.priors import max_normalise
 from illumon.retrieval.common import gray_world
-from illumon.sensitivity.prior import max_normalise
 from illumon.spectra import WAVELENGTHS, SpectralInputError, write_spectral_csv
 
 

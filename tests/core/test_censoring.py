@@ -12,7 +12,7 @@ from illumon import datasets
 from illumon.camera import angular_error_deg
 from illumon.model import IdentifiabilityWarning, fit_scene_model
 from illumon.observations import Observations
-from illumon.reflectance import colourchecker_reflectances
+from illumon.priors import colourchecker_reflectances
 from illumon.retrieval import common as rc
 from illumon.retrieval import retrieve_illuminants
 from illumon.simulate import simulate_history

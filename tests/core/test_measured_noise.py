@@ -12,7 +12,7 @@ from illumon import datasets
 from illumon.camera import angular_error_deg
 from illumon.model import IdentifiabilityWarning, fit_scene_model
 from illumon.observations import ObservationError, Observations
-from illumon.reflectance import colourchecker_reflectances
+from illumon.priors import colourchecker_reflectances
 from illumon.simulate import simulate_history
 
 pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="measured data (shared/data) not available")

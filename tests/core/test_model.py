@@ -12,7 +12,7 @@ from illumon.camera import angular_error_deg
 from illumon.daylight import cct_duv_from_xy, spectrum_to_xy
 from illumon.model import MODEL_VERSION, IdentifiabilityWarning, SceneModel, fit_scene_model
 from illumon.observations import Observations
-from illumon.reflectance import colourchecker_reflectances
+from illumon.priors import colourchecker_reflectances
 from illumon.scenarios import measured_daylight_history
 from illumon.simulate import simulate_history
 

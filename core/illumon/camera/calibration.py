@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 from ..bayes import GaussianPrior, gaussian_posterior
 from ..daylight import CIEDaylight
 from ..observations import Observations
+from ..priors import default_camera_prior
 from .formation import angular_error_deg
 from .references import neutral_references, references_kind
 
@@ -87,8 +88,6 @@ CLIPPED = 0.995
 @lru_cache(maxsize=1)
 def prior_sensitivities() -> NDArray[np.float64]:
     """Mean of the measured cameras' max-normalised sensitivities (61 × 3): the camera nobody measured, a priori."""
-    from ..sensitivity.prior import default_camera_prior
-
     return default_camera_prior().mean.copy()
 
 
@@ -264,8 +263,6 @@ def _log_chroma(white: NDArray[np.float64]) -> NDArray[np.float64]:
 def prior_white_spread() -> float:
     """Standard deviation (log r/g and b/g, pooled) of the measured cameras' D65 whites around the mean camera's,
     from the shipped camera prior's principal components (each camera max-normalised)."""
-    from ..sensitivity.prior import default_camera_prior
-
     prior = default_camera_prior()
     w0 = _d65_white(prior.mean)
     jac = []

@@ -1,9 +1,9 @@
 """The effects that break the linear model of a fixed camera, and a generator that hides one in a simulated history.
 
 Effect names are the contract of ``illumon diagnose`` (:data:`EFFECTS`). :func:`hide_effect` renders a history from a
-measured camera, a run of measured Granada daylight and measured reflectances (:func:`illumon.reflectance.unseen_reflectances`),
+measured camera, a run of measured Granada daylight and measured reflectances (:func:`illumon.priors.unseen_reflectances`),
 adds one effect with seeded random parameters in realistic ranges, then auto-exposure jitter, shot and read noise
-(:class:`illumon.simulate.CameraNoise`) and the camera's response. Tests and benchmarks share it.
+(:class:`illumon.camera.noise.CameraNoise`) and the camera's response. Tests and benchmarks share it.
 
 Physical models of the effects (what the generator renders and what :mod:`illumon.diagnosis.fit` fits):
 
@@ -43,11 +43,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import datasets
-from ..camera import render
+from ..camera import DEFAULT_NOISE, CameraNoise, render
 from ..daylight import daylight_locus_xy, daylight_spectrum
 from ..observations import Observations
-from ..reflectance import unseen_reflectances
-from ..simulate import DEFAULT_NOISE, CameraNoise, SimulatedHistory
+from ..priors import unseen_reflectances
+from ..simulate import SimulatedHistory
 from ..spectra import GRID, WAVELENGTHS, resample_columns
 
 __all__ = [

@@ -214,7 +214,7 @@ def diagnose(
         ΔBIC margins per effect (default :data:`NONE_MARGIN`).
     learn_noise
         Learn the noise from the history's residuals (:func:`.bilinear.estimate_noise`); ``False`` assumes the
-        noise of :data:`illumon.simulate.DEFAULT_NOISE` (the method before issue 16, for comparison).
+        noise of :data:`illumon.camera.DEFAULT_NOISE` (the method before issue 16, for comparison).
 
     Returns
     -------

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..simulate import DEFAULT_NOISE
+from ..camera.noise import DEFAULT_NOISE
 from .bilinear import LowRankFit, wals
 
 __all__ = ["noise_weights", "NoiseLevel", "quantisation_step", "estimate_noise", "DARK_LEVEL", "SHOT_SHARE",

@@ -29,7 +29,7 @@ from scipy.optimize import least_squares
 
 from ..daylight import daylight_model
 from ..observations import Observations
-from ..reflectance import reflectance_basis
+from ..priors import default_daylight_prior, reflectance_basis
 from ..retrieval.common import gray_world_mired, imaging_operators
 from ..retrieval.joint import JointProblem
 from ..spectra import WAVELENGTHS
@@ -92,8 +92,6 @@ def _generic_basis(n: int = 10, width_nm: float = 30.0) -> NDArray[np.float64]:
 
 def _daylight_basis() -> NDArray[np.float64]:
     """The shipped measured-daylight mean and components (61 × (1 + J)), the basis of :func:`daylight_mixture`."""
-    from ..sensitivity.prior import default_daylight_prior
-
     dp = default_daylight_prior()
     return np.column_stack([dp.mean, dp.components])
 

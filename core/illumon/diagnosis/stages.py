@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from ..camera.noise import DEFAULT_NOISE
 from ..observations import Observations
-from ..simulate import DEFAULT_NOISE
 from . import bilinear as bl
 from . import noise as nz
 from .spectral import (

@@ -26,7 +26,7 @@ from ..camera.primaries import SRGB_BALANCE_SD, check_primaries, daylight_prior_
 from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
 from ..observations import Observations
-from ..reflectance import ReflectanceBasis, reflectance_basis
+from ..priors import ReflectanceBasis, reflectance_basis
 from ..retrieval.common import RetrievalResult, censored, gray_world_mired, imaging_operators, white_level
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample

@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from .._blas import single_blas_thread
 from ..daylight import CIEDaylight
 from ..observations import Observations
-from ..reflectance import ReflectanceBasis, reflectance_basis
+from ..priors import ReflectanceBasis, reflectance_basis
 from ..retrieval.common import RetrievalResult
 from ..spectra import GRID
 from .intervals import assemble_estimates, interval_columns

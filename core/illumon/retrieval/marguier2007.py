@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from .._blas import single_blas_thread
 from ..daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum, theta_curve
 from ..observations import Observations
-from ..reflectance import ReflectanceBasis, reflectance_basis
+from ..priors import ReflectanceBasis, reflectance_basis
 from .common import RetrievalResult, imaging_operators, make_result
 
 __all__ = ["illuminant_retrieval_Marguier2007", "marguier_error"]

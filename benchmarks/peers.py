@@ -52,7 +52,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import colour  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from illumon import datasets  # noqa: E402
 from illumon.camera import ResponseCurve, angular_error_deg, render  # noqa: E402
 from illumon.daylight import daylight_locus_duv, daylight_spectrum, xy_from_cct_duv  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
@@ -62,7 +61,10 @@ from illumon.priors import (
     unseen_reflectances,  # noqa: E402
 )
 from illumon.retrieval import retrieve_illuminants  # noqa: E402
-from illumon.simulate import simulate_history  # noqa: E402
+from illumon.simulation import (
+    datasets,  # noqa: E402
+    simulate_history,  # noqa: E402
+)
 from illumon_service.regions import Region, region_means  # noqa: E402
 from rawsim import DEV_CAMERAS, SCORE_DAYLIGHT  # noqa: E402
 from rawsim import SCORE_CAMERAS as RAWSIM_SCORE_CAMERAS  # noqa: E402

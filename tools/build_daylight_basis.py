@@ -17,8 +17,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from illumon import datasets
 from illumon.daylight.measured import fit_measured_daylight, split_indices
+from illumon.simulation import datasets
 
 OUT = Path(__file__).resolve().parents[1] / "core" / "illumon" / "data"
 SOURCE = (

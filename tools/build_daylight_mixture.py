@@ -19,9 +19,9 @@ import json
 from pathlib import Path
 
 import numpy as np
-from illumon import datasets
 from illumon.daylight.measured import split_indices
 from illumon.priors import default_daylight_prior
+from illumon.simulation import datasets
 from numpy.typing import NDArray
 
 OUT = Path(__file__).resolve().parents[1] / "core" / "illumon" / "data" / "daylight_mixture.json"

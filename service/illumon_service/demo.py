@@ -56,7 +56,7 @@ def _camera(name: str, npl_camera: str, patches: list[int], hours: np.ndarray, c
     import colour
     from illumon.daylight import daylight_locus_xy, daylight_spectrum
     from illumon.priors import colourchecker_reflectances
-    from illumon.simulate import simulate_history
+    from illumon.simulation import simulate_history
     from illumon.spectra import GRID, resample_columns
 
     sd = colour.MSDS_CAMERA_SENSITIVITIES[npl_camera]

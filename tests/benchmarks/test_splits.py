@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rawsim
-from illumon import datasets
-from illumon.diagnosis import effects
+from illumon.simulation import datasets, effects
 
 
 def test_rawsim_splits_are_disjoint():

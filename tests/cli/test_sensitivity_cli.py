@@ -6,10 +6,10 @@ import argparse
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.camera import render
 from illumon.cli.sensitivity import add_sensitivity_command, run
 from illumon.priors import colourchecker_reflectances
+from illumon.simulation import datasets
 from illumon.spectra import SpectralInputError, read_sensitivities, read_spectral_csv
 
 

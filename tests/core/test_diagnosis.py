@@ -1,6 +1,6 @@
 """Diagnosis: hidden effects in simulated histories must be found, named, located and measured.
 
-Histories: :func:`illumon.diagnosis.effects.hide_effect` with the test cameras (``TEST_CAMERAS``) and seeds 10 000…
+Histories: :func:`illumon.simulation.effects.hide_effect` with the test cameras (``TEST_CAMERAS``) and seeds 10 000…
 19 999, never used while developing the method (development: ``DEV_CAMERAS``, seeds < 10 000; benchmark: held-out
 cameras, seeds ≥ 1 000 000); and histories of the independent raw pipeline (``benchmarks/rawsim.py``, issue 16) on its
 score cameras and surfaces, seeds 10 000…
@@ -13,10 +13,10 @@ import pytest
 from illumon.camera import angular_error_deg
 from illumon.diagnosis import bilinear as bl
 from illumon.diagnosis import noise as dnoise
-from illumon.diagnosis.effects import EFFECTS, LOCATED_EFFECTS, TEST_CAMERAS, hide_effect
 from illumon.diagnosis.fit import NONE_MARGIN, corrected_observations, diagnose, estimate_with_effect
 from illumon.diagnosis.stages import MIN_GAMMA, MIN_OFFSET
 from illumon.retrieval import retrieve_illuminants
+from illumon.simulation.effects import EFFECTS, LOCATED_EFFECTS, TEST_CAMERAS, hide_effect
 
 SEED0 = 10_000
 SEEDS = 4
@@ -155,8 +155,8 @@ def test_too_short_history_is_rejected(shared_data):
 
 
 def test_generator_fluorophores_are_short_wave_excited_and_daylight_mixture_is_normalised(shared_data):
-    from illumon.diagnosis.effects import SHORT_WAVE_EXCITATION_NM, _compilation_fluorophores
     from illumon.diagnosis.spectral import daylight_mixture
+    from illumon.simulation.effects import SHORT_WAVE_EXCITATION_NM, _compilation_fluorophores
     from illumon.spectra import WAVELENGTHS
 
     fl = _compilation_fluorophores()
@@ -201,7 +201,7 @@ def test_noise_is_learned_from_the_residuals(shared_data):
     """Clean 12-bit raw-pipeline history: the shot-noise coefficient learned from the rank-4 residuals is the region
     mean's, 1 / (gain · white · pixels) (the default assumed 2e-5 is ~100× too large)."""
     import rawsim
-    from illumon import datasets
+    from illumon.simulation import datasets
 
     rng = np.random.default_rng(3)
     e = rawsim.daylight_run("score", 30, rng)

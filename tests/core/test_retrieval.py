@@ -5,7 +5,7 @@ import pytest
 from illumon.camera import angular_error_deg
 from illumon.observations import Observations
 from illumon.retrieval import METHODS, retrieve_illuminants
-from illumon.scenarios import measured_daylight_history, paper_cct, paper_protocol
+from illumon.simulation import measured_daylight_history, paper_cct, paper_protocol
 
 
 def trivial_errors(h) -> tuple[np.ndarray, np.ndarray]:
@@ -60,7 +60,7 @@ def test_relative_illuminants_are_determined_on_paper_protocol(shared_data):
     # (measured: median sd 0.99, max 1.88) against true spreads of 40–150 MK⁻¹, while the shift common to a case is
     # the priors' (median 15.5 MK⁻¹; ``benchmarks/retrieval.py --analysis``).
     from illumon.camera import CameraNoise
-    from illumon.scenarios import PAPER_PATCH_SETS, PAPER_TABLES
+    from illumon.simulation import PAPER_PATCH_SETS, PAPER_TABLES
 
     spread = []
     for temps in PAPER_TABLES[3]:
@@ -120,7 +120,7 @@ def test_paper_protocol_table1_methods_side_by_side(shared_data):
     case (8.4°). Measured: joint median 3.0°, max 8.0°; marguier2007 median 4.4°, max 19.2°; gray-world 9.7° (see
     benchmarks/retrieval.py for all tables and patch sets)."""
     from illumon.camera import CameraNoise
-    from illumon.scenarios import PAPER_PATCH_SETS, PAPER_TABLES
+    from illumon.simulation import PAPER_PATCH_SETS, PAPER_TABLES
 
     errors: dict[str, list[float]] = {m: [] for m in ("joint", "marguier2007", "gray_world")}
     for temps in PAPER_TABLES[1]:
@@ -186,9 +186,8 @@ def test_joint_problem_whitens_by_the_noise_model_and_penalises_reflectances_out
 
 def test_gray_world_baseline_reports_the_daylight_of_a_grey_scene(shared_data):
     # Every patch a flat grey: the patches' mean is the camera white, so the daylight reported is the true one.
-    from illumon import datasets
     from illumon.daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum
-    from illumon.simulate import simulate_history
+    from illumon.simulation import datasets, simulate_history
 
     cct = cie_d_cct(np.array([4000.0, 5500.0, 6500.0, 9000.0]))
     e = daylight_spectrum(daylight_locus_xy(cct))

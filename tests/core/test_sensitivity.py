@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.camera import render
 from illumon.daylight import CMFS
 from illumon.priors import build_camera_prior, colourchecker_reflectances
@@ -30,6 +29,7 @@ from illumon.sensitivity.han2012 import (
     sensitivities_Han2012,
     shipped_fluorophores,
 )
+from illumon.simulation import datasets
 
 needs_data = pytest.mark.skipif(
     datasets.shared_data_dir() is None, reason="measured data (../shared/data) not available"

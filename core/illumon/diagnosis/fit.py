@@ -23,9 +23,9 @@ Two stages, each a penalised-likelihood comparison against its own base model (S
    (values near black censored).
 
 An extension is chosen when its BIC beats the base by more than :data:`NONE_MARGIN`; the margins were re-set in
-issue 16 on the development cameras of both simulators (:mod:`illumon.simulate` via :mod:`.effects`, and the
-independent raw pipeline ``benchmarks/rawsim.py``: Nikon and Point Grey bodies, development surfaces and daylight,
-seeds 3 000…); otherwise the answer is ``none``.
+issue 16 on the development cameras of both simulators (:mod:`illumon.simulation.simulate` via
+:mod:`illumon.simulation.effects`, and the independent raw pipeline ``benchmarks/rawsim.py``: Nikon and Point Grey
+bodies, development surfaces and daylight, seeds 3 000…); otherwise the answer is ``none``.
 
 The spectral effects' scores are not ΔBIC: the spectral model's own misfit (reflectance basis, daylight model), not the
 noise, sets the scale of their gains, so each is measured against the history itself.

@@ -180,10 +180,9 @@ def _simulate_gain(
     solver_kwargs: dict | None,
 ) -> dict:
     """Joint retrieval with each daylight model on simulated histories lit by held-out spectra."""
-    from .. import datasets
     from ..camera import angular_error_deg
     from ..retrieval.joint import illuminant_retrieval_joint
-    from ..simulate import simulate_history
+    from ..simulation import datasets, simulate_history
 
     rng = np.random.default_rng(seed)
     cams = datasets.camera_names()
@@ -323,7 +322,7 @@ def _gain(e_test: NDArray[np.float64], data: MeasuredDaylightData, split: str, s
     """Step 4: the gain where it matters: camera whites of the measured cameras, and simulated retrievals."""
     gain: dict = {"split": split, "seed": seed}
     try:
-        from .. import datasets
+        from ..simulation import datasets
 
         have_data = datasets.shared_data_dir() is not None
     except Exception:  # pragma: no cover - import problems mean no data
@@ -348,7 +347,7 @@ def _gain(e_test: NDArray[np.float64], data: MeasuredDaylightData, split: str, s
                 "histories": sim["histories"],
             }
     else:
-        gain["skipped"] = "measured cameras and reflectances not found (illumon.datasets.shared_data_dir() is None)"
+        gain["skipped"] = "measured cameras and reflectances not found (illumon.simulation.datasets.shared_data_dir() is None)"
 
     return gain
 
@@ -420,7 +419,7 @@ def daylight_report(
     time_budget_s
         Wall-clock budget of the simulated retrievals; histories beyond it are skipped (the report says how many ran).
     simulate
-        Run the simulated retrievals (needs the measured cameras and reflectances of :mod:`illumon.datasets`).
+        Run the simulated retrievals (needs the measured cameras and reflectances of :mod:`illumon.simulation.datasets`).
     solver_kwargs
         Extra keyword arguments for :func:`~illumon.retrieval.joint.illuminant_retrieval_joint` (unknown ones are
         ignored).

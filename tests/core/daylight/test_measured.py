@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.daylight import (
     cct_duv_from_xy,
     daylight_locus_duv,
@@ -12,6 +11,7 @@ from illumon.daylight import (
 )
 from illumon.daylight.measured import MeasuredDaylight, shipped_measured_daylight, split_indices, unit_mean
 from illumon.reports.daylight import gfc
+from illumon.simulation import datasets
 
 needs_data = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="shared measured data not found")
 

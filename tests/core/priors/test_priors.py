@@ -3,8 +3,8 @@ the held-out camera out."""
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.priors import build_camera_prior, default_camera_prior, default_daylight_prior
+from illumon.simulation import datasets
 
 needs_data = pytest.mark.skipif(
     datasets.shared_data_dir() is None, reason="measured data (../shared/data) not available"

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .camera import DEFAULT_NOISE, CameraNoise, camera_white, render
-from .observations import Observations
+from ..camera import DEFAULT_NOISE, CameraNoise, camera_white, render
+from ..observations import Observations
 
 __all__ = ["SimulatedHistory", "simulate_history"]
 

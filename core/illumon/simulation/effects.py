@@ -42,13 +42,13 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import datasets
 from ..camera import DEFAULT_NOISE, CameraNoise, render
 from ..daylight import daylight_locus_xy, daylight_spectrum
 from ..observations import Observations
 from ..priors import unseen_reflectances
-from ..simulate import SimulatedHistory
 from ..spectra import GRID, WAVELENGTHS, resample_columns
+from . import datasets
+from .simulate import SimulatedHistory
 
 __all__ = [
     "EFFECTS",

@@ -12,10 +12,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..camera import DEFAULT_NOISE, CameraNoise
+from ..daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum, theta_curve
+from ..priors import colourchecker_reflectances, unseen_reflectances
 from . import datasets
-from .camera import DEFAULT_NOISE, CameraNoise
-from .daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum, theta_curve
-from .priors import colourchecker_reflectances, unseen_reflectances
 from .simulate import SimulatedHistory, simulate_history
 
 __all__ = ["PAPER_TABLES", "PAPER_PATCH_SETS", "paper_cct", "paper_protocol", "measured_daylight_history"]

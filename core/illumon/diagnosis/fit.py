@@ -55,6 +55,7 @@ from numpy.typing import NDArray
 from .._blas import single_blas_thread
 from ..camera import angular_error_deg
 from ..observations import Observations
+from ..retrieval import retrieve_illuminants
 from .stages import (
     MIN_OFF_LOCUS_FRAMES,
     Candidate,
@@ -249,8 +250,6 @@ def diagnose(
             diag.illuminant_change_deg = 0.0
         else:
             fast = {"start_offsets": (0.0,), "polish_max_frames": 0}
-            from ..retrieval import retrieve_illuminants
-
             before = retrieve_illuminants(obs, sensitivities, **fast)
             for i, d in enumerate(found):
                 if i > 0 and d.patch is not None and d.patch not in obs.patches:
@@ -421,8 +420,6 @@ def estimate_with_effect(obs: Observations, sensitivities: NDArray[np.float64], 
     Off-locus frames are left out of the joint fit (their light is not daylight and would bias the patches'
     reflectances); their rows keep the estimate of the fit over all frames (``base_result`` or a new one).
     """
-    from ..retrieval import retrieve_illuminants
-
     if diag.effect == "off_locus_illuminant" and diag.parameters.get("frame_indices"):
         off = np.asarray(diag.parameters["frame_indices"], dtype=int)
         day = np.setdiff1d(np.arange(len(obs.frames)), off)
@@ -465,8 +462,6 @@ def estimate_with_effects(obs: Observations, sensitivities: NDArray[np.float64],
         lamp = Diagnosis("off_locus_illuminant", None, None, {"frame_indices": sorted(set(off))}, [], 0.0, 0.0, None)
         res = estimate_with_effect(corrected, sensitivities, lamp, **kwargs)
     else:
-        from ..retrieval import retrieve_illuminants
-
         res = retrieve_illuminants(corrected, sensitivities, **kwargs)
     if len(corrected.patches) != len(obs.patches):
         res.patches = list(corrected.patches)

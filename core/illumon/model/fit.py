@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from .._blas import single_blas_thread
 from ..camera.balance import self_balance_warning
-from ..camera.calibration import calibrate_scene_model
+from ..camera.calibration import SCENE_AVERAGE_SD, calibrate_scene_model
 from ..camera.primaries import SRGB_BALANCE_SD, check_primaries, daylight_prior_for, srgb_sensitivities, to_srgb_primaries
 from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
@@ -286,8 +286,6 @@ def _anchor_common_level(
     Returns the shifted ``θ``, the re-solved coefficients, and the posterior standard deviation of the common shift
     ``(mired, δ)``.
     """
-    from ..camera.calibration import SCENE_AVERAGE_SD
-
     dm = objective.dm
     gain = balance_sd**2 / (balance_sd**2 + SCENE_AVERAGE_SD**2)
     lo_b, hi_b = dm.bounds()

@@ -37,11 +37,14 @@ import math
 from dataclasses import dataclass
 from functools import lru_cache
 
+import colour
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import logsumexp
 
 from ..daylight import CIEDaylight
+from ..retrieval.common import imaging_operators
+from ..spectra import GRID, resample_columns
 
 __all__ = [
     "LAMP_PRIOR",
@@ -90,12 +93,8 @@ _LAMP_SD = 0.03  # spread of a lamp type's white (manufacturing, ageing; log uni
 
 
 @lru_cache(maxsize=1)
-def _lamp_spectra() -> NDArray[np.float64]:
+def lamp_spectra() -> NDArray[np.float64]:
     """Every lamp of :data:`_LAMPS` on the grid (N × 61), 100 at 560 nm."""
-    import colour
-
-    from ..spectra import GRID, resample_columns
-
     out = []
     for name in _LAMPS:
         sd = colour.SDS_ILLUMINANTS[name]
@@ -133,7 +132,7 @@ def lamp_population(
     theta, logw_d = _daylight_grid(dm)
     day = dm.spectra(theta)
     u_d = _log_chroma(day @ css)
-    lamps = _lamp_spectra()
+    lamps = lamp_spectra()
     d_mean = dm.spectra(np.array([[dm.mired_mean, 0.0]]))[0]
     rows = []
     for share in _MIX:
@@ -336,7 +335,7 @@ def general_basis(components: int = GENERAL_COMPONENTS) -> tuple[NDArray[np.floa
     dm = CIEDaylight()
     lo, hi = dm.bounds()
     day = dm.spectra(np.stack([np.linspace(lo[0], hi[0], 40), np.zeros(40)], axis=1))
-    lamps = _lamp_spectra()
+    lamps = lamp_spectra()
     mixes = [0.5 * lamps + 0.5 * d[None, :] * 100.0 / d[32] for d in day[::8]]
     pop = np.concatenate([day, lamps, *mixes])
     pop = pop / np.linalg.norm(pop, axis=1, keepdims=True)
@@ -355,8 +354,6 @@ def general_whites(model, obs, theta: NDArray[np.float64], frames: NDArray[np.bo
     exchanged), its scale set by the frame's exposure under the daylight fit. Lamp light changes the patches' colours
     relative to each other, not only the white (metamerism); the reflectances learned from the daylight frames say how.
     """
-    from ..retrieval.common import imaging_operators
-
     basis, mu, cov = general_basis()
     index = {p: i for i, p in enumerate(model.patches)}
     shared = [(j, index[p]) for j, p in enumerate(obs.patches) if p in index]

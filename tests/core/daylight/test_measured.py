@@ -10,7 +10,7 @@ from illumon.daylight import (
     spectrum_to_xy,
 )
 from illumon.daylight.measured import MeasuredDaylight, shipped_measured_daylight, split_indices, unit_mean
-from illumon.reports.daylight import gfc
+from illumon.reports.metrics import gfc
 from illumon.simulation import datasets
 
 needs_data = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="shared measured data not found")

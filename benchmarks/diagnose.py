@@ -43,7 +43,8 @@ import imgsim
 import numpy as np
 import rawsim
 from illumon.camera import angular_error_deg
-from illumon.diagnosis.fit import diagnose, estimate_with_effect
+from illumon.diagnosis.correction import estimate_with_effect
+from illumon.diagnosis.fit import diagnose
 from illumon.retrieval import retrieve_illuminants
 from illumon.simulation import datasets
 from illumon.simulation.effects import EFFECTS, LOCATED_EFFECTS, hide_effect

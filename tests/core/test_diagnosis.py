@@ -13,8 +13,10 @@ import pytest
 from illumon.camera import angular_error_deg
 from illumon.diagnosis import bilinear as bl
 from illumon.diagnosis import noise as dnoise
-from illumon.diagnosis.fit import NONE_MARGIN, corrected_observations, diagnose, estimate_with_effect
-from illumon.diagnosis.stages import MIN_GAMMA, MIN_OFFSET
+from illumon.diagnosis.correction import corrected_observations, estimate_with_effect
+from illumon.diagnosis.fit import NONE_MARGIN, diagnose
+from illumon.diagnosis.stages import MIN_OFFSET
+from illumon.diagnosis.tone import MIN_GAMMA
 from illumon.retrieval import retrieve_illuminants
 from illumon.simulation.effects import EFFECTS, LOCATED_EFFECTS, TEST_CAMERAS, hide_effect
 
@@ -274,7 +276,7 @@ def test_clean_10bit_history_is_not_an_expanding_tone_curve(shared_data, monkeyp
     """A clean 10-bit raw-pipeline history: its bilinear misfit is fitted by an *expanding* γ ≈ 0.3 at ΔBIC −222 when
     the tone test may search γ < 1 (reproduced here). No output encoding expands (``MIN_GAMMA``): the tone test
     searches γ ≥ 1 only, and the history is clean."""
-    from illumon.diagnosis import stages
+    from illumon.diagnosis import tone as tone_test
 
     h = _raw_dev("none", 3126)
     assert h.parameters["bits"] == 10
@@ -282,7 +284,7 @@ def test_clean_10bit_history_is_not_an_expanding_tone_curve(shared_data, monkeyp
     tone = next(c for c in d.candidates if c.effect == "nonlinear_response")
     assert d.effect == "none", [(c.effect, round(c.score, 1)) for c in d.candidates]
     assert tone.parameters["gamma"] >= MIN_GAMMA and tone.score > -NONE_MARGIN["nonlinear_response"] / 2
-    monkeypatch.setattr(stages, "MIN_GAMMA", 0.3)  # the failure without the fix
+    monkeypatch.setattr(tone_test, "MIN_GAMMA", 0.3)  # the failure without the fix
     d_old = diagnose(h.observations, h.sensitivities, reestimate=False)
     assert d_old.effect == "nonlinear_response" and d_old.parameters["gamma"] < 1.0
 
@@ -458,7 +460,7 @@ def test_several_effects_at_once_lamp_frames_and_clipping(shared_data):
     # modelling both: far better than neither, no worse than the most consequential alone (camera white, median over
     # frames; with the top effect chosen by what it changes, modelling it alone already gains most: 1.20 → 0.66°,
     # both 0.63°; in discovery order, clipping alone gave 1.29°)
-    from illumon.diagnosis.fit import estimate_with_effects
+    from illumon.diagnosis.correction import estimate_with_effects
 
     fast = {"start_offsets": (0.0,), "polish_max_frames": 0}
     truth_white = h.history.true_white

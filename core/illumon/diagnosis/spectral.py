@@ -29,7 +29,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from ..daylight import CIEDaylight, daylight_model
-from ..model.lamps import lamp_spectra
+from ..model.general import cie_lamp_spectra
 from ..observations import Observations
 from ..priors import default_daylight_prior, reflectance_basis
 from ..retrieval.common import gray_world_mired, imaging_operators
@@ -213,7 +213,7 @@ def lamp_shares(base: SpectralBase, frames: list[int], steps: int = 21,
     otherwise absorb part of the lamp).
     """
     prob = base.prob
-    lamps = lamp_spectra()
+    lamps = cie_lamp_spectra()
     dm = CIEDaylight()
     lo, hi = dm.bounds()
     days = dm.spectra(np.stack([np.linspace(lo[0], hi[0], 24), np.zeros(24)], axis=1))

@@ -5,7 +5,7 @@
 * :func:`measured_daylight_history` — a fixed camera over many frames lit by measured Granada daylight, with patches
   the reflectance basis never saw (:func:`illumon.priors.unseen_reflectances`).
 
-Both need the measured data beside the project (:mod:`illumon.datasets`).
+Both need the measured data beside the project (:mod:`illumon.simulation.datasets`).
 """
 
 from __future__ import annotations

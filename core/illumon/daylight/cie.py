@@ -39,6 +39,7 @@ __all__ = [
 
 
 def _grid_columns(msd_like: dict) -> NDArray[np.float64]:
+    """S0, S1, S2 of colour-science's D-series basis on the grid (61 × 3), linearly interpolated."""
     cols = []
     for key in ("S0", "S1", "S2"):
         sd = msd_like[key].copy()
@@ -124,6 +125,7 @@ def cie_d_cct(nominal: ArrayLike) -> NDArray[np.float64]:
 
 @lru_cache(maxsize=1)
 def _locus_duv_table() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Reciprocal temperature (ascending) and Duv of the CIE daylight locus at 4000 nominal temperatures, 2–50 kK."""
     nominal = np.geomspace(2000.0, 50000.0, 4000)
     cct, duv = cct_duv_from_xy(daylight_locus_xy(nominal))
     mired = 1e6 / cct

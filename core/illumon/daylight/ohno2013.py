@@ -68,12 +68,14 @@ def planck_locus() -> PlanckLocus:
 
 
 def _uv_to_xy(uv: NDArray[np.float64]) -> NDArray[np.float64]:
+    """CIE 1960 uv → CIE 1931 xy (…, 2)."""
     u, v = uv[..., 0], uv[..., 1]
     den = 2 * u - 8 * v + 4
     return np.stack([3 * u / den, 2 * v / den], axis=-1)
 
 
 def _xy_to_uv(xy: NDArray[np.float64]) -> NDArray[np.float64]:
+    """CIE 1931 xy → CIE 1960 uv (…, 2)."""
     x, y = xy[..., 0], xy[..., 1]
     den = -2 * x + 12 * y + 3
     return np.stack([4 * x / den, 6 * y / den], axis=-1)

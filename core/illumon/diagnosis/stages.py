@@ -52,6 +52,7 @@ def _nll(wrss: float, n: int, log_sigma: float = 0.0, log_jac: float = 0.0) -> f
 
 
 def _bic(nll: float, k: int, n: int) -> float:
+    """Schwarz's criterion ``2·NLL + k·ln n``."""
     return 2.0 * nll + k * np.log(n)
 
 
@@ -187,6 +188,26 @@ def tone_stage(y: NDArray[np.float64], rank: int, learn_noise: bool = True) -> t
 
 def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
                     learn_noise: bool = True) -> tuple[bl.LowRankFit, list[Candidate], dict]:
+    """The bilinear stage (:mod:`.fit` describes it): the rank-``rank`` base fit and every extension it can carry —
+    tone curve, black offset, clipping (at a shared level, or removed at ingest), patch change and shadow.
+
+    Parameters
+    ----------
+    y
+        Values, frames × (patches·channels), NaN where missing.
+    rank
+        Rank of the bilinear model.
+    clip_margin
+        The clipping margin: when clipping passes it, patch change and shadow are scored on the unclipped values.
+    learn_noise
+        Learn the noise from the residuals (:func:`.noise.estimate_noise`), else assume the default camera noise.
+
+    Returns
+    -------
+    tuple
+        The base fit, the candidates (ΔBIC scores) and the stage's record (``fits``, ``rms_base``, ``noise``,
+        ``dark_level``).
+    """
     f, m = y.shape
     noise, w, base = _bilinear_base(y, rank, learn_noise)
     present = w > 0
@@ -249,6 +270,27 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
 
 def spectral_stage(obs: Observations, sensitivities: NDArray[np.float64],
                     fluorescence_margin: float) -> tuple[list[Candidate], dict]:
+    """The spectral stage (:mod:`.fit` describes it): off-locus light and fluorescence against the joint spectral fit.
+
+    Parameters
+    ----------
+    obs
+        The history.
+    sensitivities
+        Camera sensitivities on the grid (61 × 3).
+    fluorescence_margin
+        When the fluorescence score passes it, the frames are judged for off-locus light without that patch.
+
+    Returns
+    -------
+    tuple
+        The ``off_locus_illuminant`` and ``fluorescence`` candidates and the stage's record.
+
+    References
+    ----------
+    .. [1] S. Han, Y. Matsushita, I. Sato, T. Okabe and Y. Sato, "Camera spectral sensitivity estimation from a single
+       image under unknown illumination by using fluorescence", CVPR 2012 (eqs. 1–2, the emission model).
+    """
     from scipy.stats import chi2
 
     base = fit_spectral_base(obs, sensitivities)

@@ -14,7 +14,7 @@ Histories, on the score cameras :data:`rawsim.SCORE_CAMERAS` (Canon, Hasselblad,
 chosen on :data:`rawsim.DEV_CAMERAS`, Nikon and Point Grey) with seeds from 1 000 000 on (development used seeds
 below 10 000):
 
-* ``illumon``: the project's own simulator (:func:`illumon.diagnosis.effects.hide_effect`: patch-mean noise
+* ``illumon``: the project's own simulator (:func:`illumon.simulation.effects.hide_effect`: patch-mean noise
   ``σ² = shot·y + read²``, log-normal exposure jitter, values to full float precision);
 * ``rawsim``: the independent raw pipeline (:func:`rawsim.hide_effect_raw`: per-pixel shot noise with a per-camera
   conversion gain and ISO, read noise, black level subtracted with clipping at 0, 8/10/12-bit output, third-stop
@@ -42,11 +42,12 @@ from pathlib import Path
 import imgsim
 import numpy as np
 import rawsim
-from illumon import datasets
 from illumon.camera import angular_error_deg
-from illumon.diagnosis.effects import EFFECTS, LOCATED_EFFECTS, hide_effect
-from illumon.diagnosis.fit import diagnose, estimate_with_effect
+from illumon.diagnosis.correction import estimate_with_effect
+from illumon.diagnosis.fit import diagnose
 from illumon.retrieval import retrieve_illuminants
+from illumon.simulation import datasets
+from illumon.simulation.effects import EFFECTS, LOCATED_EFFECTS, hide_effect
 
 SEED0 = 1_000_000
 FAST = {"start_offsets": (0.0,), "polish_max_frames": 0}

@@ -2,9 +2,9 @@
 regions with the service's own code, so :func:`illumon.diagnosis.fit.diagnose` receives what the service would store.
 
 Nothing in the diagnosis was chosen on it; it shares no rendering, noise, exposure or rounding code with
-:mod:`illumon.simulate` / :func:`illumon.diagnosis.effects.hide_effect` or with ``benchmarks/rawsim.py`` (only the
+:mod:`illumon.simulation.simulate` / :func:`illumon.simulation.effects.hide_effect` or with ``benchmarks/rawsim.py`` (only the
 data splits of :mod:`rawsim`: score cameras, score surfaces and score daylight, and the effect *definitions*:
-parameter ranges, :func:`illumon.diagnosis.effects.lamp_spectra` and the fluorophore compilation).
+parameter ranges, :func:`illumon.simulation.effects.lamp_spectra` and the fluorophore compilation).
 
 Pipeline, per history (one fixed camera, one scene):
 
@@ -14,7 +14,7 @@ Pipeline, per history (one fixed camera, one scene):
    ``cos⁴ θ`` (corner falloff 55…85 %) is the same in every frame (the camera does not move).
 2. **Light → sensor.** Spectral radiance per surface and frame (daylight × reflectance, or an effect's radiance:
    a replaced or soiled surface, a shadow lit by skylight only, lamp light, fluorescent emission) through the
-   camera's measured sensitivities (:func:`illumon.datasets.load_camera`), the shadow as a blurred mask over a
+   camera's measured sensitivities (:func:`illumon.simulation.datasets.load_camera`), the shadow as a blurred mask over a
    rectangle around its region (the background near it is shaded too).
 3. **Auto-exposure** of its own design: a mean-luminance meter (centre-weighted mean of the white-balanced image to
    a body's target of 12…20 % of white), smoothed in log exposure (a fraction 0.3…0.7 of the error per frame) with a
@@ -35,14 +35,14 @@ Pipeline, per history (one fixed camera, one scene):
    service's default clip and region fractions, and the history assembled by
    :func:`illumon_service.estimation.build_observations` (means and their standard errors).
 
-How it differs from the other two: :func:`~illumon.diagnosis.effects.hide_effect` adds Gaussian noise to region
+How it differs from the other two: :func:`~illumon.simulation.effects.hide_effect` adds Gaussian noise to region
 means with log-normal exposure jitter and full float precision; ``rawsim`` draws per-region pixel lists (no image,
 no mosaic, no demosaicing, no vignetting), third-stop percentile auto-exposure and JPEG-*like* DC rounding. Here the
 regions are rectangles of a real image: demosaicing mixes neighbouring pixels (and the background into region
 edges), white balance gains and a colour matrix precede clipping and 8-bit rounding, JPEG compression and chroma
 subsampling are OpenCV's, and clipped and outlying pixels are removed by the service's robust means.
 
-Effects (names of :data:`illumon.diagnosis.effects.EFFECTS`; ranges of :mod:`illumon.diagnosis.effects`):
+Effects (names of :data:`illumon.simulation.effects.EFFECTS`; ranges of :mod:`illumon.simulation.effects`):
 ``nonlinear_response`` the camera encodes with sRGB or a gamma 1.5…2.6 the user did not declare (declared linear);
 ``black_offset`` the converter under-subtracts the black level, leaving 1.5…6 % of the output white per channel;
 ``clipping`` exposure 1.05…1.4 × beyond white (above); ``patch_change`` a region replaced by another surface or
@@ -62,8 +62,8 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 import rawsim
-from illumon import datasets
 from illumon.observations import Observations
+from illumon.simulation import datasets
 from illumon.spectra import WAVELENGTHS
 from numpy.typing import NDArray
 
@@ -220,7 +220,7 @@ def hide_effect_img(effect: str, camera: str, seed: int, *, split: str = "score"
     Parameters
     ----------
     effect
-        One of :data:`illumon.diagnosis.effects.EFFECTS`.
+        One of :data:`illumon.simulation.effects.EFFECTS`.
     camera
         A measured camera (:data:`rawsim.SCORE_CAMERAS` for scoring).
     seed
@@ -241,7 +241,7 @@ def hide_effect_img(effect: str, camera: str, seed: int, *, split: str = "score"
     -------
     ImageHiddenEffect
     """
-    from illumon.diagnosis.effects import (
+    from illumon.simulation.effects import (
         EFFECTS,
         _compilation_fluorophores,
         draw_patch_change,

@@ -53,9 +53,9 @@ from pathlib import Path
 import cv2
 import httpx
 import numpy as np
-from illumon import datasets
 from illumon.camera import ResponseCurve, render
 from illumon.daylight import CIEDaylight
+from illumon.simulation import datasets
 from illumon_service.process import free_port, stop_process, wait_healthy
 
 RESULTS = Path(__file__).with_name("results")

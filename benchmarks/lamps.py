@@ -95,16 +95,16 @@ def run(obs, primaries: str):
 
 
 def simulated(n: int) -> dict:
-    """``n`` histories of :func:`illumon.diagnosis.effects.hide_effect` ``off_locus_illuminant`` (measured camera,
+    """``n`` histories of :func:`illumon.simulation.effects.hide_effect` ``off_locus_illuminant`` (measured camera,
     Granada daylight, 3…F/5 frames lit 60–100 % by a CIE lamp) on the score cameras of ``benchmarks/rawsim.py``, seeds
     1 000 000…: lamp-lit frames flagged, daylight frames flagged, and the camera-white error of the lamp-lit and the
     daylight frames for illumon, the daylight-only joint retrieval and gray-world."""
     import rawsim
-    from illumon import datasets
     from illumon.camera import angular_error_deg
-    from illumon.diagnosis.effects import hide_effect
     from illumon.model import fit_scene_model
     from illumon.retrieval import retrieve_illuminants
+    from illumon.simulation import datasets
+    from illumon.simulation.effects import hide_effect
 
     rows = []
     for i in range(n):

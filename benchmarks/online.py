@@ -20,13 +20,15 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 import rawsim  # noqa: E402
-from illumon import datasets  # noqa: E402
 from illumon.camera import angular_error_deg  # noqa: E402
 from illumon.daylight import cct_duv_from_xy, spectrum_to_xy  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
-from illumon.reflectance import colourchecker_reflectances  # noqa: E402
-from illumon.scenarios import measured_daylight_history  # noqa: E402
-from illumon.simulate import simulate_history  # noqa: E402
+from illumon.priors import colourchecker_reflectances  # noqa: E402
+from illumon.simulation import (
+    datasets,  # noqa: E402
+    measured_daylight_history,  # noqa: E402
+    simulate_history,  # noqa: E402
+)
 
 CAMERAS = ("Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf", "Phase_One")
 """Cameras of the morning → afternoon histories. Not a held-out set: Nikon D5100, Nikon Z6 and Point Grey are

@@ -52,15 +52,19 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import colour  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
-from illumon import datasets  # noqa: E402
 from illumon.camera import ResponseCurve, angular_error_deg, render  # noqa: E402
 from illumon.daylight import daylight_locus_duv, daylight_spectrum, xy_from_cct_duv  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
-from illumon.reflectance import unseen_reflectances  # noqa: E402
+from illumon.priors import (
+    build_camera_prior,  # noqa: E402
+    unseen_reflectances,  # noqa: E402
+)
 from illumon.retrieval import retrieve_illuminants  # noqa: E402
-from illumon.sensitivity.prior import build_camera_prior  # noqa: E402
-from illumon.simulate import simulate_history  # noqa: E402
+from illumon.simulation import (
+    datasets,  # noqa: E402
+    simulate_history,  # noqa: E402
+)
 from illumon_service.regions import Region, region_means  # noqa: E402
 from rawsim import DEV_CAMERAS, SCORE_DAYLIGHT  # noqa: E402
 from rawsim import SCORE_CAMERAS as RAWSIM_SCORE_CAMERAS  # noqa: E402
@@ -72,7 +76,7 @@ SCORE_CAMERAS = ("Canon_600D", "Pentax_K-5", "Phase_One", "Canon_5DMarkII", "Has
 """Cameras scored here: six of :data:`rawsim.SCORE_CAMERAS` (no Nikon or Point Grey: those are development cameras)."""
 assert set(SCORE_CAMERAS) <= set(RAWSIM_SCORE_CAMERAS) and not set(SCORE_CAMERAS) & set(DEV_CAMERAS)
 SCORE_SURFACES = 38
-"""Static patches are drawn from the first 38 of :func:`illumon.reflectance.unseen_reflectances` (ColorChecker and
+"""Static patches are drawn from the first 38 of :func:`illumon.priors.unseen_reflectances` (ColorChecker and
 CIE 1995 TCS, never used to build the reflectance basis; the 15 NIST VS chips after them were)."""
 H, W, PATCH = 120, 160, 14
 GREY_CARD = np.full(61, 0.45)

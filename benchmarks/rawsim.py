@@ -1,7 +1,7 @@
-"""An independent raw-camera simulator for tests and benchmarks (issue 16), written apart from :mod:`illumon.simulate`.
+"""An independent raw-camera simulator for tests and benchmarks (issue 16), written apart from :mod:`illumon.simulation.simulate`.
 
 It shares no noise, exposure or rounding code with the project's own simulator; it reads the measured data through
-:mod:`illumon.datasets` and resamples with :mod:`illumon.spectra` only. The pipeline follows the standard raw model of
+:mod:`illumon.simulation.datasets` and resamples with :mod:`illumon.spectra` only. The pipeline follows the standard raw model of
 an image sensor (EMVA Standard 1288, release 4.0, 2021; Healey & Kondepudy, "Radiometric CCD camera calibration and
 noise estimation", IEEE TPAMI 16(3), 1994; Foi et al., "Practical Poissonian-Gaussian noise modeling and fitting for
 single-image raw-data", IEEE TIP 17(10), 2008):
@@ -38,9 +38,9 @@ import zlib
 from dataclasses import dataclass
 
 import numpy as np
-from illumon import datasets
 from illumon.observations import Observations
-from illumon.reflectance import unseen_reflectances
+from illumon.priors import unseen_reflectances
+from illumon.simulation import datasets
 from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
@@ -71,7 +71,7 @@ DEV_CAMERAS: tuple[str, ...] = (
     "Point_Grey_Grasshopper2_14S5C",
 )
 """Development cameras: every Nikon (13 files, the D50 measured two ways among them) and the Point Grey machine-vision
-camera. Split by manufacturer, so no manufacturer is on both sides. :data:`illumon.diagnosis.effects.DEV_CAMERAS`
+camera. Split by manufacturer, so no manufacturer is on both sides. :data:`illumon.simulation.effects.DEV_CAMERAS`
 (three Canons and three Nikons) is not reused: it straddles the two largest manufacturers, so a margin chosen on it
 has seen the Canon models scored here."""
 
@@ -87,7 +87,7 @@ SFU), the ones the shipped reflectance basis and prior were built from (``core/i
 
 SCORE_REFLECTANCE_SETS: tuple[str, ...] = ("colourchecker_babel", "cie1995_tcs")
 """Score surfaces: colour-science's ColorChecker (BabelColor average) and CIE 1995 TCS01–14, never used to build a
-prior. The NIST CQS 9.0 VS1–15 of :func:`illumon.reflectance.unseen_reflectances` are left out: all fifteen are
+prior. The NIST CQS 9.0 VS1–15 of :func:`illumon.priors.unseen_reflectances` are left out: all fifteen are
 spectra of the Munsell matt set the shipped basis was built from (identical values, e.g. VS1 = 5R 4/14)."""
 
 DEV_DAYLIGHT = slice(0, 1300)
@@ -454,7 +454,7 @@ score; ``None`` is the standard pipeline (identical histories to before the vari
 
 def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score", frames: int | None = None,
                     patches: int | None = None, variant: str | None = None) -> RawHiddenEffect:
-    """A history with one hidden effect (the names and parameter ranges of :mod:`illumon.diagnosis.effects`),
+    """A history with one hidden effect (the names and parameter ranges of :mod:`illumon.simulation.effects`),
     rendered through the raw pipeline of :func:`simulate_raw_history` with a random body of ``camera``
     (:func:`camera_profile`, ISO 100…1600), output bits 8/10/12, 100…900 pixels per region, 0…5 % texture, and the
     ``split``'s surfaces and daylight.
@@ -467,7 +467,7 @@ def hide_effect_raw(effect: str, camera: str, seed: int, *, split: str = "score"
     ``variant`` (a key of :data:`PIPELINE_VARIANTS`, or None) changes the pipeline after the standard draws: bit
     depth, ISO, tone curve, JPEG-like rounding, region size or region means rounded to codes.
     """
-    from illumon.diagnosis.effects import (
+    from illumon.simulation.effects import (
         EFFECTS,
         _compilation_fluorophores,
         draw_patch_change,

@@ -123,7 +123,7 @@ def _srgb_d65_chart() -> NDArray[np.float64]:
     """The ColorChecker's linear sRGB values under CIE D65 (24 × 3, white (1, 1, 1) for a perfect diffuser)."""
     from illumon.camera.formation import camera_white
     from illumon.camera.primaries import srgb_sensitivities
-    from illumon.reflectance import colourchecker_reflectances
+    from illumon.priors import colourchecker_reflectances
 
     c = srgb_sensitivities()
     from illumon.camera.calibration import _d65

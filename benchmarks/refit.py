@@ -34,10 +34,12 @@ from pathlib import Path
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
-from illumon import datasets  # noqa: E402
 from illumon.camera import angular_error_deg  # noqa: E402
 from illumon.daylight import CIEDaylight  # noqa: E402
-from illumon.simulate import simulate_history  # noqa: E402
+from illumon.simulation import (
+    datasets,  # noqa: E402
+    simulate_history,  # noqa: E402
+)
 from illumon_service.jobs import refit_camera, run_batch, usable_cpus  # noqa: E402
 from illumon_service.settings import Settings  # noqa: E402
 from illumon_service.storage import Camera, Frame, make_engine, make_session_factory  # noqa: E402

@@ -65,7 +65,7 @@ class TexturedScene:
     """One camera's scene (see module docstring); ``frame(f, dx, dy)`` renders frame ``f`` shifted by (dx, dy)."""
 
     def __init__(self, camera: str, split: str, seed: int, frames: int) -> None:
-        from illumon import datasets
+        from illumon.simulation import datasets
 
         self.rng = np.random.default_rng(seed)
         rng = self.rng
@@ -316,7 +316,7 @@ def main() -> int:
                     help="confirm all 12 proposals (default) or those the regions page ticks (≥ half the best score)")
     ap.add_argument("--dump", type=Path, help="save each refit's observations and the true daylight here (.npz)")
     args = ap.parse_args()
-    from illumon import datasets
+    from illumon.simulation import datasets
 
     if datasets.shared_data_dir() is None:
         print("regions_setup: measured data (../shared/data) not available", file=sys.stderr)

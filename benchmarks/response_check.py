@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 from illumon.diagnosis import bilinear as bl
 from illumon.diagnosis.fit import NONE_MARGIN, diagnose
-from illumon.simulate import simulate_history
+from illumon.simulation import simulate_history
 from illumon_service.estimation import RESPONSE_CHECK_FRAMES, _seen_patches, build_observations, check_response
 from refit import N_PATCHES, spectra
 

@@ -24,14 +24,20 @@ from pathlib import Path
 
 import numpy as np
 import rawsim
-from illumon import datasets
-from illumon.camera import angular_error_deg
-from illumon.daylight_models import daylight_model
-from illumon.reflectance import ReflectanceBasis, colourchecker_reflectances, reflectance_basis
+from illumon.camera import CameraNoise, angular_error_deg
+from illumon.daylight import daylight_model
+from illumon.priors import ReflectanceBasis, colourchecker_reflectances, reflectance_basis
 from illumon.retrieval import retrieve_illuminants
 from illumon.retrieval.joint import JointProblem
-from illumon.scenarios import PAPER_PATCH_SETS, PAPER_TABLES, measured_daylight_history, paper_cct, paper_protocol
-from illumon.simulate import CameraNoise, simulate_history
+from illumon.simulation import (
+    PAPER_PATCH_SETS,
+    PAPER_TABLES,
+    datasets,
+    measured_daylight_history,
+    paper_cct,
+    paper_protocol,
+    simulate_history,
+)
 from scipy.optimize import least_squares
 
 METHODS = ("joint", "marguier2007", "gray_world")

@@ -6,7 +6,7 @@ Run: ``python benchmarks/seeds.py [--quick] [--only marguier,huynh,han,kinoshita
 
 * Marguier & Süsstrunk (CIC 2007) Tables 1–3: CIE D40…D100, 6 ColorChecker patches, 2–4 noise-free images. The
   paper's camera (Canon 350D) is not among the measured cameras; the Canon 300D stands in. Illuminants are rendered at
-  the scale the paper's model assumes (``ε1 = 1`` on the θ-curve basis, :func:`illumon.scenarios.paper_protocol`);
+  the scale the paper's model assumes (``ε1 = 1`` on the θ-curve basis, :func:`illumon.simulation.scenarios.paper_protocol`);
   the CIE scale (100 at 560 nm) is summarised too. Two metrics: the paper's Δφ (eq. 6), the angle in linear sRGB
   between the D65 white and the image white corrected to D65 with the retrieved illuminant (eqs. 1–2), and
   illumon's camera-RGB angle between the camera whites of the true and the retrieved illuminant.
@@ -34,17 +34,25 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import colour  # noqa: E402
 import numpy as np  # noqa: E402
-from illumon import bayes, datasets  # noqa: E402
+from illumon import bayes  # noqa: E402
 from illumon.camera import angular_error_deg, render  # noqa: E402
 from illumon.daylight import CMFS, cie_d_cct, daylight_locus_xy, daylight_spectrum  # noqa: E402
-from illumon.reflectance import colourchecker_reflectances, reflectance_basis  # noqa: E402
+from illumon.priors import (  # noqa: E402
+    build_camera_prior,  # noqa: E402
+    colourchecker_reflectances,
+    reflectance_basis,
+)
 from illumon.retrieval import retrieve_illuminants  # noqa: E402
-from illumon.scenarios import PAPER_PATCH_SETS, PAPER_TABLES, paper_protocol  # noqa: E402
 from illumon.sensitivity import METHODS as CSS_METHODS  # noqa: E402
 from illumon.sensitivity import daylight_Han2012  # noqa: E402
 from illumon.sensitivity.daylight_recovery import daylight_basis  # noqa: E402
 from illumon.sensitivity.evaluate import camera_model, leave_one_out  # noqa: E402
-from illumon.sensitivity.prior import build_camera_prior  # noqa: E402
+from illumon.simulation import (  # noqa: E402
+    PAPER_PATCH_SETS,
+    PAPER_TABLES,
+    datasets,  # noqa: E402
+    paper_protocol,
+)
 from illumon.spectra import GRID, resample_columns  # noqa: E402
 from retrieval import _stats  # noqa: E402  (benchmarks/retrieval.py: median, p95, max, n)
 

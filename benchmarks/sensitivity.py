@@ -32,10 +32,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 import rawsim  # noqa: E402
-from illumon import datasets  # noqa: E402
 from illumon.camera import render  # noqa: E402
 from illumon.daylight import CMFS  # noqa: E402
-from illumon.reflectance import colourchecker_reflectances  # noqa: E402
+from illumon.priors import colourchecker_reflectances  # noqa: E402
 from illumon.sensitivity import METHODS, channel_gains_Han2012, daylight_Han2012, to_cie1931_Huynh2014  # noqa: E402
 from illumon.sensitivity.evaluate import camera_manufacturer, camera_model, leave_one_out, simulate_chart  # noqa: E402
 from illumon.sensitivity.han2012 import (  # noqa: E402
@@ -43,6 +42,7 @@ from illumon.sensitivity.han2012 import (  # noqa: E402
     render_fluorescent_chart,
     shipped_fluorophores,
 )
+from illumon.simulation import datasets  # noqa: E402
 
 NOISE = [0.002, 0.005, 0.01]
 N_DAYLIGHTS = 3

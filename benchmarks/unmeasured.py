@@ -18,7 +18,7 @@ sensitivities are never given to illumon: its prior is the mean of the measured 
 The matrix cases model a fixed colour matrix *without* the camera's own white balance; the real photographs showed
 that a processed camera's output is balanced too (``benchmarks/real.py``), which the rendered cases add.
 
-Two independent simulators render every case: ``illumon`` (:mod:`illumon.simulate`, Gaussian noise on patch means,
+Two independent simulators render every case: ``illumon`` (:mod:`illumon.simulation.simulate`, Gaussian noise on patch means,
 log-normal auto-exposure) and ``rawsim`` (``benchmarks/rawsim.py``: photon shot noise with a conversion gain, read
 noise, black level with clipping at 0, 12-bit quantisation, third-stop auto-exposure). Cameras, surfaces and
 daylight come from ``rawsim``'s splits: ``--split dev`` (Nikon and Point Grey cameras, the five measured reflectance
@@ -45,14 +45,16 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import rawsim  # noqa: E402
-from illumon import datasets  # noqa: E402
 from illumon.camera import angular_error_deg, camera_white, colorchecker_references, grey_card_reference  # noqa: E402
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
+from illumon.priors import max_normalise  # noqa: E402
 from illumon.retrieval.common import gray_world  # noqa: E402
-from illumon.sensitivity.prior import max_normalise  # noqa: E402
-from illumon.simulate import simulate_history  # noqa: E402
+from illumon.simulation import (
+    datasets,  # noqa: E402
+    simulate_history,  # noqa: E402
+)
 
 CASES = ("grey", "chart+matrix", "none", "none+matrix", "none+rendered", "grey+rendered", "none+awb", "grey+awb")
 GOALS = {"grey": (1.0, 3.0), "chart+matrix": (1.0, 3.0), "none": (2.5, None)}

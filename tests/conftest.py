@@ -5,7 +5,7 @@ from __future__ import annotations
 import warnings
 
 import pytest
-from illumon import datasets
+from illumon.simulation import datasets
 
 warnings.filterwarnings("ignore", module="colour")
 

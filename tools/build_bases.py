@@ -10,7 +10,7 @@ import json
 from pathlib import Path
 
 import numpy as np
-from illumon import datasets
+from illumon.simulation import datasets
 from illumon.spectra import WAVELENGTHS, write_spectral_csv
 
 OUT = Path(__file__).resolve().parents[1] / "core" / "illumon" / "data"

@@ -9,7 +9,7 @@ a split by time; the second half is held out for evaluation by ``illumon report 
 * ``measured_daylight_basis.csv`` — mean and principal components of unit-mean spectra on 400–700 nm / 5 nm;
 * ``measured_daylight_model.json`` — regression on chromaticity, residual shape prior, off-locus prior, provenance.
 
-See :mod:`illumon.daylight_measured` for the model.
+See :mod:`illumon.daylight.measured` for the model.
 """
 
 from __future__ import annotations
@@ -17,8 +17,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from illumon import datasets
-from illumon.daylight_measured import fit_measured_daylight, split_indices
+from illumon.daylight.measured import fit_measured_daylight, split_indices
+from illumon.simulation import datasets
 
 OUT = Path(__file__).resolve().parents[1] / "core" / "illumon" / "data"
 SOURCE = (

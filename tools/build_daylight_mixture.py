@@ -2,7 +2,7 @@
 
 Run: ``python tools/build_daylight_mixture.py``. Reads ``../shared/data/daylight/granada_2600.csv`` (Hernández-Andrés,
 Romero, Nieves & Lee, "Color and spectral analysis of daylight in southern Europe", JOSA A 18(6), 1325–1335, 2001),
-keeps the training half of :func:`illumon.daylight_measured.split_indices` (the first 1300 spectra in file order, a
+keeps the training half of :func:`illumon.daylight.measured.split_indices` (the first 1300 spectra in file order, a
 split by time), projects each unit-mean spectrum on the shipped daylight components (``daylight_prior.csv``: mean and
 4 principal components) and fits Gaussian mixtures of the 4 coefficients by expectation-maximisation (k-means++
 start, seed 0, a ridge of 1e-6 of the mean variance on every covariance). The number of components is the one with
@@ -19,9 +19,9 @@ import json
 from pathlib import Path
 
 import numpy as np
-from illumon import datasets
-from illumon.daylight_measured import split_indices
-from illumon.sensitivity.prior import default_daylight_prior
+from illumon.daylight.measured import split_indices
+from illumon.priors import default_daylight_prior
+from illumon.simulation import datasets
 from numpy.typing import NDArray
 
 OUT = Path(__file__).resolve().parents[1] / "core" / "illumon" / "data" / "daylight_mixture.json"

@@ -23,8 +23,8 @@ import json
 from pathlib import Path
 
 import numpy as np
-from illumon import datasets
-from illumon.sensitivity.prior import build_camera_prior, build_daylight_prior
+from illumon.priors import build_camera_prior, build_daylight_prior
+from illumon.simulation import datasets
 from illumon.spectra import WAVELENGTHS, write_spectral_csv
 
 OUT = Path(__file__).resolve().parents[1] / "core" / "illumon" / "data"

@@ -28,11 +28,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "core"), str(ROOT / "benchmarks")]
 
 import rawsim  # noqa: E402
-from illumon import datasets  # noqa: E402
 from illumon.camera.references import colorchecker_references, grey_card_reference  # noqa: E402
 from illumon.model.fit import fit_scene_model  # noqa: E402
 from illumon.model.intervals import Z95  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
+from illumon.simulation import datasets  # noqa: E402
 from illumon.spectra import GRID  # noqa: E402
 from unmeasured import prior_mean_without  # noqa: E402
 

@@ -94,7 +94,7 @@ def main() -> int:
     ap.add_argument("--seeds", type=int, default=8, help="scenes per camera (every other camera of the split)")
     ap.add_argument("--frames", type=int, default=40)
     args = ap.parse_args()
-    from illumon import datasets
+    from illumon.simulation import datasets
 
     if datasets.shared_data_dir() is None:
         print("common_level_study: measured data (../shared/data) not available", file=sys.stderr)

@@ -37,8 +37,8 @@ class Mutation:
 
 MUTATIONS: tuple[Mutation, ...] = (
     # --- the five that survived the audit (issue 30) ---
-    Mutation("c2 typo in planck_locus", "core/illumon/daylight.py", "    c2 = 1.4388e-2\n", "    c2 = 1.4398e-2\n",
-             ("tests/core/test_daylight.py",), "audit"),
+    Mutation("c2 typo in planck_locus", "core/illumon/daylight/ohno2013.py", "    c2 = 1.4388e-2\n", "    c2 = 1.4398e-2\n",
+             ("tests/core/daylight/test_ohno2013.py",), "audit"),
     Mutation("reflectance 0-1 penalty dropped from JointProblem.residuals", "core/illumon/retrieval/joint.py",
              "hinge = self.bound_weight * (np.clip(-refl, 0, None) + np.clip(refl - 1.0, 0, None))",
              "hinge = 0.0 * (np.clip(-refl, 0, None) + np.clip(refl - 1.0, 0, None))",
@@ -61,9 +61,9 @@ MUTATIONS: tuple[Mutation, ...] = (
              "    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))\n",
              "    return np.arccos(np.clip(cos, -1.0, 1.0))\n",
              ("tests/core/test_camera.py",)),
-    Mutation("Duv sign flipped (locus normal points below)", "core/illumon/daylight.py",
+    Mutation("Duv sign flipped (locus normal points below)", "core/illumon/daylight/ohno2013.py",
              "    normal *= np.sign(normal[:, 1:2])\n", "    normal *= -np.sign(normal[:, 1:2])\n",
-             ("tests/core/test_daylight.py",)),
+             ("tests/core/daylight/test_ohno2013.py",)),
     Mutation("sRGB decode exponent 2.4 -> 2.2", "core/illumon/camera/pipeline.py",
              "((v + 0.055) / 1.055) ** 2.4)", "((v + 0.055) / 1.055) ** 2.2)",
              ("tests/core/test_camera.py",)),

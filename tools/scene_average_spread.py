@@ -15,8 +15,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import rawsim  # noqa: E402
-from illumon import datasets  # noqa: E402
-from illumon.reflectance import reflectance_basis  # noqa: E402
+from illumon.priors import reflectance_basis  # noqa: E402
+from illumon.simulation import datasets  # noqa: E402
 
 
 def log_chroma(w: np.ndarray) -> np.ndarray:

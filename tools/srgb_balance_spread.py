@@ -2,7 +2,7 @@
 
 A camera whose output is white-balanced for daylight (a D65 preset, or an auto white balance that neutralises the
 scene's light) shows a history's light, on average, near grey. How far from grey: the geometric-mean white of a run of
-consecutive Granada daylight spectra (one run ≈ one day at one site; ``illumon.datasets``) through the linear-sRGB
+consecutive Granada daylight spectra (one run ≈ one day at one site; ``illumon.simulation.datasets``) through the linear-sRGB
 colour-matching functions balanced for D65 (:func:`illumon.camera.primaries.srgb_sensitivities`), in log r/g and b/g.
 The development half of the runs is used (runs of 40 spectra, even-numbered runs), as for every shipped constant.
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 from illumon.camera.primaries import srgb_sensitivities
-from illumon.datasets import load_granada_daylight
+from illumon.simulation.datasets import load_granada_daylight
 
 RUN = 40
 

@@ -55,8 +55,8 @@ def _camera(name: str, npl_camera: str, patches: list[int], hours: np.ndarray, c
             refit_after: int, trouble_from: int | None = None) -> DemoCamera:
     import colour
     from illumon.daylight import daylight_locus_xy, daylight_spectrum
-    from illumon.reflectance import colourchecker_reflectances
-    from illumon.simulate import simulate_history
+    from illumon.priors import colourchecker_reflectances
+    from illumon.simulation import simulate_history
     from illumon.spectra import GRID, resample_columns
 
     sd = colour.MSDS_CAMERA_SENSITIVITIES[npl_camera]

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from illumon import datasets
+from illumon.simulation import datasets
 
 pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="measured data (../shared/data) not found")
 

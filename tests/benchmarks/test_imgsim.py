@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rawsim
-from illumon import datasets
+from illumon.simulation import datasets
 
 imgsim = pytest.importorskip("imgsim")
 

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rawsim
-from illumon import datasets
+from illumon.simulation import datasets
 
 pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="measured data (../shared/data) not found")
 
@@ -70,7 +70,7 @@ def test_rendering_to_srgb_primaries():
     """A rendered camera (issue 26): the preset's matrix keeps CIE D65 grey, saturated patches leave the gamut (the
     pipeline clips them at 0), and automatic balance makes every frame's scene mean the same colour."""
     import colour
-    from illumon.reflectance import colourchecker_reflectances
+    from illumon.priors import colourchecker_reflectances
     from illumon.spectra import GRID
 
     css = datasets.load_camera(CAM)

@@ -6,8 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rawsim
-from illumon import datasets
-from illumon.diagnosis import effects
+from illumon.simulation import datasets, effects
 
 
 def test_rawsim_splits_are_disjoint():
@@ -33,7 +32,7 @@ def test_peers_scores_held_out_cameras_surfaces_and_daylight(shared_data):
     # the unmeasured-camera rows' prior: the development cameras only (no score camera in a prior)
     np.testing.assert_allclose(peers.dev_camera_prior_mean(), _prior_mean(rawsim.DEV_CAMERAS))
     # score surfaces: none of them is a spectrum of the sets the reflectance basis was built from
-    from illumon.reflectance import unseen_reflectances
+    from illumon.priors import unseen_reflectances
 
     _, unseen = unseen_reflectances()
     score = unseen[: peers.SCORE_SURFACES]
@@ -46,6 +45,6 @@ def test_peers_scores_held_out_cameras_surfaces_and_daylight(shared_data):
 
 
 def _prior_mean(cameras) -> np.ndarray:
-    from illumon.sensitivity.prior import max_normalise
+    from illumon.priors import max_normalise
 
     return np.mean([max_normalise(datasets.load_camera(c)) for c in cameras], axis=0)

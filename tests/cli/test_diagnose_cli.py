@@ -4,8 +4,8 @@ import json
 import numpy as np
 import pytest
 from illumon.cli import main
-from illumon.diagnosis.effects import hide_effect
 from illumon.observations import write_observations
+from illumon.simulation.effects import hide_effect
 
 KEYS = {"effect", "patch", "frame", "parameters", "candidates", "residual_base", "residual_extended", "illuminant_change_deg"}
 EFFECT_NAMES = {"none", "nonlinear_response", "black_offset", "clipping", "patch_change", "shadow", "off_locus_illuminant",

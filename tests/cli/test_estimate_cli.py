@@ -5,7 +5,7 @@ import pytest
 from illumon.camera import angular_error_deg
 from illumon.cli import main
 from illumon.observations import write_observations
-from illumon.scenarios import measured_daylight_history
+from illumon.simulation import measured_daylight_history
 
 
 def _write_css(path, css):
@@ -124,7 +124,7 @@ def test_known_reflectances_bad_input(shared_data, tmp_path, capsys, known_body,
 
 
 def test_estimate_exposure_shared(shared_data, tmp_path, capsys):
-    from illumon.scenarios import paper_protocol
+    from illumon.simulation import paper_protocol
 
     h = paper_protocol("Canon_300D", (40, 50), (0, 1, 2, 3, 4, 5), noise=None, illuminant_scale="model")
     obs, css = tmp_path / "o.csv", tmp_path / "c.csv"

@@ -8,11 +8,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.cli import main
 from illumon.observations import Observations, write_observations
-from illumon.reflectance import colourchecker_reflectances
-from illumon.simulate import simulate_history
+from illumon.priors import colourchecker_reflectances
+from illumon.simulation import datasets, simulate_history
 from illumon.spectra import WAVELENGTHS
 
 pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="measured data (shared/data) not available")

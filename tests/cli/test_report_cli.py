@@ -4,8 +4,8 @@ import argparse
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.cli.report import add_report_command, run_daylight_report
+from illumon.simulation import datasets
 from illumon.spectra import WAVELENGTHS, SpectralInputError, write_spectral_csv
 
 

@@ -6,10 +6,10 @@ import argparse
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.camera import render
 from illumon.cli.sensitivity import add_sensitivity_command, run
-from illumon.reflectance import colourchecker_reflectances
+from illumon.priors import colourchecker_reflectances
+from illumon.simulation import datasets
 from illumon.spectra import SpectralInputError, read_sensitivities, read_spectral_csv
 
 
@@ -31,7 +31,7 @@ def chart_values():
         _, gran = datasets.load_granada_daylight()
         e = gran[123]
     else:
-        from illumon.sensitivity import default_camera_prior, default_daylight_prior
+        from illumon.priors import default_camera_prior, default_daylight_prior
 
         c, e = default_camera_prior().mean, default_daylight_prior().mean
     return 4000 * render(c, e, refl) / render(c, e, refl).max(), c

@@ -6,8 +6,9 @@ from __future__ import annotations
 import colour
 import numpy as np
 import pytest
-from illumon import bayes, datasets
-from illumon.reflectance import colourchecker_reflectances, reflectance_basis
+from illumon import bayes
+from illumon.priors import colourchecker_reflectances, reflectance_basis
+from illumon.simulation import datasets
 from illumon.spectra import GRID, resample_columns
 
 pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="measured data (shared/data) not available")

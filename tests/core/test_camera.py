@@ -5,7 +5,6 @@ import warnings
 import numpy as np
 import pytest
 import rawsim
-from illumon import datasets
 from illumon.camera import (
     CameraPipeline,
     ResponseCurve,
@@ -21,8 +20,9 @@ from illumon.camera.references import references_kind
 from illumon.daylight import CIEDaylight
 from illumon.model import SceneModel, fit_scene_model
 from illumon.observations import Observations
+from illumon.priors import max_normalise
 from illumon.retrieval.common import gray_world
-from illumon.sensitivity.prior import max_normalise
+from illumon.simulation import datasets
 from illumon.spectra import WAVELENGTHS, SpectralInputError, write_spectral_csv
 
 

@@ -8,14 +8,13 @@ import warnings
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.camera import angular_error_deg
 from illumon.model import IdentifiabilityWarning, fit_scene_model
 from illumon.observations import Observations
-from illumon.reflectance import colourchecker_reflectances
+from illumon.priors import colourchecker_reflectances
 from illumon.retrieval import common as rc
 from illumon.retrieval import retrieve_illuminants
-from illumon.simulate import simulate_history
+from illumon.simulation import datasets, simulate_history
 
 pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="measured data (shared/data) not available")
 

@@ -4,9 +4,9 @@ import json
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.reports.daylight import daylight_report
 from illumon.reports.detect import detect_band, detect_tint
+from illumon.simulation import datasets
 from illumon.spectra import WAVELENGTHS, write_spectral_csv
 
 pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="shared measured data not found")

@@ -1,6 +1,6 @@
 """Diagnosis: hidden effects in simulated histories must be found, named, located and measured.
 
-Histories: :func:`illumon.diagnosis.effects.hide_effect` with the test cameras (``TEST_CAMERAS``) and seeds 10 000…
+Histories: :func:`illumon.simulation.effects.hide_effect` with the test cameras (``TEST_CAMERAS``) and seeds 10 000…
 19 999, never used while developing the method (development: ``DEV_CAMERAS``, seeds < 10 000; benchmark: held-out
 cameras, seeds ≥ 1 000 000); and histories of the independent raw pipeline (``benchmarks/rawsim.py``, issue 16) on its
 score cameras and surfaces, seeds 10 000…
@@ -13,10 +13,12 @@ import pytest
 from illumon.camera import angular_error_deg
 from illumon.diagnosis import bilinear as bl
 from illumon.diagnosis import noise as dnoise
-from illumon.diagnosis.effects import EFFECTS, LOCATED_EFFECTS, TEST_CAMERAS, hide_effect
-from illumon.diagnosis.fit import NONE_MARGIN, corrected_observations, diagnose, estimate_with_effect
-from illumon.diagnosis.stages import MIN_GAMMA, MIN_OFFSET
+from illumon.diagnosis.correction import corrected_observations, estimate_with_effect
+from illumon.diagnosis.fit import NONE_MARGIN, diagnose
+from illumon.diagnosis.stages import MIN_OFFSET
+from illumon.diagnosis.tone import MIN_GAMMA
 from illumon.retrieval import retrieve_illuminants
+from illumon.simulation.effects import EFFECTS, LOCATED_EFFECTS, TEST_CAMERAS, hide_effect
 
 SEED0 = 10_000
 SEEDS = 4
@@ -155,8 +157,8 @@ def test_too_short_history_is_rejected(shared_data):
 
 
 def test_generator_fluorophores_are_short_wave_excited_and_daylight_mixture_is_normalised(shared_data):
-    from illumon.diagnosis.effects import SHORT_WAVE_EXCITATION_NM, _compilation_fluorophores
     from illumon.diagnosis.spectral import daylight_mixture
+    from illumon.simulation.effects import SHORT_WAVE_EXCITATION_NM, _compilation_fluorophores
     from illumon.spectra import WAVELENGTHS
 
     fl = _compilation_fluorophores()
@@ -201,7 +203,7 @@ def test_noise_is_learned_from_the_residuals(shared_data):
     """Clean 12-bit raw-pipeline history: the shot-noise coefficient learned from the rank-4 residuals is the region
     mean's, 1 / (gain · white · pixels) (the default assumed 2e-5 is ~100× too large)."""
     import rawsim
-    from illumon import datasets
+    from illumon.simulation import datasets
 
     rng = np.random.default_rng(3)
     e = rawsim.daylight_run("score", 30, rng)
@@ -274,7 +276,7 @@ def test_clean_10bit_history_is_not_an_expanding_tone_curve(shared_data, monkeyp
     """A clean 10-bit raw-pipeline history: its bilinear misfit is fitted by an *expanding* γ ≈ 0.3 at ΔBIC −222 when
     the tone test may search γ < 1 (reproduced here). No output encoding expands (``MIN_GAMMA``): the tone test
     searches γ ≥ 1 only, and the history is clean."""
-    from illumon.diagnosis import stages
+    from illumon.diagnosis import tone as tone_test
 
     h = _raw_dev("none", 3126)
     assert h.parameters["bits"] == 10
@@ -282,7 +284,7 @@ def test_clean_10bit_history_is_not_an_expanding_tone_curve(shared_data, monkeyp
     tone = next(c for c in d.candidates if c.effect == "nonlinear_response")
     assert d.effect == "none", [(c.effect, round(c.score, 1)) for c in d.candidates]
     assert tone.parameters["gamma"] >= MIN_GAMMA and tone.score > -NONE_MARGIN["nonlinear_response"] / 2
-    monkeypatch.setattr(stages, "MIN_GAMMA", 0.3)  # the failure without the fix
+    monkeypatch.setattr(tone_test, "MIN_GAMMA", 0.3)  # the failure without the fix
     d_old = diagnose(h.observations, h.sensitivities, reestimate=False)
     assert d_old.effect == "nonlinear_response" and d_old.parameters["gamma"] < 1.0
 
@@ -458,7 +460,7 @@ def test_several_effects_at_once_lamp_frames_and_clipping(shared_data):
     # modelling both: far better than neither, no worse than the most consequential alone (camera white, median over
     # frames; with the top effect chosen by what it changes, modelling it alone already gains most: 1.20 → 0.66°,
     # both 0.63°; in discovery order, clipping alone gave 1.29°)
-    from illumon.diagnosis.fit import estimate_with_effects
+    from illumon.diagnosis.correction import estimate_with_effects
 
     fast = {"start_offsets": (0.0,), "polish_max_frames": 0}
     truth_white = h.history.true_white

@@ -1,6 +1,6 @@
 """Light that is not daylight (issue 28): ``non_daylight`` per frame, lamp-lit frames' whites, ESTIMATES.csv column.
 
-Histories: :func:`illumon.diagnosis.effects.hide_effect` (``off_locus_illuminant``: 3…F/5 frames lit 60–100 % by a CIE
+Histories: :func:`illumon.simulation.effects.hide_effect` (``off_locus_illuminant``: 3…F/5 frames lit 60–100 % by a CIE
 fluorescent, high-pressure or LED lamp far from daylight) on the test cameras with seeds 10 000…, and clean measured
 daylight histories; nothing in :mod:`illumon.model.lamps` was chosen on them.
 """
@@ -12,11 +12,11 @@ import warnings
 import numpy as np
 import pytest
 from illumon.camera import angular_error_deg
-from illumon.diagnosis.effects import hide_effect
 from illumon.model import SceneModel, fit_scene_model
 from illumon.model.lamps import lamp_posterior, non_daylight_column
 from illumon.retrieval import retrieve_illuminants
-from illumon.scenarios import measured_daylight_history
+from illumon.simulation import measured_daylight_history
+from illumon.simulation.effects import hide_effect
 
 
 def _fit(obs, css):
@@ -27,7 +27,7 @@ def _fit(obs, css):
 
 @pytest.mark.parametrize(("camera", "seed"), [("Canon_300D", 10001), ("Nikon_D3X", 10006)])
 def test_lamp_lit_frames_are_flagged_and_their_white_follows_the_lamp(shared_data, camera, seed):
-    from illumon import datasets
+    from illumon.simulation import datasets
 
     css = datasets.load_camera(camera)
     h = hide_effect("off_locus_illuminant", camera, seed)
@@ -55,7 +55,7 @@ def test_lamp_lit_frames_are_flagged_and_their_white_follows_the_lamp(shared_dat
 
 @pytest.mark.parametrize(("camera", "seed"), [("Canon_50D", 10003), ("Hasselblad_H2", 10004)])
 def test_measured_daylight_is_not_flagged(shared_data, camera, seed):
-    from illumon import datasets
+    from illumon.simulation import datasets
 
     css = datasets.load_camera(camera)
     h = measured_daylight_history(camera, frames=30, patches=10, seed=seed)
@@ -67,7 +67,7 @@ def test_measured_daylight_is_not_flagged(shared_data, camera, seed):
 def test_posterior_separates_a_sodium_lamp_from_daylight(shared_data):
     """The test itself, on whites: a grey scene under D65 and under a high-pressure sodium lamp (CIE HP1)."""
     import colour
-    from illumon import datasets
+    from illumon.simulation import datasets
     from illumon.spectra import GRID, resample_columns
 
     css = datasets.load_camera("Canon_300D")

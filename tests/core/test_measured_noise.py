@@ -8,12 +8,11 @@ import warnings
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.camera import angular_error_deg
 from illumon.model import IdentifiabilityWarning, fit_scene_model
 from illumon.observations import ObservationError, Observations
-from illumon.reflectance import colourchecker_reflectances
-from illumon.simulate import simulate_history
+from illumon.priors import colourchecker_reflectances
+from illumon.simulation import datasets, simulate_history
 
 pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="measured data (shared/data) not available")
 

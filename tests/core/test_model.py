@@ -7,14 +7,12 @@ import warnings
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.camera import angular_error_deg
 from illumon.daylight import cct_duv_from_xy, spectrum_to_xy
 from illumon.model import MODEL_VERSION, IdentifiabilityWarning, SceneModel, fit_scene_model
 from illumon.observations import Observations
-from illumon.reflectance import colourchecker_reflectances
-from illumon.scenarios import measured_daylight_history
-from illumon.simulate import simulate_history
+from illumon.priors import colourchecker_reflectances
+from illumon.simulation import datasets, measured_daylight_history, simulate_history
 
 pytestmark = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="measured data (shared/data) not available")
 

@@ -6,13 +6,13 @@ import colour
 import numpy as np
 import pytest
 import rawsim
-from illumon import datasets
 from illumon.camera import angular_error_deg, colorchecker_references
 from illumon.camera.primaries import srgb_sensitivities, to_srgb_primaries
 from illumon.camera.references import neutral_references, references_kind
 from illumon.model import fit_scene_model
 from illumon.observations import Observations
 from illumon.retrieval.common import gray_world
+from illumon.simulation import datasets
 from illumon.spectra import GRID
 
 

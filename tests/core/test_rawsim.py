@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import rawsim
-from illumon import datasets
+from illumon.simulation import datasets
 from illumon.spectra import WAVELENGTHS
 
 needs_data = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="measured data (../shared/data) not found")

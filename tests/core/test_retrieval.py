@@ -5,7 +5,7 @@ import pytest
 from illumon.camera import angular_error_deg
 from illumon.observations import Observations
 from illumon.retrieval import METHODS, retrieve_illuminants
-from illumon.scenarios import measured_daylight_history, paper_cct, paper_protocol
+from illumon.simulation import measured_daylight_history, paper_cct, paper_protocol
 
 
 def trivial_errors(h) -> tuple[np.ndarray, np.ndarray]:
@@ -59,8 +59,8 @@ def test_relative_illuminants_are_determined_on_paper_protocol(shared_data):
     # Over the paper's four-image cases (Table 3) with camera noise, the frames' errors spread ~1 MK⁻¹ within a case
     # (measured: median sd 0.99, max 1.88) against true spreads of 40–150 MK⁻¹, while the shift common to a case is
     # the priors' (median 15.5 MK⁻¹; ``benchmarks/retrieval.py --analysis``).
-    from illumon.scenarios import PAPER_PATCH_SETS, PAPER_TABLES
-    from illumon.simulate import CameraNoise
+    from illumon.camera import CameraNoise
+    from illumon.simulation import PAPER_PATCH_SETS, PAPER_TABLES
 
     spread = []
     for temps in PAPER_TABLES[3]:
@@ -79,7 +79,7 @@ def test_marguier2007_descends_to_the_minimum_of_eq3(shared_data, temps):
     0.50°, max 1.7° over Tables 1–3). The fixed-rate descent it replaces stopped far above the truth's error (D65/D80:
     35.9 against 1.7) with camera-white errors up to 12°."""
     from illumon.daylight import theta_curve
-    from illumon.reflectance import reflectance_basis
+    from illumon.priors import reflectance_basis
     from illumon.retrieval.common import imaging_operators
     from illumon.retrieval.marguier2007 import _d65_operator, marguier_error
 
@@ -119,8 +119,8 @@ def test_paper_protocol_table1_methods_side_by_side(shared_data):
     choices: the joint solver beats the paper's method as written and gray-world, and stays below the paper's worst
     case (8.4°). Measured: joint median 3.0°, max 8.0°; marguier2007 median 4.4°, max 19.2°; gray-world 9.7° (see
     benchmarks/retrieval.py for all tables and patch sets)."""
-    from illumon.scenarios import PAPER_PATCH_SETS, PAPER_TABLES
-    from illumon.simulate import CameraNoise
+    from illumon.camera import CameraNoise
+    from illumon.simulation import PAPER_PATCH_SETS, PAPER_TABLES
 
     errors: dict[str, list[float]] = {m: [] for m in ("joint", "marguier2007", "gray_world")}
     for temps in PAPER_TABLES[1]:
@@ -152,8 +152,8 @@ def test_joint_shared_exposure_reads_brightness_on_the_paper_protocol(shared_dat
 
 
 def test_joint_problem_whitens_by_the_noise_model_and_penalises_reflectances_outside_0_1(shared_data):
-    from illumon.daylight_models import daylight_model
-    from illumon.reflectance import reflectance_basis
+    from illumon.daylight import daylight_model
+    from illumon.priors import reflectance_basis
     from illumon.retrieval.common import gray_world_mired
     from illumon.retrieval.joint import JointProblem
 
@@ -186,9 +186,8 @@ def test_joint_problem_whitens_by_the_noise_model_and_penalises_reflectances_out
 
 def test_gray_world_baseline_reports_the_daylight_of_a_grey_scene(shared_data):
     # Every patch a flat grey: the patches' mean is the camera white, so the daylight reported is the true one.
-    from illumon import datasets
     from illumon.daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum
-    from illumon.simulate import simulate_history
+    from illumon.simulation import datasets, simulate_history
 
     cct = cie_d_cct(np.array([4000.0, 5500.0, 6500.0, 9000.0]))
     e = daylight_spectrum(daylight_locus_xy(cct))

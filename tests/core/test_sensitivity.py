@@ -11,17 +11,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.camera import render
 from illumon.daylight import CMFS
-from illumon.reflectance import colourchecker_reflectances
+from illumon.priors import build_camera_prior, colourchecker_reflectances
 from illumon.sensitivity import (
     METHODS,
-    build_camera_prior,
     channel_gains_Han2012,
     daylight_Han2012,
-    default_camera_prior,
-    default_daylight_prior,
     estimate_sensitivities,
     rmse_per_channel,
     to_cie1931_Huynh2014,
@@ -33,6 +29,7 @@ from illumon.sensitivity.han2012 import (
     sensitivities_Han2012,
     shipped_fluorophores,
 )
+from illumon.simulation import datasets
 
 needs_data = pytest.mark.skipif(
     datasets.shared_data_dir() is None, reason="measured data (../shared/data) not available"
@@ -62,28 +59,9 @@ def loo(data):
     }
 
 
-def test_shipped_priors_load():
-    cp = default_camera_prior()
-    dp = default_daylight_prior()
-    assert cp.mean.shape == (61, 3) and cp.components.shape[0] == 183
-    assert len(cp.provenance["cameras"]) == 24
-    assert np.allclose(cp.components.T @ cp.components, np.eye(cp.size), atol=1e-6)
-    assert dp.mean.shape == (61,) and abs(dp.mean.mean() - 1) < 1e-6
-
-
 def test_dispatcher_rejects_unknown_method():
     with pytest.raises(ValueError, match="unknown sensitivity method"):
         estimate_sensitivities(np.ones((24, 3)), np.ones((24, 61)), method="nope")
-
-
-@needs_data
-def test_prior_excludes_held_out_camera(data):
-    cams, *_ = data
-    held = "Canon_20D"
-    full = build_camera_prior(list(cams.values()))
-    loo_prior = build_camera_prior([c for n, c in cams.items() if n != held])
-    assert loo_prior.size == full.size - 1
-    assert not np.allclose(loo_prior.mean, full.mean)
 
 
 @needs_data

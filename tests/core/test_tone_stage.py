@@ -9,9 +9,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from illumon.diagnosis import bilinear as bl
-from illumon.diagnosis.effects import EFFECTS, TEST_CAMERAS, hide_effect
 from illumon.diagnosis.fit import NONE_MARGIN, RANK, diagnose
 from illumon.diagnosis.stages import tone_stage
+from illumon.simulation.effects import EFFECTS, TEST_CAMERAS, hide_effect
 from illumon_service.estimation import check_response
 
 SEED0 = 10_000  # tests/core/test_diagnosis.py's histories

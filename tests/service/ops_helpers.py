@@ -9,7 +9,7 @@ from datetime import datetime, timedelta, timezone
 import numpy as np
 from illumon.camera import render
 from illumon.daylight import daylight_locus_xy, daylight_spectrum
-from illumon.reflectance import colourchecker_reflectances
+from illumon.priors import colourchecker_reflectances
 from illumon.spectra import sensitivities_from_arrays
 from svc_helpers import encode_png, paint_srgb
 

@@ -3,7 +3,7 @@ with rendered frames.
 
 The scene: a measured camera (Nikon D5100), 8 measured reflectances as static regions on a grey background, 12 Granada
 daylight spectra, per-pixel noise and a moving clutter rectangle (a passer-by) that partly covers regions; frames are
-encoded sRGB 8-bit PNG. Tests that need the measured data skip when ``illumon.datasets.shared_data_dir()`` is None.
+encoded sRGB 8-bit PNG. Tests that need the measured data skip when ``illumon.simulation.datasets.shared_data_dir()`` is None.
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from illumon import datasets
 from illumon.camera import ResponseCurve, camera_white, render
+from illumon.simulation import datasets
 from illumon_service.app import create_app
 from illumon_service.settings import Settings
 

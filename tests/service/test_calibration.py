@@ -16,9 +16,9 @@ import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from illumon import datasets
 from illumon.camera import ResponseCurve, angular_error_deg, camera_white, colorchecker_references, render
 from illumon.daylight import daylight_locus_xy, daylight_spectrum
+from illumon.simulation import datasets
 from illumon_service.app import create_app
 from svc_helpers import admin_headers, bearer, camera_body, encode_png, make_settings, need_data
 
@@ -191,7 +191,7 @@ def _unmeasured_day(tmp_path, kind: str) -> tuple[np.ndarray, np.ndarray, dict]:
     """An unmeasured camera (no sensitivities) sees 24 frames of measured daylight and, once, a reference (in an image
     from the camera showing its regions too); refits before and after the reference (across a restart). Returns the
     camera-white errors before and after, and the last refit's job."""
-    from illumon.scenarios import measured_daylight_history
+    from illumon.simulation import measured_daylight_history
 
     hist = measured_daylight_history("Canon_600D", frames=24, patches=10, seed=4)
     obs = hist.observations

@@ -14,10 +14,9 @@ import csv
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from illumon import datasets
 from illumon.cli import main
 from illumon.observations import Observations, write_observations
-from illumon.simulate import simulate_history
+from illumon.simulation import datasets, simulate_history
 from illumon.spectra import WAVELENGTHS, read_sensitivities, write_spectral_csv
 from illumon_service.app import create_app
 from svc_helpers import admin_headers, bearer, make_settings

@@ -1,7 +1,7 @@
 """The closed white-balance loop (issue 15): a camera applies the gains the service returns to every following frame.
 
 A simulated camera (measured sensitivities, a contiguous run of measured Granada daylight — a stretch of one day —,
-10 static patches of unseen reflectances, shot/read noise and auto-exposure, :func:`illumon.scenarios.
+10 static patches of unseen reflectances, shot/read noise and auto-exposure, :func:`illumon.simulation.scenarios.
 measured_daylight_history`) outputs ``applied_gains ⊙ raw``. It starts with a wrong fixed white balance; after the
 first refit, after every frame it reads ``/wb-gains`` and applies those gains to every following frame, posting them
 with each frame (``applied_gains``) so the service can divide them out; a final refit re-estimates the whole day from
@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from illumon.camera import angular_error_deg, camera_white
-from illumon.scenarios import measured_daylight_history
+from illumon.simulation import measured_daylight_history
 from svc_helpers import admin_headers, bearer, camera_body, need_data
 
 CAMERA = "Canon_600D"

@@ -16,9 +16,9 @@ from datetime import datetime, timedelta, timezone
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.camera import angular_error_deg, camera_white, render
 from illumon.daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum
+from illumon.simulation import datasets
 from serve_helpers import start_server
 from svc_helpers import camera_body, encode_png, render_image
 

@@ -38,8 +38,8 @@ def cluttered():
     """Camera, region colours (measured surfaces under 60 Granada daylights, each region scaled to the background's
     grey so its edges hardly show), background and noise generator."""
     need_data()
-    from illumon import datasets
     from illumon.camera import render
+    from illumon.simulation import datasets
 
     rng = np.random.default_rng(11)
     css = datasets.load_camera("Nikon_D5100")

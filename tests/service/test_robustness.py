@@ -33,8 +33,8 @@ def history():
     """A measured camera (Nikon D5100), six regions of measured surfaces and 12 Granada daylights: linear region
     means 0…0.8."""
     need_data()
-    from illumon import datasets
     from illumon.camera import render
+    from illumon.simulation import datasets
 
     rng = np.random.default_rng(1)
     css = datasets.load_camera("Nikon_D5100")

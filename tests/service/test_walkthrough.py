@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from illumon.camera import angular_error_deg, camera_white, render
 from illumon.daylight import daylight_locus_xy, daylight_spectrum
-from illumon.reflectance import colourchecker_reflectances
+from illumon.priors import colourchecker_reflectances
 from illumon.spectra import sensitivities_from_arrays
 from serve_helpers import start_server
 from svc_helpers import paint_srgb

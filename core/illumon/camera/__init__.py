@@ -6,10 +6,12 @@ calibration of a camera nobody measured.
   camera's own per-frame gains and exposure (:func:`undo_applied`);
 * :mod:`~illumon.camera.references` — grey card, ColorChecker, measured surfaces (``KNOWN.csv``);
 * :mod:`~illumon.camera.calibration` — sensitivities as ``C0 T`` with a Gaussian posterior on ``T`` (Kinoshita & Kiya),
-  estimated jointly with the scene.
+  estimated jointly with the scene;
+* :mod:`~illumon.camera.noise` — the noise of patch means and the auto-exposure (:class:`CameraNoise`).
 """
 
 from .formation import angular_error_deg, camera_white, gains_from_white, render
+from .noise import DEFAULT_NOISE, CameraNoise
 from .pipeline import ENCODINGS, CameraPipeline, ResponseCurve, undo_applied
 from .references import colorchecker_references, grey_card_reference, read_known_reflectances
 
@@ -25,4 +27,6 @@ __all__ = [
     "colorchecker_references",
     "grey_card_reference",
     "read_known_reflectances",
+    "CameraNoise",
+    "DEFAULT_NOISE",
 ]

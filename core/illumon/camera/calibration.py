@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 from ..bayes import GaussianPrior, gaussian_posterior
 from ..daylight import CIEDaylight
 from ..observations import Observations
+from ..priors import default_camera_prior
 from .formation import angular_error_deg
 from .references import neutral_references, references_kind
 
@@ -87,8 +88,6 @@ CLIPPED = 0.995
 @lru_cache(maxsize=1)
 def prior_sensitivities() -> NDArray[np.float64]:
     """Mean of the measured cameras' max-normalised sensitivities (61 × 3): the camera nobody measured, a priori."""
-    from ..sensitivity.prior import default_camera_prior
-
     return default_camera_prior().mean.copy()
 
 
@@ -264,8 +263,6 @@ def _log_chroma(white: NDArray[np.float64]) -> NDArray[np.float64]:
 def prior_white_spread() -> float:
     """Standard deviation (log r/g and b/g, pooled) of the measured cameras' D65 whites around the mean camera's,
     from the shipped camera prior's principal components (each camera max-normalised)."""
-    from ..sensitivity.prior import default_camera_prior
-
     prior = default_camera_prior()
     w0 = _d65_white(prior.mean)
     jac = []
@@ -350,16 +347,7 @@ def calibrate_scene_model(
     theta_first = np.array(theta, dtype=float, copy=True)
     change, it = 0.0, 0
     if ids:
-        values = np.asarray(obs.values, dtype=float)[:, [obs.patches.index(p) for p in ids]]
-        seen = np.all(np.isfinite(values), axis=-1).any(axis=1)
-        frames = np.flatnonzero(seen & (np.all(np.isfinite(scene.values), axis=-1).sum(axis=1) >= 2))
-        if not frames.size:
-            raise ValueError(
-                "reference patches must appear in a frame that also shows at least two scene patches "
-                "(their daylight is estimated from the scene)"
-            )
-        spectra = np.stack([known[p] for p in ids])
-        neutral = np.array([p in set(neutral_references({q: known[q] for q in ids})) for p in ids])
+        values, frames, spectra, neutral = _reference_data(obs, scene, ids, known)
         dm = model.daylight_model()
         for it in range(1, max_iterations + 1):  # noqa: B007
             # The references are left out of the scene fit: a reference seen in one frame cannot tell a shift
@@ -380,26 +368,51 @@ def calibrate_scene_model(
         model, theta = fit(scene, base @ t)
         it = 1
     model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()
-    # Rendered output: a grey card pins channel scales, but not how a real camera's matrix departs from the sRGB
-    # functions away from the card's light (a chart's 3 × 3 does).
-    white_sd = SRGB_CAMERA_WHITE_SD if (kind in ("none", "grey") and primaries == "srgb") else CAMERA_WHITE_SD[kind]
-    model.camera["white_sd_log"] = white_sd
-    mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)[
-        "measured" if sensitivities is not None else kind]
-    model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=white_sd,
-                                      camera_mired=mired_sd)
+    _record_camera_uncertainty(model, kind, primaries, measured=sensitivities is not None)
     if ids and primaries == "srgb":
-        # Rendered output: the history's common level is anchored to the camera's own balance as the effective
-        # sensitivities see it (:func:`illumon.model.fit._anchor_common_level`), which moves with T, so the
-        # iterations let T and the common temperature chase each other along the direction a reference cannot see
-        # (on development cameras the CCT ends 34–38 MK⁻¹ RMS off, though the whites gain from the iterations). The
-        # temperature is read as the sRGB functions saw it before the reference moved the camera: the shift common
-        # to every frame between the first fit and the last is kept as a reporting offset (CCT, Duv, spectrum).
-        model.noise["mired_offset"] = float(np.nanmedian(theta_first[:, 0] - theta[:, 0]))
+        model.noise["mired_offset"] = _reporting_offset(theta_first, theta)
     model.history_estimate = model.estimate(scene)  # with the camera's uncertainty in its intervals
     if ids:
         _reference_frames_white(model.history_estimate, values, spectra, neutral, base @ t)
     return model
+
+
+def _reference_data(obs: Observations, scene: Observations, ids: list[str], known: Mapping[str, NDArray[np.float64]]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], NDArray[np.bool_]]:
+    """The references' values (F × R × 3), the frames that show a reference and at least two scene patches, the
+    references' spectra (R × 61) and which of them are neutral; raises when no frame shows both."""
+    values = np.asarray(obs.values, dtype=float)[:, [obs.patches.index(p) for p in ids]]
+    seen = np.all(np.isfinite(values), axis=-1).any(axis=1)
+    frames = np.flatnonzero(seen & (np.all(np.isfinite(scene.values), axis=-1).sum(axis=1) >= 2))
+    if not frames.size:
+        raise ValueError("reference patches must appear in a frame that also shows at least two scene patches "
+                         "(their daylight is estimated from the scene)")
+    spectra = np.stack([known[p] for p in ids])
+    neutral = np.array([p in set(neutral_references({q: known[q] for q in ids})) for p in ids])
+    return values, frames, spectra, neutral
+
+
+def _reporting_offset(theta_first: NDArray[np.float64], theta: NDArray[np.float64]) -> float:
+    """The reciprocal-temperature offset (MK⁻¹) a rendered camera with references reports its light with.
+
+    Rendered output: the history's common level is anchored to the camera's own balance as the effective
+    sensitivities see it (:func:`illumon.model.fit._anchor_common_level`), which moves with T, so the iterations let
+    T and the common temperature chase each other along the direction a reference cannot see (on development cameras
+    the CCT ends 34–38 MK⁻¹ RMS off, though the whites gain from the iterations). The temperature is read as the sRGB
+    functions saw it before the reference moved the camera: the shift common to every frame between the first fit
+    and the last is kept as a reporting offset (CCT, Duv, spectrum)."""
+    return float(np.nanmedian(theta_first[:, 0] - theta[:, 0]))
+
+def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bool) -> None:
+    """The camera's own uncertainty after calibration, in the model: ``camera["white_sd_log"]`` and the model errors
+    ``camera_log_gain`` and ``camera_mired`` its intervals widen by. Rendered output: a grey card pins channel scales,
+    but not how a real camera's matrix departs from the sRGB functions away from the card's light (a chart's 3 × 3
+    does)."""
+    white_sd = SRGB_CAMERA_WHITE_SD if (kind in ("none", "grey") and primaries == "srgb") else CAMERA_WHITE_SD[kind]
+    model.camera["white_sd_log"] = white_sd
+    mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)["measured" if measured else kind]
+    model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=white_sd,
+                                      camera_mired=mired_sd)
 
 
 REFERENCE_WHITE_SD_DEG = 0.25

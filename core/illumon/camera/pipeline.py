@@ -19,8 +19,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+import colour
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from ..priors import colourchecker_reflectances
+from ..spectra import GRID
 
 __all__ = ["ENCODINGS", "ResponseCurve", "CameraPipeline", "undo_applied", "srgb_matrix"]
 
@@ -180,11 +184,6 @@ def srgb_matrix(raw_sensitivities: ArrayLike) -> NDArray[np.float64]:
     """The 3 × 3 colour matrix a camera maker would fit for these sensitivities: linear raw → linear sRGB, least
     squares on the 24 ColorChecker patches under CIE D65 (colour-science's data), scaled so D65 white maps to grey
     of the same green. For simulating processed output and as a starting point when raw sensitivities are measured."""
-    import colour
-
-    from ..reflectance import colourchecker_reflectances
-    from ..spectra import GRID
-
     c = np.asarray(raw_sensitivities, dtype=float)
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(GRID).values
     d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(GRID).values

@@ -26,6 +26,7 @@ import colour
 import numpy as np
 from numpy.typing import NDArray
 
+from ..daylight import CIEDaylight
 from ..spectra import GRID
 
 __all__ = ["PRIMARIES", "SRGB_BALANCE_SD", "srgb_sensitivities", "check_primaries", "to_srgb_primaries",
@@ -55,8 +56,6 @@ def daylight_prior_for(primaries: str):
     frames independent); for ``srgb`` the light *as the balanced output shows it*: centred on D65 (the light the
     camera makes grey), each frame N(153.8, 45²), and the frames of one history sharing a level that departs from D65
     by :data:`SRGB_MIRED_BETWEEN` — the camera's own white balance is information the raw prior does not have."""
-    from ..daylight import CIEDaylight
-
     if check_primaries(primaries) == "srgb":
         return CIEDaylight(mired_mean=1e6 / 6504.0, mired_between=SRGB_MIRED_BETWEEN)
     return CIEDaylight()

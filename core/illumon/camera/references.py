@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from ..reflectance import colourchecker_reflectances
+from ..priors import colourchecker_reflectances
 from ..spectra import GRID, SpectralInputError, read_spectral_csv, resample_columns
 
 __all__ = [

@@ -1,9 +1,11 @@
 """The ``illumon`` command: one module per subcommand, over the library (nothing in the library imports it).
 
 Subcommands: ``estimate`` (:mod:`.estimate`), ``fit`` (:mod:`.fit`), ``sensitivity`` (:mod:`.sensitivity`), ``report
-daylight`` (:mod:`.report`), ``diagnose`` (:mod:`.diagnose`), and ``serve`` / ``refit`` / ``backup`` / ``restore`` /
-``prune`` from the service package where it is installed. Errors in the user's input print one line
-``illumon: error: …`` naming the file, row and problem, and exit with status 2; nothing prints a traceback.
+daylight`` (:mod:`.report`), ``diagnose`` (:mod:`.diagnose`), and the commands of plug-ins: every entry point of the
+group :data:`PLUGIN_GROUP` (``illumon.cli``) names a function that adds its subcommands to the parser's subparsers.
+The service package registers ``serve`` / ``refit`` / ``backup`` / ``restore`` / ``prune`` that way (see
+``pyproject.toml``); the library never imports it. Errors in the user's input print one line ``illumon: error: …``
+naming the file, row and problem, and exit with status 2; nothing prints a traceback.
 """
 
 from __future__ import annotations
@@ -12,6 +14,7 @@ import argparse
 import sys
 import warnings
 from collections.abc import Sequence
+from importlib.metadata import entry_points
 
 import numpy as np
 
@@ -25,21 +28,31 @@ from .sensitivity import add_sensitivity_command
 __all__ = ["main", "build_parser", "write_estimates", "white_level_arg", "UsageError"]
 
 
+PLUGIN_GROUP = "illumon.cli"
+"""Entry-point group of the command's plug-ins: each entry point names a function ``add(subparsers)`` that adds its
+subcommands (the service's is ``illumon_service.cli:add_serve_command``)."""
+
+SERVICE_COMMANDS = ("serve", "refit", "backup", "restore", "prune")
+"""The subcommands the service extra provides; where no plug-in adds them, stand-ins say which extra to install."""
+
+
 def _service_missing(args: argparse.Namespace) -> int:
     raise UsageError(f"`illumon {args.command}` needs the service extra: pip install 'illumon[service]'")
 
 
-def _add_service_commands(sub: argparse._SubParsersAction) -> None:
-    """``serve``, ``refit``, ``backup``, ``restore`` and ``prune`` from the service package, or stand-ins that say
-    which extra to install."""
-    try:
-        from illumon_service.cli import add_serve_command
-    except ImportError:
-        for name in ("serve", "refit", "backup", "restore", "prune"):
+def _add_plugin_commands(sub: argparse._SubParsersAction) -> None:
+    """The subcommands of every plug-in of :data:`PLUGIN_GROUP` that loads, then stand-ins for the service's
+    commands no plug-in added (a plug-in whose package cannot be imported is skipped, as if not installed)."""
+    for entry in entry_points(group=PLUGIN_GROUP):
+        try:
+            add = entry.load()
+        except ImportError:
+            continue
+        add(sub)
+    for name in SERVICE_COMMANDS:
+        if name not in sub.choices:
             p = sub.add_parser(name, help=f"{name} (needs the service extra)", add_help=False)
             p.set_defaults(func=_service_missing)
-        return
-    add_serve_command(sub)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -50,7 +63,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True)
     for add in (add_estimate_command, add_fit_command, add_sensitivity_command, add_report_command, add_diagnose_command):
         add(sub)
-    _add_service_commands(sub)
+    _add_plugin_commands(sub)
     return parser
 
 

@@ -55,7 +55,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
             kwargs["daylight"] = args.daylight_model
             kwargs["exposure"] = args.exposure.replace("-", "_")
         if args.model_effects == "auto":
-            from ..diagnosis.fit import estimate_with_effects
+            from ..diagnosis.correction import estimate_with_effects
             from .diagnose import run_diagnosis
 
             diag = run_diagnosis(args.observations, obs, css, reestimate=False)

@@ -20,7 +20,7 @@ import colour
 import numpy as np
 from numpy.typing import NDArray
 
-from ..reflectance import colourchecker_reflectances
+from ..priors import colourchecker_reflectances
 from ..sensitivity import ALIASES, METHODS, estimate_sensitivities
 from ..spectra import WAVELENGTHS, SpectralInputError, write_spectral_csv
 

@@ -15,7 +15,7 @@ effect as an explicit change of it:
 * off-locus light: the frames lit by a lamp get one more component, ``U_f V + m_f v'`` (the lamp's patch responses).
 
 Residuals are weighted by the noise of a patch mean, ``σ² = shot · y + read²``, with ``shot`` and ``read`` learned
-from the history's own residuals (:func:`.noise.estimate_noise`; the values of :class:`illumon.simulate.CameraNoise` only
+from the history's own residuals (:func:`.noise.estimate_noise`; the values of :class:`illumon.camera.CameraNoise` only
 start the iteration); the overall scale of σ is profiled out by the criterion (:mod:`.fit`).
 """
 

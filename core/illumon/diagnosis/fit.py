@@ -13,7 +13,7 @@ Two stages, each a penalised-likelihood comparison against its own base model (S
    signal; for values delivered as codes, plus the output rounding's variance step²/12 carried into that light through
    the curve's slope), the
    Jacobian of the curve, Huber's loss and the values within 3 % of black censored (:data:`.noise.DARK_LEVEL`),
-   or more while the band above the censoring level misfits the learned noise (:data:`.stages.ADAPTIVE_DARK`: output
+   or more while the band above the censoring level misfits the learned noise (:data:`.tone.ADAPTIVE_DARK`: output
    rounding that the pixel noise does not dither). The black offset is judged on the values above
    :data:`.noise.DARK_LEVEL` too (base and extension alike).
    Patch change and shadow are scored in units of the patches' median residual variance, or of the patch's own under
@@ -23,9 +23,9 @@ Two stages, each a penalised-likelihood comparison against its own base model (S
    (values near black censored).
 
 An extension is chosen when its BIC beats the base by more than :data:`NONE_MARGIN`; the margins were re-set in
-issue 16 on the development cameras of both simulators (:mod:`illumon.simulate` via :mod:`.effects`, and the
-independent raw pipeline ``benchmarks/rawsim.py``: Nikon and Point Grey bodies, development surfaces and daylight,
-seeds 3 000…); otherwise the answer is ``none``.
+issue 16 on the development cameras of both simulators (:mod:`illumon.simulation.simulate` via
+:mod:`illumon.simulation.effects`, and the independent raw pipeline ``benchmarks/rawsim.py``: Nikon and Point Grey
+bodies, development surfaces and daylight, seeds 3 000…); otherwise the answer is ``none``.
 
 The spectral effects' scores are not ΔBIC: the spectral model's own misfit (reflectance basis, daylight model), not the
 noise, sets the scale of their gains, so each is measured against the history itself.
@@ -42,12 +42,13 @@ noise, sets the scale of their gains, so each is measured against the history it
 
 Off-locus light is tested first (its misfit can make a patch look fluorescent, not the reverse), with the best
 fluorescent-looking patch left out when its ratio passes the margin. The illuminants are then re-estimated with the
-chosen extension (:func:`corrected_observations`, :func:`estimate_with_effect`) and the change is reported.
+chosen extension (:func:`.correction.corrected_observations`, :func:`.correction.estimate_with_effect`) and the
+change is reported.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import copy
 
 import numpy as np
 from numpy.typing import NDArray
@@ -55,19 +56,12 @@ from numpy.typing import NDArray
 from .._blas import single_blas_thread
 from ..camera import angular_error_deg
 from ..observations import Observations
-from .stages import (
-    MIN_OFF_LOCUS_FRAMES,
-    Candidate,
-    bilinear_stage,
-    bt709_decode,
-    spectral_stage,
-    srgb_decode,
-)
+from ..retrieval import retrieve_illuminants
+from .candidate import Candidate
+from .correction import Diagnosis, corrected_observations, estimate_with_effect
+from .stages import MIN_OFF_LOCUS_FRAMES, bilinear_stage, spectral_stage
 
-__all__ = [
-    "RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "Candidate", "Diagnosis", "diagnose", "corrected_observations",
-    "estimate_with_effect", "estimate_with_effects",
-]
+__all__ = ["RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "Candidate", "diagnose"]
 
 RANK = 4
 """Rank of the bilinear model: measured daylight seen by three channels needs four components above the noise."""
@@ -89,50 +83,12 @@ raw-pipeline histories reach −18, weakest development tone curve −29), shado
 at −8), off-locus 4 → 14 (clean raw-pipeline histories reach −13: the daylight mixture has not seen those bodies'
 misfit; development lamps mostly below −30), fluorescence 2.3 → 3.0 (clean raw-pipeline ratios reach 3.8; this
 leaves one false effect in 12 development clean raw-pipeline histories and most fluorescent patches undetected).
-Re-checked after the dark-value fixes (:data:`.stages.ADAPTIVE_DARK`, the offset test above :data:`.noise.DARK_LEVEL`) on
+Re-checked after the dark-value fixes (:data:`.tone.ADAPTIVE_DARK`, the offset test above :data:`.noise.DARK_LEVEL`) on
 ``benchmarks/diagnose.py --split dev`` (Nikon and Point Grey, development surfaces and daylight, seeds 3 000…; 12
 histories per effect and simulator, 28 clean, off-locus and fluorescent ones): off-locus 14 → 17 (clean raw-pipeline
 histories at −16.0, −15.5, −14.8, −14.5; no off-locus lamp of either simulator between −17 and −14); fluorescence kept
 at 3.0 (4.0 would remove one clean raw-pipeline false alarm of 28, at −3.8, and miss 5 of 28 fluorescent patches of the
 project's simulator); tone curve kept at 25 (clean histories now −16 and above on both, weakest tone curve −27)."""
-
-
-@dataclass
-class Diagnosis:
-    """The diagnosis of a history (see :func:`diagnose`)."""
-
-    effect: str
-    patch: str | None
-    frame: str | None
-    parameters: dict
-    candidates: list[Candidate]
-    residual_base: float
-    residual_extended: float
-    illuminant_change_deg: float | None
-    patch_index: int | None = None
-    frame_index: int | None = None
-    info: dict = field(default_factory=dict)
-    effects: list[dict] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)
-
-    def to_json(self) -> dict:
-        """The ``REPORT.json`` form."""
-        return {
-            "effect": self.effect,
-            "patch": self.patch,
-            "frame": self.frame,
-            "parameters": self.parameters,
-            "candidates": [
-                {"effect": c.effect, "score": round(float(c.score), 3) if np.isfinite(c.score) else None,
-                 "parameters": c.parameters}
-                for c in self.candidates
-            ],
-            "residual_base": self.residual_base,
-            "residual_extended": self.residual_extended,
-            "illuminant_change_deg": self.illuminant_change_deg,
-            "effects": self.effects,
-            "notes": self.notes,
-        }
 
 
 GLOBAL_EFFECTS = ("nonlinear_response", "black_offset", "clipping")
@@ -214,7 +170,7 @@ def diagnose(
         ΔBIC margins per effect (default :data:`NONE_MARGIN`).
     learn_noise
         Learn the noise from the history's residuals (:func:`.bilinear.estimate_noise`); ``False`` assumes the
-        noise of :data:`illumon.simulate.DEFAULT_NOISE` (the method before issue 16, for comparison).
+        noise of :data:`illumon.camera.DEFAULT_NOISE` (the method before issue 16, for comparison).
 
     Returns
     -------
@@ -229,9 +185,19 @@ def diagnose(
     css = np.asarray(sensitivities, dtype=float)
     chosen, cands, info = _choose(obs, css, rank, margins, learn_noise)
     diag = _as_diagnosis(obs, chosen, cands, info)
-    # Several effects at once (issue 28): model the one found, look again in what is left, until nothing passes its
-    # margin (at most MAX_EFFECTS); each is then re-estimated on its own to rank them by what they change.
-    found = [diag] if chosen is not None else []
+    found = _further_effects(obs, css, rank, margins, learn_noise, [diag] if chosen is not None else [])
+    if reestimate:
+        if not found:
+            diag.illuminant_change_deg = 0.0
+        else:
+            _illuminant_changes(obs, sensitivities, found)
+    return _ranked(obs, diag, found, reestimate)
+
+
+def _further_effects(obs: Observations, css: NDArray[np.float64], rank: int, margins: dict[str, float],
+                     learn_noise: bool, found: list[Diagnosis]) -> list[Diagnosis]:
+    """Several effects at once (issue 28): model the one found, look again in what is left, until nothing passes its
+    margin (at most :data:`MAX_EFFECTS`); every effect in the original history's indices."""
     current = obs
     while found and len(found) < MAX_EFFECTS:
         current = _modelled(current, found[-1])
@@ -243,21 +209,25 @@ def diagnose(
             break
         found.append(_as_diagnosis(current, nxt, ncands, ninfo))
     # every effect in the original history's indices (a later one was found with earlier ones modelled)
-    found = [d if i == 0 else (_on_original(obs, d) or d) for i, d in enumerate(found)]
-    if reestimate:
-        if not found:
-            diag.illuminant_change_deg = 0.0
-        else:
-            fast = {"start_offsets": (0.0,), "polish_max_frames": 0}
-            from ..retrieval import retrieve_illuminants
+    return [d if i == 0 else (_on_original(obs, d) or d) for i, d in enumerate(found)]
 
-            before = retrieve_illuminants(obs, sensitivities, **fast)
-            for i, d in enumerate(found):
-                if i > 0 and d.patch is not None and d.patch not in obs.patches:
-                    continue  # a part of a split patch: its change is not defined on the original history
-                after = estimate_with_effect(obs, sensitivities, d, base_result=before, **fast)
-                d.illuminant_change_deg = round(float(np.median(angular_error_deg(before.white, after.white))), 4)
-                d.info["before"], d.info["after"] = before, after
+
+def _illuminant_changes(obs: Observations, sensitivities: NDArray[np.float64], found: list[Diagnosis]) -> None:
+    """Each effect re-estimated on its own, to rank them by what they change: ``illuminant_change_deg`` (the median
+    angular change of the camera white) and the two estimates in ``info``, set on every diagnosis in place."""
+    fast = {"start_offsets": (0.0,), "polish_max_frames": 0}
+    before = retrieve_illuminants(obs, sensitivities, **fast)
+    for i, d in enumerate(found):
+        if i > 0 and d.patch is not None and d.patch not in obs.patches:
+            continue  # a part of a split patch: its change is not defined on the original history
+        after = estimate_with_effect(obs, sensitivities, d, base_result=before, **fast)
+        d.illuminant_change_deg = round(float(np.median(angular_error_deg(before.white, after.white))), 4)
+        d.info["before"], d.info["after"] = before, after
+
+
+def _ranked(obs: Observations, diag: Diagnosis, found: list[Diagnosis], reestimate: bool) -> Diagnosis:
+    """The reported diagnosis: minor clipping turned into notes, the effects most consequential first (when
+    re-estimated), the first one's diagnosis carrying the first round's candidates and every effect's entry."""
     effects, notes = [], []
     for d in found:
         score = float(d.info.get("score", np.nan))
@@ -366,8 +336,6 @@ def _modelled(obs: Observations, diag: Diagnosis) -> Observations | None:
 def _on_original(obs: Observations, d: Diagnosis) -> Diagnosis | None:
     """``d`` (found on a history with earlier effects modelled) with its patch and frame indices in ``obs``; ``None``
     when its patch is not one of ``obs``'s (a split patch)."""
-    import copy
-
     out = copy.copy(d)
     out.parameters = dict(d.parameters)
     if d.patch is not None:
@@ -382,92 +350,3 @@ def _on_original(obs: Observations, d: Diagnosis) -> Diagnosis | None:
         idx = [obs.frames.index(fr) for fr in d.parameters["shaded_frames"]]
         out.parameters["first_frame_index"], out.parameters["last_frame_index"] = min(idx), max(idx)
     return out
-
-
-def corrected_observations(obs: Observations, diag: Diagnosis) -> Observations:
-    """Observations with the diagnosed effect modelled out: linearised (γ, offsets), clipped values dropped, the
-    changed patch split into two patches, the shaded values or the fluorescent patch dropped. Off-locus frames are
-    handled by :func:`estimate_with_effect`."""
-    v = obs.values.copy()
-    patches = list(obs.patches)
-    e = diag.effect
-    prm = diag.parameters
-    if e == "nonlinear_response":
-        decode = {"srgb": srgb_decode, "bt709": bt709_decode}.get(prm.get("curve", "gamma"))
-        v = decode(np.clip(v, 0, 1)) if decode is not None else np.clip(v, 0, None) ** prm["gamma"]
-    elif e == "black_offset":
-        v = np.clip(v - np.asarray(prm["offsets"])[None, None, :], 1e-6, None)
-    elif e == "clipping":
-        level = prm["clip_level"]
-        v[np.any(v >= level - max(2e-3 * level, 1e-6), axis=-1)] = np.nan
-    elif e == "patch_change" and diag.patch_index is not None and diag.frame_index is not None:
-        new = np.full((v.shape[0], 1, 3), np.nan)
-        new[diag.frame_index :, 0] = v[diag.frame_index :, diag.patch_index]
-        v[diag.frame_index :, diag.patch_index] = np.nan
-        v = np.concatenate([v, new], axis=1)
-        patches.append(f"{obs.patches[diag.patch_index]}@{obs.frames[diag.frame_index]}")
-    elif e == "shadow" and diag.patch_index is not None:
-        v[prm["first_frame_index"] : prm["last_frame_index"] + 1, diag.patch_index] = np.nan
-    elif e == "fluorescence" and diag.patch_index is not None:
-        v[:, diag.patch_index] = np.nan
-    return Observations(list(obs.frames), patches, v, list(obs.times))
-
-
-@single_blas_thread
-def estimate_with_effect(obs: Observations, sensitivities: NDArray[np.float64], diag: Diagnosis, *, base_result=None,
-                         **kwargs):
-    """Illuminants re-estimated with the diagnosed effect modelled (joint retrieval on :func:`corrected_observations`).
-
-    Off-locus frames are left out of the joint fit (their light is not daylight and would bias the patches'
-    reflectances); their rows keep the estimate of the fit over all frames (``base_result`` or a new one).
-    """
-    from ..retrieval import retrieve_illuminants
-
-    if diag.effect == "off_locus_illuminant" and diag.parameters.get("frame_indices"):
-        off = np.asarray(diag.parameters["frame_indices"], dtype=int)
-        day = np.setdiff1d(np.arange(len(obs.frames)), off)
-        if day.size < 2:
-            return base_result if base_result is not None else retrieve_illuminants(obs, sensitivities, **kwargs)
-        res_all = base_result if base_result is not None else retrieve_illuminants(obs, sensitivities, **kwargs)
-        res_day = retrieve_illuminants(obs.subset(day), sensitivities, **kwargs)
-        import copy
-
-        out = copy.deepcopy(res_all)
-        for name in ("spectra", "xy", "cct", "duv", "white", "gains", "exposures"):
-            arr = getattr(out, name)
-            arr[day] = getattr(res_day, name)
-        out.reflectances = res_day.reflectances
-        out.info = {**res_all.info, "off_locus_frames": [int(i) for i in off]}
-        return out
-    corr = corrected_observations(obs, diag)
-    res = retrieve_illuminants(corr, sensitivities, **kwargs)
-    if len(corr.patches) != len(obs.patches):
-        res.patches = list(corr.patches)
-    return res
-
-
-def estimate_with_effects(obs: Observations, sensitivities: NDArray[np.float64], diag: Diagnosis, **kwargs):
-    """Illuminants re-estimated with *every* effect of ``diag.effects`` modelled (issue 28): the corrections of
-    :func:`corrected_observations` applied in the order the effects were found, lamp-lit frames left out of the joint
-    fit as in :func:`estimate_with_effect`. One effect (or none): :func:`estimate_with_effect`."""
-    found = diag.info.get("found") or []
-    if len(found) <= 1:
-        return estimate_with_effect(obs, sensitivities, diag, **kwargs)
-    corrected = obs
-    off: list[int] = []
-    for d in found:
-        if d.effect == "off_locus_illuminant":
-            off += list(d.parameters.get("frame_indices", []))
-        else:
-            corrected = corrected_observations(corrected, d)
-    res = None
-    if off:
-        lamp = Diagnosis("off_locus_illuminant", None, None, {"frame_indices": sorted(set(off))}, [], 0.0, 0.0, None)
-        res = estimate_with_effect(corrected, sensitivities, lamp, **kwargs)
-    else:
-        from ..retrieval import retrieve_illuminants
-
-        res = retrieve_illuminants(corrected, sensitivities, **kwargs)
-    if len(corrected.patches) != len(obs.patches):
-        res.patches = list(corrected.patches)
-    return res

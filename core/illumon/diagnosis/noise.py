@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..simulate import DEFAULT_NOISE
+from ..camera.noise import DEFAULT_NOISE
 from .bilinear import LowRankFit, wals
 
 __all__ = ["noise_weights", "NoiseLevel", "quantisation_step", "estimate_noise", "DARK_LEVEL", "SHOT_SHARE",
@@ -64,8 +64,8 @@ def quantisation_step(y: NDArray[np.float64],
 SHOT_SHARE = 0.9
 """Least share of the noise variance at the median signal that photon shot noise carries in linear light (raw
 values: a few e⁻ of read noise against thousands of photo-electrons). Chosen on development histories of both
-simulators: with 0.5 the weakest tone curves of :mod:`.effects` scored −0.8…+1.7 (ΔBIC), with 0.9 all six below −29,
-clean histories at −16 and above but one raw-pipeline history at −42."""
+simulators: with 0.5 the weakest tone curves of :mod:`illumon.simulation.effects` scored −0.8…+1.7 (ΔBIC), with 0.9
+all six below −29, clean histories at −16 and above but one raw-pipeline history at −42."""
 
 
 def _noise_step(x: NDArray[np.float64], pred: NDArray[np.float64], present: NDArray[np.bool_], k: int, shot: float,

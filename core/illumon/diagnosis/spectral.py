@@ -22,17 +22,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import lru_cache
+from importlib import resources
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from ..daylight_models import daylight_model
+from ..daylight import CIEDaylight, daylight_model
+from ..model.general import cie_lamp_spectra
 from ..observations import Observations
-from ..reflectance import reflectance_basis
+from ..priors import default_daylight_prior, reflectance_basis
 from ..retrieval.common import gray_world_mired, imaging_operators
 from ..retrieval.joint import JointProblem
-from ..spectra import WAVELENGTHS
+from ..spectra import WAVELENGTHS, read_spectral_csv
 from .noise import DARK_LEVEL
 
 __all__ = [
@@ -92,8 +94,6 @@ def _generic_basis(n: int = 10, width_nm: float = 30.0) -> NDArray[np.float64]:
 
 def _daylight_basis() -> NDArray[np.float64]:
     """The shipped measured-daylight mean and components (61 × (1 + J)), the basis of :func:`daylight_mixture`."""
-    from ..sensitivity.prior import default_daylight_prior
-
     dp = default_daylight_prior()
     return np.column_stack([dp.mean, dp.components])
 
@@ -106,8 +106,6 @@ def daylight_mixture() -> tuple[NDArray[np.float64], NDArray[np.float64], NDArra
     far from Gaussian (a long blue tail, a thin warm end): one Gaussian, symmetric about its mean, would give warm lamp
     light the probability of blue sky."""
     import json
-    from importlib import resources
-
     meta = json.loads((resources.files("illumon") / "data" / "daylight_mixture.json").read_text())
     return (np.asarray(meta["weights"], dtype=float), np.asarray(meta["means"], dtype=float),
             np.asarray(meta["covariances"], dtype=float))
@@ -214,11 +212,8 @@ def lamp_shares(base: SpectralBase, frames: list[int], steps: int = 21,
     reflectance coefficients to hold (default the base's; better those fitted without the lamp-lit frames, which
     otherwise absorb part of the lamp).
     """
-    from ..daylight import CIEDaylight
-    from ..model.lamps import _lamp_spectra
-
     prob = base.prob
-    lamps = _lamp_spectra()
+    lamps = cie_lamp_spectra()
     dm = CIEDaylight()
     lo, hi = dm.bounds()
     days = dm.spectra(np.stack([np.linspace(lo[0], hi[0], 24), np.zeros(24)], axis=1))
@@ -250,10 +245,6 @@ def lamp_shares(base: SpectralBase, frames: list[int], steps: int = 21,
 
 def shipped_fluorophores() -> tuple[list[str], NDArray[np.float64], NDArray[np.float64]]:
     """The 21 fluorophores shipped with illumon: names, excitation (21 × 61) and emission (21 × 61), peak-normalised."""
-    from importlib import resources
-
-    from ..spectra import read_spectral_csv
-
     text = (resources.files("illumon") / "data" / "fluorophores.csv").read_text()
     wl, values, names = read_spectral_csv("fluorophores.csv", text=text)
     cols = {n: values[:, i] for i, n in enumerate(names)}

@@ -1,18 +1,18 @@
 """The two stages of the diagnosis (:mod:`.fit` describes the method): every extension the bilinear model can carry
 (tone curve, black offset, clipping, patch change, shadow) and the spectral effects it cannot see (off-locus light,
-fluorescence), each scored against its own base model, with the constants that tune them."""
+fluorescence), each scored against its own base model, with the constants that tune them. The tone-curve extension
+and its constants are in :mod:`.tone`; :func:`tone_stage` runs it alone."""
 
 from __future__ import annotations
-
-from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ..camera.noise import DEFAULT_NOISE
 from ..observations import Observations
-from ..simulate import DEFAULT_NOISE
 from . import bilinear as bl
 from . import noise as nz
+from .candidate import Candidate
 from .spectral import (
     EXCITATION_CENTRES_NM,
     fit_spectral_base,
@@ -22,37 +22,10 @@ from .spectral import (
     off_locus_gains,
     refine_with_measured_daylight,
 )
+from .tone import tone_candidate
 
-__all__ = [
-    "Candidate", "GAMMA_NOISE_FLOOR", "TONE_HUBER", "ADAPTIVE_DARK", "DARK_STEP", "MIN_GAMMA", "MIN_OFFSET", "MAX_DARK_LEVEL",
-    "REFINE_ITERS",
-    "MIN_OFF_LOCUS_FRAMES", "OFF_LOCUS_FRAME_Z", "srgb_decode", "srgb_decode_slope", "bt709_decode", "bt709_decode_slope",
-    "bilinear_stage", "spectral_stage", "tone_stage",
-]
-
-GAMMA_NOISE_FLOOR = 0.025
-"""Read and rounding noise of the linear light, in units of the shot noise's signal (σ² ∝ x + 0.025), with which γ is
-estimated once a tone curve is detected (it changes the reported γ, not the diagnosis). Re-chosen in issue 16 on
-development data only (``benchmarks/diagnose.py --split dev`` histories, seeds 4000…4013: 14 γ curves of the project's
-simulator and 5 of the raw pipeline, the other raw ones being sRGB): median |γ̂/γ − 1| 15.7 % with 0 (pure shot
-noise), 5.1 % with 0.0125, 2.4 % with 0.025 (worst 12.7 %), 7.1 % with 0.05 (the value before, partly chosen looking
-at score seeds; worst 18.3 %), 14.4 % with 0.1."""
-
-TONE_HUBER = 2.5
-"""Huber's constant (in units of the learned noise) of the tone-curve test's likelihood."""
-
-ADAPTIVE_DARK = 3.0
-"""The tone test's censoring level starts at :data:`.noise.DARK_LEVEL` and rises by :data:`DARK_STEP` while the
-band of values just above it misfits the linear hypothesis's learned noise this many times more than the values above
-the band (mean squared standardised residual, winsorised at 3σ): a camera whose output is rounded to 8 (or 10) bits
-delivers dark regions whose pixel noise is below half a code, so the rounding does not average out and biases their
-means by up to half a code — tens of σ of a region mean — which a γ of 1.2…1.4 otherwise fits (issue 16: clean 8-bit
-raw histories at ISO 100…200, ΔBIC −42 and −69 with the censoring fixed at 3 %). A tone curve lifts the whole range,
-so the test keeps its power on the brighter values. Chosen on development histories of both simulators (ratio 2 left
-a clean raw history at −17, 3 none below −4; no tone curve of either simulator moved); 0 disables."""
-
-DARK_STEP = 1.5
-"""Factor by which the tone test's censoring level rises (band width)."""
+__all__ = ["MIN_OFFSET", "REFINE_ITERS", "MIN_OFF_LOCUS_FRAMES", "OFF_LOCUS_FRAME_Z", "bilinear_stage", "spectral_stage",
+           "tone_stage"]
 
 MIN_OFFSET = 1.0 / 255.0
 """Smallest black offset reported (a fraction of white): one code of 8-bit output. A smaller pedestal cannot be told
@@ -60,17 +33,6 @@ from the bias that output rounding leaves in dark regions' means (pixels the noi
 estimate by less than the noise. Issue 16: on 8-bit raw histories at ISO 100 the offset test found pedestals of
 0.0005…0.0015 at ΔBIC −10…−27 (a clean history and a fluorescent one); the hidden pedestals of both simulators are
 1.5…6 % of white, found within 0.001."""
-
-MIN_GAMMA = 1.0
-"""Least exponent of the tone test's decoding ``x = y^γ``: an output encoding compresses (sRGB, BT.709, gammas
-1.8…2.6, log curves: γ > 1 in this direction); none expands. An expanding fit (γ < 1) is the bilinear model's misfit
-from something else: dark values rounded by 10-bit output, clipped highlights, lamp-lit frames. Issue 16: on the
-score histories of the raw pipeline every false ``nonlinear_response`` (a clean 10-bit Canon 500D at ΔBIC −149 and
-−33, a clipped history at −181, an off-locus one at −198, a fluorescent one at −75) had γ̂ = 0.46…0.80, every real
-tone curve γ̂ ≥ 1.4. The sRGB and BT.709 hypotheses are compressive by construction."""
-
-MAX_DARK_LEVEL = 0.2
-"""Highest censoring level of the tone test (a fifth of white; 8-bit pixels are dithered above it at any ISO)."""
 
 REFINE_ITERS = 3
 """Alternations of measured-daylight frames and reflectances after the joint CIE fit (spectral stage)."""
@@ -84,50 +46,13 @@ off-locus light; the off-locus score is ``min_k Σ_{top k} (OFF_LOCUS_FRAME_Z �
 development cameras and seeds (τ = 8…12 tried; 10 gave the best detection at 1 % false alarms)."""
 
 
-@dataclass
-class Candidate:
-    """One extension tried: its ΔBIC against the base (negative favours the extension) and fitted parameters."""
-
-    effect: str
-    score: float
-    parameters: dict = field(default_factory=dict)
-    patch: int | None = None
-    frame: int | None = None
-    residual: float | None = None
-
-
-def srgb_decode(v: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Linear values of sRGB-encoded ``v`` (IEC 61966-2-1 EOTF, via colour-science)."""
-    import colour
-
-    return np.asarray(colour.models.eotf_sRGB(v), dtype=float)
-
-
-def srgb_decode_slope(v: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Derivative of :func:`srgb_decode` (IEC 61966-2-1: 1/12.92 on the linear toe, the 2.4 power above)."""
-    return np.where(v <= 0.04045, 1.0 / 12.92, 2.4 / 1.055 * ((v + 0.055) / 1.055) ** 1.4)
-
-
-def bt709_decode(v: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Linear values of BT.709-encoded ``v`` (inverse of the ITU-R BT.709-6 OETF, via colour-science)."""
-    import colour
-
-    return np.asarray(colour.models.oetf_inverse_BT709(np.clip(v, 0.0, 1.0)), dtype=float)
-
-
-def bt709_decode_slope(v: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Derivative of :func:`bt709_decode` (ITU-R BT.709-6: 1/4.5 on the linear toe below 0.081, the 1/0.45 power of
-    ``(v + 0.099)/1.099`` above)."""
-    power = (1.0 / 0.45) / 1.099 * ((np.clip(v, 0.081, None) + 0.099) / 1.099) ** (1.0 / 0.45 - 1.0)
-    return np.where(v < 0.081, 1.0 / 4.5, power)
-
-
 def _nll(wrss: float, n: int, log_sigma: float = 0.0, log_jac: float = 0.0) -> float:
     """Gaussian negative log-likelihood with the noise scale profiled out (constants dropped)."""
     return 0.5 * n * np.log(wrss / n) + log_sigma - log_jac
 
 
 def _bic(nll: float, k: int, n: int) -> float:
+    """Schwarz's criterion ``2·NLL + k·ln n``."""
     return 2.0 * nll + k * np.log(n)
 
 
@@ -225,85 +150,6 @@ def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64]) -> Ca
                       "censored_at_ingest": True})
 
 
-def _tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArray[np.bool_], base: bl.LowRankFit,
-                    rank: int, n: int, fits: dict) -> Candidate:
-    """The bilinear stage's tone-curve extension (``nonlinear_response``) against the linear base ``base``; records
-    ``fits["dark_level"]`` and ``fits["nonlinear_response"]``."""
-    # tone curve: y = x^(1/γ) (γ fitted) or the sRGB encoding (IEC 61966-2-1, the usual camera output curve, whose
-    # linear toe a pure gamma does not follow); the factorisation holds for the linearised x = T(y). Each hypothesis
-    # learns its own Poissonian-Gaussian noise (σ² = a·x + b in its linear light, a and b free) from its residuals,
-    # and the likelihood carries the Jacobian of the curve: the tone curve shows in the structure of the values and
-    # in how their spread grows with the signal, without assuming how large the noise is
-    # values delivered on a grid (rounded in the output, after the curve) carry the rounding's variance step²/12 in
-    # the output domain, which each hypothesis carries into its own linear light through the curve's slope: constant
-    # output noise is otherwise exactly what a γ = 2 curve makes of shot noise (issue 16, region means rounded to
-    # 8-bit codes)
-    q = noise.step**2 / 12.0
-    yv = np.nan_to_num(y)
-    dark = nz.DARK_LEVEL
-    while True:
-        yc = np.clip(yv, dark, None)
-        lit = present & (yv > dark)  # values near black are censored here
-        fit_lin, a_lin, b_lin, nll_lin = nz.fit_learned_noise(yc, lit, rank, base.U, updates=3, iters=30,
-                                                              floor=noise.read**2 * 1e-3, huber=TONE_HUBER, extra=q)
-        band = lit & (yv <= DARK_STEP * dark)
-        if not ADAPTIVE_DARK or dark * DARK_STEP > MAX_DARK_LEVEL or band.sum() < 10:
-            break
-        z2 = np.minimum((yc - fit_lin.pred) ** 2 / (a_lin * yc + b_lin + q), 9.0)
-        above = lit & (yv > DARK_STEP * dark)
-        if float(z2[band].mean()) <= ADAPTIVE_DARK * float(z2[above].mean()):
-            break
-        dark *= DARK_STEP
-    fits["dark_level"] = dark
-
-    def curve_nll(x: NDArray[np.float64], slope: NDArray[np.float64]) -> tuple[float, bl.LowRankFit]:
-        fit, _, _, nll = nz.fit_learned_noise(x, lit, rank, base.U, updates=3, iters=30, huber=TONE_HUBER,
-                                              floor=noise.read**2 * 1e-3 * float(np.median(slope[lit])) ** 2,
-                                              extra=q * slope**2)
-        return nll - float(np.log(slope[lit]).sum()), fit
-
-    def gamma_nll(g: float) -> tuple[float, bl.LowRankFit]:
-        return curve_nll(yc**g, g * yc ** (g - 1.0))
-
-    from scipy.optimize import minimize_scalar
-
-    opt = minimize_scalar(lambda lg: gamma_nll(float(np.exp(lg)))[0], bounds=(np.log(MIN_GAMMA), np.log(3.5)),
-                          method="bounded", options={"xatol": 1e-2})
-    g = float(np.exp(opt.x))
-    nll_g, fit_g = gamma_nll(g)
-    score_g = 2.0 * (nll_g - nll_lin) + np.log(n)
-    # γ itself by maximum likelihood with shot noise and a floor in linear light (σ² = φ·(x + GAMMA_NOISE_FLOOR),
-    # φ profiled; the curve's Jacobian included; values near black censored): re-learning a and b at every γ lets
-    # them absorb part of the curve and biases γ upwards (tone curves 2.2…2.4 read as 2.6…3.3)
-
-    def gamma_nll_held(lg: float) -> float:
-        gg = float(np.exp(lg))
-        x = yc**gg
-        wx = np.where(lit, 1.0 / (x + GAMMA_NOISE_FLOOR), 0.0)
-        fit = bl.wals(x, wx, rank, U=base.U, iters=30)
-        m = int(lit.sum())
-        return (0.5 * m * np.log(fit.wrss / m) + 0.5 * float(np.log(1.0 / wx[lit]).sum())
-                - float(np.log(gg * yc[lit] ** (gg - 1.0)).sum()))
-
-    g = float(np.exp(minimize_scalar(gamma_nll_held, bounds=(np.log(MIN_GAMMA), np.log(3.5)), method="bounded",
-                                     options={"xatol": 3e-3}).x))
-    # the two standard output encodings, each with its linear toe: sRGB (IEC 61966-2-1) and BT.709 (ITU-R BT.709-6,
-    # a 0.45 power with an offset, which neither a pure gamma nor sRGB follows and a black offset fits in part)
-    std = []
-    for curve, decode, slope in (("srgb", srgb_decode, srgb_decode_slope), ("bt709", bt709_decode, bt709_decode_slope)):
-        nll_c, fit_c = curve_nll(decode(yc), slope(yc))
-        std.append((2.0 * (nll_c - nll_lin), curve, fit_c))
-    score_s, curve_s, fit_s = min(std, key=lambda t: t[0])
-    if score_s < score_g:
-        # the best pure gamma is reported too (the service's tone-response hint reads it)
-        fits["nonlinear_response"] = {"curve": curve_s, "gamma": g}
-        return Candidate("nonlinear_response", score_s, {"curve": curve_s, "gamma": round(g, 4)},
-                         residual=float(np.sqrt(fit_s.wrss / max(n - fit_s.k, 1))))
-    fits["nonlinear_response"] = {"curve": "gamma", "gamma": g}
-    return Candidate("nonlinear_response", score_g, {"curve": "gamma", "gamma": round(g, 4)},
-                     residual=float(np.sqrt(fit_g.wrss / max(n - fit_g.k, 1))))
-
-
 def _bilinear_base(y: NDArray[np.float64], rank: int,
                    learn_noise: bool) -> tuple[nz.NoiseLevel, NDArray[np.float64], bl.LowRankFit]:
     """The bilinear stage's noise (learned or default), weights and rank-``rank`` base fit."""
@@ -337,11 +183,31 @@ def tone_stage(y: NDArray[np.float64], rank: int, learn_noise: bool = True) -> t
     noise, w, base = _bilinear_base(y, rank, learn_noise)
     fits: dict = {"noise": {"shot": noise.shot, "read": noise.read, "step": noise.step,
                             "censored": int(noise.censored.sum())}}
-    return _tone_candidate(y, noise, w > 0, base, rank, base.n, fits), fits
+    return tone_candidate(y, noise, w > 0, base, rank, base.n, fits), fits
 
 
 def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
                     learn_noise: bool = True) -> tuple[bl.LowRankFit, list[Candidate], dict]:
+    """The bilinear stage (:mod:`.fit` describes it): the rank-``rank`` base fit and every extension it can carry —
+    tone curve, black offset, clipping (at a shared level, or removed at ingest), patch change and shadow.
+
+    Parameters
+    ----------
+    y
+        Values, frames × (patches·channels), NaN where missing.
+    rank
+        Rank of the bilinear model.
+    clip_margin
+        The clipping margin: when clipping passes it, patch change and shadow are scored on the unclipped values.
+    learn_noise
+        Learn the noise from the residuals (:func:`.noise.estimate_noise`), else assume the default camera noise.
+
+    Returns
+    -------
+    tuple
+        The base fit, the candidates (ΔBIC scores) and the stage's record (``fits``, ``rms_base``, ``noise``,
+        ``dark_level``).
+    """
     f, m = y.shape
     noise, w, base = _bilinear_base(y, rank, learn_noise)
     present = w > 0
@@ -353,7 +219,7 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
     fits: dict = {"noise": {"shot": noise.shot, "read": noise.read, "step": noise.step,
                             "censored": int(noise.censored.sum())}}
 
-    cands.append(_tone_candidate(y, noise, present, base, rank, n, fits))
+    cands.append(tone_candidate(y, noise, present, base, rank, n, fits))
 
     # black offset, on the values above nz.DARK_LEVEL only (base and extension alike): near black, rounding of
     # pixels the noise does not dither and the clipping at 0 bias a region's mean by up to half a code, which a
@@ -404,6 +270,27 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
 
 def spectral_stage(obs: Observations, sensitivities: NDArray[np.float64],
                     fluorescence_margin: float) -> tuple[list[Candidate], dict]:
+    """The spectral stage (:mod:`.fit` describes it): off-locus light and fluorescence against the joint spectral fit.
+
+    Parameters
+    ----------
+    obs
+        The history.
+    sensitivities
+        Camera sensitivities on the grid (61 × 3).
+    fluorescence_margin
+        When the fluorescence score passes it, the frames are judged for off-locus light without that patch.
+
+    Returns
+    -------
+    tuple
+        The ``off_locus_illuminant`` and ``fluorescence`` candidates and the stage's record.
+
+    References
+    ----------
+    .. [1] S. Han, Y. Matsushita, I. Sato, T. Okabe and Y. Sato, "Camera spectral sensitivity estimation from a single
+       image under unknown illumination by using fluorescence", CVPR 2012 (eqs. 1–2, the emission model).
+    """
     from scipy.stats import chi2
 
     base = fit_spectral_base(obs, sensitivities)

@@ -14,19 +14,19 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .._blas import single_blas_thread
 from ..camera.balance import self_balance_warning
-from ..camera.calibration import calibrate_scene_model
+from ..camera.calibration import SCENE_AVERAGE_SD, calibrate_scene_model
 from ..camera.primaries import SRGB_BALANCE_SD, check_primaries, daylight_prior_for, srgb_sensitivities, to_srgb_primaries
 from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
 from ..observations import Observations
-from ..reflectance import ReflectanceBasis, reflectance_basis
+from ..priors import ReflectanceBasis, reflectance_basis
 from ..retrieval.common import RetrievalResult, censored, gray_world_mired, imaging_operators, white_level
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
@@ -116,40 +116,15 @@ def fit_scene_model(
     missing = [p for p in known if p not in obs.patches]
     if missing:
         raise ValueError(f"known patch(es) never observed: {', '.join(missing)}")
-    if sensitivities is not None and primaries == "srgb":
-        sensitivities = to_srgb_primaries(np.asarray(sensitivities, dtype=float))
-    if sensitivities is None and camera_prior_mean is None and primaries == "srgb":
-        camera_prior_mean = srgb_sensitivities()
+    if primaries == "srgb":
+        sensitivities, camera_prior_mean = _in_srgb_primaries(sensitivities, camera_prior_mean)
 
     def fit_once(o: Observations) -> SceneModel:
-        if sensitivities is None or known:
-            m = calibrate_scene_model(o, sensitivities, known, lambda oo, c: _fit_fixed_camera(oo, c, **kwargs),
-                                      prior_mean=camera_prior_mean, primaries=primaries)
-        else:
-            m, _ = _fit_fixed_camera(o, np.asarray(sensitivities, dtype=float), **kwargs)
-            m.camera = {"calibration": "measured"}
-        m.camera["primaries"] = primaries
-        return m
+        return _fit_camera_and_scene(o, sensitivities, known, camera_prior_mean, primaries, kwargs)
 
     model = fit_once(obs)
     if not known and sensitivities is not None:  # an unmeasured camera's lamp verdicts are not to be acted on
-        # Light that is not daylight (:mod:`.lamps`): lamp-lit frames are left out of the reflectance fit when
-        # enough daylight frames remain to learn every patch; every frame is then judged against the refitted scene.
-        # (a few rounds: frames forced onto daylight bend the reflectances, which can hide other lamp-lit frames)
-        lamp = np.zeros(len(obs.frames), dtype=bool)
-        for _ in range(LAMP_ROUNDS):
-            # out of the reflectance fit, once some frame is more likely lit by a lamp than not: every frame whose
-            # data favour a lamp (Bayes factor > 1, posterior above the prior) — a daylight frame lost costs little,
-            # a lamp-lit frame kept bends every reflectance. A history with no lamp-lit frame is fitted as before.
-            nd = history_lamps(model, obs)
-            new = nd > (LAMP_PRIOR if np.any(nd > 0.5) else 1.0)
-            day = obs.subset(np.flatnonzero(~new))
-            if (np.array_equal(new, lamp) or not new.any() or (~new).sum() < max(2, 0.5 * len(new))
-                    or not np.all(day.present.any(axis=0))):
-                break  # nothing (new) to leave out, or a history judged mostly lamp-lit: no daylight to learn from
-            lamp = new
-            model = fit_once(day)
-            model.history_estimate = model.estimate(obs)
+        model = _refit_without_lamp_frames(model, obs, fit_once)
     scene = obs.select_patches([p for p in obs.patches if p not in known]) if known else obs
     history_lamps(model, scene)
     apply_lamps(model, scene, *model.history_estimate)
@@ -158,6 +133,54 @@ def fit_scene_model(
     if msg:
         model.identifiability.setdefault("warnings", []).append(msg)
         warnings.warn(msg, IdentifiabilityWarning, stacklevel=2)
+    return model
+
+
+def _in_srgb_primaries(sensitivities: NDArray[np.float64] | None, camera_prior_mean: NDArray[np.float64] | None
+                       ) -> tuple[NDArray[np.float64] | None, NDArray[np.float64] | None]:
+    """For rendered output: measured sensitivities carried to sRGB primaries
+    (:func:`~illumon.camera.primaries.to_srgb_primaries`), or for a camera nobody measured the linear-sRGB
+    colour-matching functions as its prior mean unless one is given."""
+    if sensitivities is not None:
+        sensitivities = to_srgb_primaries(np.asarray(sensitivities, dtype=float))
+    if sensitivities is None and camera_prior_mean is None:
+        camera_prior_mean = srgb_sensitivities()
+    return sensitivities, camera_prior_mean
+
+def _fit_camera_and_scene(o: Observations, sensitivities: NDArray[np.float64] | None,
+                          known: Mapping[str, NDArray[np.float64]], camera_prior_mean: NDArray[np.float64] | None,
+                          primaries: str, kwargs: dict) -> SceneModel:
+    """One scene fit of ``o``: through :func:`~illumon.camera.calibration.calibrate_scene_model` for a camera known
+    only up to ``T`` (unmeasured, or with references), else the fixed-camera fit; ``camera`` records which."""
+    if sensitivities is None or known:
+        m = calibrate_scene_model(o, sensitivities, known, lambda oo, c: _fit_fixed_camera(oo, c, **kwargs),
+                                  prior_mean=camera_prior_mean, primaries=primaries)
+    else:
+        m, _ = _fit_fixed_camera(o, np.asarray(sensitivities, dtype=float), **kwargs)
+        m.camera = {"calibration": "measured"}
+    m.camera["primaries"] = primaries
+    return m
+
+
+def _refit_without_lamp_frames(model: SceneModel, obs: Observations,
+                               fit_once: Callable[[Observations], SceneModel]) -> SceneModel:
+    """Light that is not daylight (:mod:`.lamps`): lamp-lit frames are left out of the reflectance fit when enough
+    daylight frames remain to learn every patch; every frame is then judged against the refitted scene (a few rounds:
+    frames forced onto daylight bend the reflectances, which can hide other lamp-lit frames)."""
+    lamp = np.zeros(len(obs.frames), dtype=bool)
+    for _ in range(LAMP_ROUNDS):
+        # out of the reflectance fit, once some frame is more likely lit by a lamp than not: every frame whose
+        # data favour a lamp (Bayes factor > 1, posterior above the prior) — a daylight frame lost costs little,
+        # a lamp-lit frame kept bends every reflectance. A history with no lamp-lit frame is fitted as before.
+        nd = history_lamps(model, obs)
+        new = nd > (LAMP_PRIOR if np.any(nd > 0.5) else 1.0)
+        day = obs.subset(np.flatnonzero(~new))
+        if (np.array_equal(new, lamp) or not new.any() or (~new).sum() < max(2, 0.5 * len(new))
+                or not np.all(day.present.any(axis=0))):
+            break  # nothing (new) to leave out, or a history judged mostly lamp-lit: no daylight to learn from
+        lamp = new
+        model = fit_once(day)
+        model.history_estimate = model.estimate(obs)
     return model
 
 
@@ -286,8 +309,6 @@ def _anchor_common_level(
     Returns the shifted ``θ``, the re-solved coefficients, and the posterior standard deviation of the common shift
     ``(mired, δ)``.
     """
-    from ..camera.calibration import SCENE_AVERAGE_SD
-
     dm = objective.dm
     gain = balance_sd**2 / (balance_sd**2 + SCENE_AVERAGE_SD**2)
     lo_b, hi_b = dm.bounds()

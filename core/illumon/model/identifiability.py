@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..daylight import CIEDaylight
-from ..reflectance import ReflectanceBasis
+from ..priors import ReflectanceBasis
 from ..retrieval.common import imaging_operators
 
 __all__ = ["IdentifiabilityWarning", "identifiability", "spread_subsample"]

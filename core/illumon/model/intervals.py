@@ -89,21 +89,7 @@ def assemble_estimates(
     dlocus = (solver.table.lookup(shown[:, 0] + 0.5)[:, 4] - solver.table.lookup(shown[:, 0] - 0.5)[:, 4]) / 1.0
     g = np.stack([dlocus, np.ones_like(dlocus)], axis=1)
     sduv = np.sqrt(np.clip(np.einsum("fi,fij,fj->f", g, cov[:, :2, :2], g), 0, None) + me["duv"] ** 2)
-    # white, gains and their sensitivities to (mired, δ)
-    h = np.array([0.5, 1e-4])
-    a1 = solver.table.weights(mired + h[0], delta)
-    a2 = solver.table.weights(mired, delta + h[1])
-    wh = [a @ solver.w for a in (a0, a1, a2)]
-    gains = [gains_from_white(w) for w in wh]
-    jg = np.stack([(gains[1] - gains[0]) / h[0], (gains[2] - gains[0]) / h[1]], axis=-1)  # F × 3 × 2
-    # the camera model's own uncertainty (an unmeasured camera's sensitivities; a reference pins most of it)
-    log_gain = math.hypot(me["log_gain"], me.get("camera_log_gain", 0.0))
-    sg = np.sqrt(np.clip(np.einsum("fci,fij,fcj->fc", jg, white_cov[:, :2, :2], jg), 0, None) + (gains[0] * log_gain) ** 2)
-    unit = [w / np.linalg.norm(w, axis=1, keepdims=True) for w in wh]
-    ju = np.stack([(unit[1] - unit[0]) / h[0], (unit[2] - unit[0]) / h[1]], axis=-1)
-    tr = np.einsum("fci,fij,fcj->f", ju, white_cov[:, :2, :2], ju) + 2 * log_gain**2  # angular variance (rad²)
-    rho = math.radians(1.0)
-    confidence = 1.0 - np.exp(-(rho**2) / np.clip(tr, 1e-30, None))  # Rayleigh with σ² = tr/2
+    gain, sg, confidence = _gain_spread(solver, mired, delta, a0, white_cov, me)
     nan = np.full(len(mired), np.nan)
     extra = {
         "cct_lo": np.where(few, nan, cct_lo),
@@ -119,8 +105,8 @@ def assemble_estimates(
         res.white[few] = np.nan
         res.gains[few] = np.nan
     res.info = {
-        "gain_lo": gains[0] - Z95 * sg,
-        "gain_hi": gains[0] + Z95 * sg,
+        "gain_lo": gain - Z95 * sg,
+        "gain_hi": gain + Z95 * sg,
         "theta": theta,
         "covariance": cov,
         "cost": cost,
@@ -128,6 +114,29 @@ def assemble_estimates(
         "too_few_patches": few,
     }
     return res, extra
+
+
+def _gain_spread(solver: FrameSolver, mired: NDArray[np.float64], delta: NDArray[np.float64], a0: NDArray[np.float64],
+                 white_cov: NDArray[np.float64], me: dict) -> tuple[NDArray[np.float64], ...]:
+    """Gains at ``(mired, δ)`` (basis weights ``a0``), their standard deviation and the ``confidence`` (probability
+    that the white is within 1° of the truth) from the covariance ``white_cov`` of ``(mired, δ)``, by finite
+    differences, plus the camera model's own log-gain uncertainty from the model errors ``me``."""
+    # white, gains and their sensitivities to (mired, δ)
+    h = np.array([0.5, 1e-4])
+    a1 = solver.table.weights(mired + h[0], delta)
+    a2 = solver.table.weights(mired, delta + h[1])
+    wh = [a @ solver.w for a in (a0, a1, a2)]
+    gains = [gains_from_white(w) for w in wh]
+    jg = np.stack([(gains[1] - gains[0]) / h[0], (gains[2] - gains[0]) / h[1]], axis=-1)  # F × 3 × 2
+    # the camera model's own uncertainty (an unmeasured camera's sensitivities; a reference pins most of it)
+    log_gain = math.hypot(me["log_gain"], me.get("camera_log_gain", 0.0))
+    sg = np.sqrt(np.clip(np.einsum("fci,fij,fcj->fc", jg, white_cov[:, :2, :2], jg), 0, None) + (gains[0] * log_gain) ** 2)
+    unit = [w / np.linalg.norm(w, axis=1, keepdims=True) for w in wh]
+    ju = np.stack([(unit[1] - unit[0]) / h[0], (unit[2] - unit[0]) / h[1]], axis=-1)
+    tr = np.einsum("fci,fij,fcj->f", ju, white_cov[:, :2, :2], ju) + 2 * log_gain**2  # angular variance (rad²)
+    rho = math.radians(1.0)
+    confidence = 1.0 - np.exp(-(rho**2) / np.clip(tr, 1e-30, None))  # Rayleigh with σ² = tr/2
+    return gains[0], sg, confidence
 
 
 def interval_columns(result: RetrievalResult, extra: dict[str, NDArray[np.float64]]) -> dict[str, NDArray[np.float64]]:

@@ -18,7 +18,7 @@ over ``a`` (a grid) given every frame's two-hypothesis mixture gives each frame'
 history with daylight frames those pin ``a``, so a frame whose light departs from them as no daylight does is called a
 lamp. In a history at least half daylight, the frames whose data favour a lamp are left out of the reflectance fit
 (:func:`illumon.model.fit_scene_model`) and a frame with ``non_daylight`` > 0.5 takes the white of a *general*
-illuminant fitted to the reflectances learned under daylight (:func:`general_whites`); elsewhere the frames are
+illuminant fitted to the reflectances learned under daylight (:func:`.general.general_whites`); elsewhere the frames are
 reported and keep the daylight fit's white.
 
 References
@@ -35,13 +35,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import logsumexp
 
 from ..daylight import CIEDaylight
+from .general import cie_lamp_spectra, general_whites
 
 __all__ = [
     "LAMP_PRIOR",
@@ -55,13 +55,11 @@ __all__ = [
     "history_lamps",
     "apply_lamps",
     "non_daylight_column",
-    "general_basis",
-    "general_whites",
 ]
 
 MIN_DAYLIGHT_FRAMES = 6
 """Daylight frames a history needs before a lamp-lit frame's white is taken from the reflectances learned under them
-(:func:`general_whites`): the reflectances of a static scene are not determined by two or three lights. On the
+(:func:`.general.general_whites`): the reflectances of a static scene are not determined by two or three lights. On the
 development real photographs (``sony-isp-auto`` of ``benchmarks/real.py``: three frames, a camera that balances itself,
 two judged daylight) the spectral white of the third frame was 21° off where the daylight fit's was 8.4°; with the
 greys known, the whole set's median stays 3.0° either way."""
@@ -79,29 +77,8 @@ FRAME_SD = 0.02
 """Per-frame scatter (log units) of a frame's scene-average chroma about ``u + a``: measurement noise, parts of the
 scene whose light differs from the frame's (shade, reflections) and the CIE model's departure from a measured sky."""
 
-_LAMPS = (
-    "A", "FL1", "FL2", "FL3", "FL4", "FL5", "FL6", "FL7", "FL8", "FL9", "FL10", "FL11", "FL12",
-    "FL3.1", "FL3.2", "FL3.3", "FL3.4", "FL3.5", "FL3.6", "FL3.7", "FL3.8", "FL3.9", "FL3.10", "FL3.11", "FL3.12",
-    "FL3.13", "FL3.14", "FL3.15", "HP1", "HP2", "HP3", "HP4", "HP5",
-    "LED-B1", "LED-B2", "LED-B3", "LED-B4", "LED-B5", "LED-BH1", "LED-RGB1", "LED-V1", "LED-V2",
-)
 _MIX = (1.0, 0.5)  # lamp share of the light: the lamp alone, or half and half with daylight
 _LAMP_SD = 0.03  # spread of a lamp type's white (manufacturing, ageing; log units)
-
-
-@lru_cache(maxsize=1)
-def _lamp_spectra() -> NDArray[np.float64]:
-    """Every lamp of :data:`_LAMPS` on the grid (N × 61), 100 at 560 nm."""
-    import colour
-
-    from ..spectra import GRID, resample_columns
-
-    out = []
-    for name in _LAMPS:
-        sd = colour.SDS_ILLUMINANTS[name]
-        v = resample_columns(sd.wavelengths, np.asarray(sd.values, dtype=float)[:, None], GRID)[:, 0]
-        out.append(100.0 * v / v[32])
-    return np.array(out)
 
 
 def _log_chroma(white: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -133,7 +110,7 @@ def lamp_population(
     theta, logw_d = _daylight_grid(dm)
     day = dm.spectra(theta)
     u_d = _log_chroma(day @ css)
-    lamps = _lamp_spectra()
+    lamps = cie_lamp_spectra()
     d_mean = dm.spectra(np.array([[dm.mired_mean, 0.0]]))[0]
     rows = []
     for share in _MIX:
@@ -322,74 +299,6 @@ def _frame_means(model, obs, theta: NDArray[np.float64]) -> NDArray[np.float64]:
     return out
 
 
-GENERAL_COMPONENTS = 6
-"""Components of the general illuminant basis (:func:`general_basis`)."""
-
-
-@lru_cache(maxsize=4)
-def general_basis(components: int = GENERAL_COMPONENTS) -> tuple[NDArray[np.float64], NDArray[np.float64],
-                                                                  NDArray[np.float64]]:
-    """A basis for any illuminant a fixed camera meets, and its Gaussian prior: the leading singular vectors of the
-    lamp population (the CIE lamps alone and mixed half and half with daylight) and of CIE daylight from 4 000 to
-    25 000 K, each spectrum scaled to unit norm. Returns the basis (61 × K), the prior mean and covariance of the
-    coefficients of a unit-norm spectrum."""
-    dm = CIEDaylight()
-    lo, hi = dm.bounds()
-    day = dm.spectra(np.stack([np.linspace(lo[0], hi[0], 40), np.zeros(40)], axis=1))
-    lamps = _lamp_spectra()
-    mixes = [0.5 * lamps + 0.5 * d[None, :] * 100.0 / d[32] for d in day[::8]]
-    pop = np.concatenate([day, lamps, *mixes])
-    pop = pop / np.linalg.norm(pop, axis=1, keepdims=True)
-    _, _, vt = np.linalg.svd(pop, full_matrices=False)
-    basis = vt[:components].T
-    if basis[:, 0].sum() < 0:
-        basis[:, 0] = -basis[:, 0]
-    coef = pop @ basis
-    return basis, coef.mean(axis=0), np.cov(coef.T) + 1e-6 * np.eye(components)
-
-
-def general_whites(model, obs, theta: NDArray[np.float64], frames: NDArray[np.bool_]) -> NDArray[np.float64]:
-    """Camera whites (F × 3, NaN for frames not selected) of the selected frames under a *general* illuminant: the
-    illuminant in :func:`general_basis` that best explains the frame's patches given the model's learned
-    reflectances — a linear Gaussian posterior (Kinoshita & Kiya's eqs. 13–14 with the roles of light and surface
-    exchanged), its scale set by the frame's exposure under the daylight fit. Lamp light changes the patches' colours
-    relative to each other, not only the white (metamerism); the reflectances learned from the daylight frames say how.
-    """
-    from ..retrieval.common import imaging_operators
-
-    basis, mu, cov = general_basis()
-    index = {p: i for i, p in enumerate(model.patches)}
-    shared = [(j, index[p]) for j, p in enumerate(obs.patches) if p in index]
-    oj, mi = [s[0] for s in shared], [s[1] for s in shared]
-    rb = model.reflectance_basis()
-    k_ops, w_ops = imaging_operators(model.sensitivities, basis, rb)  # K × 3 × J, K × 3
-    g = np.einsum("kcj,pj->pck", k_ops, model.coefficients[mi])  # P × 3 × K
-    y = np.asarray(obs.values, dtype=float)[:, oj] / model.noise["scale"]
-    n = model.noise
-    out = np.full((len(y), 3), np.nan)
-    lam = np.linalg.inv(cov)
-    solver = model.solver(mi)
-    for f in np.flatnonzero(frames):
-        ok = np.all(np.isfinite(y[f]), axis=-1)
-        if ok.sum() < 2 or not np.all(np.isfinite(theta[f])):
-            continue
-        yy = y[f, ok]
-        var = n["noise_scale"] ** 2 * ((n["relative_error"] * yy) ** 2 + n["absolute_error"] ** 2)
-        a = g[ok].reshape(-1, basis.shape[1])
-        wgt = 1.0 / var.ravel()
-        # the scale of the frame's light: its daylight fit's white in green, on the unit-norm population's scale
-        b_day = solver._b(theta[f:f + 1, 0], theta[f:f + 1, 1], theta[f:f + 1, 2])[0]
-        day_spec = b_day @ solver.daylight.basis.T
-        k = float(np.linalg.norm(day_spec))
-        prec = a.T @ (wgt[:, None] * a) + lam / k**2
-        rhs = a.T @ (wgt * yy.ravel()) + lam @ (k * mu) / k**2
-        b = np.linalg.solve(prec, rhs)
-        w = b @ w_ops
-        if np.all(w > 0):
-            out[f] = w / w[1]
-    return out
-
-
 def history_lamps(model, obs) -> NDArray[np.float64]:
     """Judge every frame of the history ``obs`` a fitted :class:`~.scene.SceneModel` was fitted on: store the
     posterior of the scene-average offset in ``model.lamps`` and return each frame's ``non_daylight``."""
@@ -406,7 +315,7 @@ def history_lamps(model, obs) -> NDArray[np.float64]:
 def apply_lamps(model, obs, result, extra: dict) -> None:
     """Add ``non_daylight`` to a scene model's per-frame estimate of ``obs`` (in place) and, for frames more likely
     lit by a lamp than by daylight in a history at least half of whose frames are daylight, replace the white and gains by the
-    general illuminant's (:func:`general_whites`), its ``confidence`` from the scene-average colour's posterior
+    general illuminant's (:func:`.general.general_whites`), its ``confidence`` from the scene-average colour's posterior
     spread. CCT and Duv stay the nearest daylight's. Without ``model.lamps`` (a model saved before it) nothing is
     added."""
     lamps = getattr(model, "lamps", None)

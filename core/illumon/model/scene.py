@@ -20,10 +20,11 @@ from numpy.typing import NDArray
 from .._blas import single_blas_thread
 from ..daylight import CIEDaylight
 from ..observations import Observations
-from ..reflectance import ReflectanceBasis, reflectance_basis
+from ..priors import ReflectanceBasis, reflectance_basis
 from ..retrieval.common import RetrievalResult
 from ..spectra import GRID
 from .intervals import assemble_estimates, interval_columns
+from .lamps import apply_lamps
 from .solver import FrameSolver
 
 __all__ = ["MODEL_FORMAT", "MODEL_VERSION", "SceneModel", "estimate_with_model"]
@@ -209,8 +210,6 @@ class SceneModel:
         res, cols = assemble_estimates(obs, self.noise, self.camera, theta, cov, few, solver, cost, len(shared),
                                        _patch_reflectances(self, obs.patches))
         if self.lamps:
-            from .lamps import apply_lamps
-
             apply_lamps(self, obs, res, cols)
         return res, cols
 

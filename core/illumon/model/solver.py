@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..daylight import CIEDaylight
-from ..reflectance import ReflectanceBasis
+from ..priors import ReflectanceBasis
 from ..retrieval.common import CENSORED, NEAR_WHITE, censored, imaging_operators
 from .weights import weight_table
 

@@ -6,7 +6,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ..daylight import MIRED_RANGE, daylight_locus_duv, planck_locus
+from ..daylight import MIRED_RANGE, daylight_locus_duv
+from ..daylight.ohno2013 import planck_locus
 
 __all__ = ["WeightTable", "weight_table"]
 

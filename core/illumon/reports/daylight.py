@@ -1,5 +1,5 @@
 """``illumon report daylight``: how well the product's daylight models fit measured daylight, why they fail, and what
-the measured-daylight model (:mod:`illumon.daylight_measured`) gains for the estimator.
+the measured-daylight model (:mod:`illumon.daylight.measured`) gains for the estimator.
 
 Models compared on every measured spectrum (unit-mean scale, best scale per fit):
 
@@ -18,7 +18,6 @@ by held-out spectra (:func:`illumon.retrieval.joint.illuminant_retrieval_joint`)
 
 from __future__ import annotations
 
-import inspect
 import json
 import time
 from pathlib import Path
@@ -36,8 +35,7 @@ from ..daylight import (
     theta_curve,
     xy_from_cct_duv,
 )
-from ..daylight_measured import (
-    MeasuredDaylight,
+from ..daylight.measured import (
     MeasuredDaylightData,
     fit_measured_daylight,
     free_fit,
@@ -47,8 +45,10 @@ from ..daylight_measured import (
 from ..spectra import GRID, WAVELENGTHS, SpectralInputError, read_spectral_csv, resample_columns
 from . import render
 from .detect import detect_band, detect_tint
+from .gain import daylight_gain
+from .metrics import gfc, q, rel_rmse, scaled
 
-__all__ = ["daylight_report", "load_measured_spectra", "fit_daylight_models", "gfc", "rel_rmse", "sky_class"]
+__all__ = ["daylight_report", "load_measured_spectra", "fit_daylight_models", "sky_class"]
 
 BANDS = ((400, 450), (450, 500), (500, 550), (550, 600), (600, 650), (650, 700))
 CCT_BINS = (0, 4500, 5500, 6500, 8000, 11000, 1e9)
@@ -65,21 +65,6 @@ FEATURES = {  # known spectral features of global irradiance within 400–700 nm
     695: "H2O band",
 }
 MIN_SPECTRA = 10
-
-
-def gfc(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Goodness-of-fit coefficient |⟨a, b⟩| / (‖a‖‖b‖) along the last axis (Romero et al. 1997)."""
-    return np.abs((a * b).sum(-1)) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
-
-
-def rel_rmse(fit: NDArray[np.float64], e: NDArray[np.float64]) -> NDArray[np.float64]:
-    """RMSE of ``fit`` after its best scale onto ``e``, relative to the mean level of ``e``."""
-    s = (fit * e).sum(-1, keepdims=True) / (fit * fit).sum(-1, keepdims=True)
-    return np.sqrt(np.mean((s * fit - e) ** 2, axis=-1)) / e.mean(-1)
-
-
-def _scaled(fit: NDArray[np.float64], e: NDArray[np.float64]) -> NDArray[np.float64]:
-    return fit * ((fit * e).sum(-1, keepdims=True) / (fit * fit).sum(-1, keepdims=True))
 
 
 def load_measured_spectra(path: str | Path) -> tuple[list[str], NDArray[np.float64], dict]:
@@ -131,7 +116,7 @@ def fit_daylight_models(
     if data is not None:
         fits["measured_xy"] = data.predict(xy)
         fits["measured_free"] = free_fit(data.basis, e)
-    return {k: _scaled(v, e) for k, v in fits.items()}
+    return {k: scaled(v, e) for k, v in fits.items()}
 
 
 def sky_class(cct: NDArray[np.float64], delta: NDArray[np.float64]) -> NDArray[np.str_]:
@@ -154,73 +139,6 @@ def _nearest_feature(nm: float) -> str:
     return f"{FEATURES[k]} ({k} nm)" if abs(k - nm) <= 12 else "no catalogued feature"
 
 
-def _camera_white_gain(e: NDArray[np.float64], data: MeasuredDaylightData, cameras: list) -> dict:
-    """Angular error of the camera white each model predicts at the true chromaticity (all spectra × cameras)."""
-    from ..camera import angular_error_deg
-
-    xy = spectrum_to_xy(e)
-    preds = {"cie": daylight_spectrum(xy), "measured": data.predict(xy)}
-    out: dict[str, list[float]] = {k: [] for k in preds}
-    for c in cameras:
-        w = e @ c
-        for k, p in preds.items():
-            out[k].extend(angular_error_deg(p @ c, w).tolist())
-    return {k: np.asarray(v) for k, v in out.items()}
-
-
-def _simulate_gain(
-    e_test: NDArray[np.float64],
-    data: MeasuredDaylightData,
-    *,
-    n_histories: int,
-    n_frames: int,
-    n_patches: int,
-    seed: int,
-    time_budget_s: float,
-    solver_kwargs: dict | None,
-) -> dict:
-    """Joint retrieval with each daylight model on simulated histories lit by held-out spectra."""
-    from .. import datasets
-    from ..camera import angular_error_deg
-    from ..retrieval.joint import illuminant_retrieval_joint
-    from ..simulate import simulate_history
-
-    rng = np.random.default_rng(seed)
-    cams = datasets.camera_names()
-    refl = np.concatenate([datasets.load_reflectance_set(n)[1] for n in datasets.REFLECTANCE_SETS])
-    accepted = set(inspect.signature(illuminant_retrieval_joint).parameters)
-    kw = {k: v for k, v in (solver_kwargs or {}).items() if k in accepted}
-    models = {"cie": "cie", "measured": MeasuredDaylight(data)}
-    res: dict[str, dict[str, list[float]]] = {k: {"angular": [], "rmse": [], "gfc": []} for k in models}
-    hist = []
-    t0 = time.perf_counter()
-    for _ in range(n_histories):
-        if time.perf_counter() - t0 > time_budget_s:
-            break
-        cam_name = cams[int(rng.integers(len(cams)))]
-        cam = datasets.load_camera(cam_name)
-        frames = rng.choice(len(e_test), size=min(n_frames, len(e_test)), replace=False)
-        r = refl[rng.choice(len(refl), size=n_patches, replace=False)]
-        sim = simulate_history(cam, e_test[frames], r, rng=rng)
-        true_white = sim.true_white
-        row = {"camera": cam_name, "frames": frames.tolist()}
-        for name, model in models.items():
-            est = illuminant_retrieval_joint(sim.observations, cam, daylight=model, **kw)
-            ae = angular_error_deg(est.white, true_white)
-            truth = unit_mean(e_test[frames])
-            res[name]["angular"].extend(ae.tolist())
-            res[name]["rmse"].extend(rel_rmse(est.spectra, truth).tolist())
-            res[name]["gfc"].extend(gfc(est.spectra, truth).tolist())
-            row[f"median_angular_{name}"] = float(np.median(ae))
-        hist.append(row)
-    return {"per_model": res, "histories": hist, "seconds": time.perf_counter() - t0}
-
-
-def _q(a: NDArray[np.float64] | list, p: float = 50) -> float:
-    a = np.asarray(a, dtype=float)
-    return float(np.percentile(a, p)) if a.size else float("nan")
-
-
 def _model_errors(e: NDArray[np.float64], cct: NDArray[np.float64], delta: NDArray[np.float64],
                   sky: NDArray[np.str_]) -> tuple[dict, dict, dict, dict, list, list, list]:
     """Step 1: every spectrum fitted with the product's models; errors overall, by CCT, band and sky class."""
@@ -229,9 +147,9 @@ def _model_errors(e: NDArray[np.float64], cct: NDArray[np.float64], delta: NDArr
     resid = {k: (v - e) / e for k, v in fits.items()}
     models_summary = {
         k: {
-            "median_rmse": _q(v["rmse"]),
-            "p95_rmse": _q(v["rmse"], 95),
-            "median_gfc": _q(v["gfc"]),
+            "median_rmse": q(v["rmse"]),
+            "p95_rmse": q(v["rmse"], 95),
+            "median_gfc": q(v["gfc"]),
             "frac_gfc_999": float(np.mean(v["gfc"] >= 0.999)),
             "frac_gfc_9999": float(np.mean(v["gfc"] >= 0.9999)),
         }
@@ -243,8 +161,8 @@ def _model_errors(e: NDArray[np.float64], cct: NDArray[np.float64], delta: NDArr
         if s.any():
             by_cct.append({
                 "cct_from": lo, "cct_to": hi if hi < 1e8 else None, "n": int(s.sum()),
-                "median_delta_duv": _q(delta[s]),
-                **{f"median_rmse_{k}": _q(err[k]["rmse"][s]) for k in err},
+                "median_delta_duv": q(delta[s]),
+                **{f"median_rmse_{k}": q(err[k]["rmse"][s]) for k in err},
                 **{f"frac_gfc_999_{k}": float(np.mean(err[k]["gfc"][s] >= 0.999)) for k in err},
             })
     by_band = []
@@ -255,8 +173,8 @@ def _model_errors(e: NDArray[np.float64], cct: NDArray[np.float64], delta: NDArr
     for c in sorted(set(sky)):
         s = sky == c
         by_sky.append({
-            "sky": c, "n": int(s.sum()), "median_cct": _q(cct[s]), "median_delta_duv": _q(delta[s]),
-            **{f"median_rmse_{k}": _q(err[k]["rmse"][s]) for k in err},
+            "sky": c, "n": int(s.sum()), "median_cct": q(cct[s]), "median_delta_duv": q(delta[s]),
+            **{f"median_rmse_{k}": q(err[k]["rmse"][s]) for k in err},
             **{f"frac_gfc_999_{k}": float(np.mean(err[k]["gfc"][s] >= 0.999)) for k in err},
         })
 
@@ -278,13 +196,13 @@ def _cause(err: dict, resid: dict, cct: NDArray[np.float64], delta: NDArray[np.f
     cause = {
         "n_fail_cie_xy": int(fail.sum()),
         "frac_fail_cie_xy": float(fail.mean()),
-        "median_cct_fail": _q(cct[fail]) if fail.any() else None,
-        "median_cct_pass": _q(cct[~fail]) if (~fail).any() else None,
+        "median_cct_fail": q(cct[fail]) if fail.any() else None,
+        "median_cct_pass": q(cct[~fail]) if (~fail).any() else None,
         "frac_fail_above_8000K": float(np.mean(fail[cct >= 8000])) if np.any(cct >= 8000) else None,
         "frac_fail_below_6200K": float(np.mean(fail[cct < 6200])) if np.any(cct < 6200) else None,
         "frac_off_locus_003": float(np.mean(np.abs(delta) > 0.003)),
-        "median_abs_delta_fail": _q(np.abs(delta[fail])) if fail.any() else None,
-        "median_abs_delta_pass": _q(np.abs(delta[~fail])) if (~fail).any() else None,
+        "median_abs_delta_fail": q(np.abs(delta[fail])) if fail.any() else None,
+        "median_abs_delta_pass": q(np.abs(delta[~fail])) if (~fail).any() else None,
         "worst_band": band_rows[0]["band"],
         "peak_residual_nm_fail": peak_nm,
         "peak_feature": _nearest_feature(peak_nm),
@@ -302,13 +220,13 @@ def _extension(e: NDArray[np.float64], train: NDArray[np.int64], test: NDArray[n
     data = fit_measured_daylight(e[train], provenance={"source": source, "split": split, "seed": seed})
     e_test = e[test]
     fits_test = fit_daylight_models(e_test, data)
-    held = {k: {"median_rmse": _q(rel_rmse(v, e_test)), "median_gfc": _q(gfc(v, e_test)),
+    held = {k: {"median_rmse": q(rel_rmse(v, e_test)), "median_gfc": q(gfc(v, e_test)),
                 "frac_gfc_999": float(np.mean(gfc(v, e_test) >= 0.999)),
                 "frac_gfc_9999": float(np.mean(gfc(v, e_test) >= 0.9999))}
             for k, v in fits_test.items()}
     mu_t = e[train].mean(0)
     vt = np.linalg.svd(e[train] - mu_t, full_matrices=False)[2]
-    k_curve = [_q(rel_rmse(free_fit(np.column_stack([mu_t, vt[:k].T]), e_test), e_test)) for k in range(1, 11)]
+    k_curve = [q(rel_rmse(free_fit(np.column_stack([mu_t, vt[:k].T]), e_test), e_test)) for k in range(1, 11)]
     extension = {
         "n_components": data.k, "cv_errors": data.cv_errors.tolist(), "held_out_median_rmse_by_k": k_curve,
         "delta_prior": {"coef": data.delta_coef.tolist(), "sd": data.delta_sd},
@@ -316,41 +234,6 @@ def _extension(e: NDArray[np.float64], train: NDArray[np.int64], test: NDArray[n
     }
 
     return data, held, extension, k_curve
-
-
-def _gain(e_test: NDArray[np.float64], data: MeasuredDaylightData, split: str, seed: int, *, simulate: bool,
-          n_histories: int, n_frames: int, n_patches: int, time_budget_s: float, solver_kwargs: dict | None) -> dict:
-    """Step 4: the gain where it matters: camera whites of the measured cameras, and simulated retrievals."""
-    gain: dict = {"split": split, "seed": seed}
-    try:
-        from .. import datasets
-
-        have_data = datasets.shared_data_dir() is not None
-    except Exception:  # pragma: no cover - import problems mean no data
-        have_data = False
-    if have_data:
-        cams = [datasets.load_camera(c) for c in datasets.camera_names()]
-        cw = _camera_white_gain(e_test, data, cams)
-        gain["camera_white_at_true_chromaticity"] = {
-            k: {"median_deg": _q(v), "p95_deg": _q(v, 95)} for k, v in cw.items()
-        }
-        gain["camera_white_n"] = int(cw["cie"].size)
-        if simulate and n_histories > 0:
-            sim = _simulate_gain(e_test, data, n_histories=n_histories, n_frames=n_frames, n_patches=n_patches,
-                                 seed=seed, time_budget_s=time_budget_s, solver_kwargs=solver_kwargs)
-            pm = sim["per_model"]
-            gain["retrieval"] = {
-                "n_histories": len(sim["histories"]), "n_frames": n_frames, "n_patches": n_patches,
-                "seconds": sim["seconds"],
-                **{k: {"median_angular_deg": _q(v["angular"]), "mean_angular_deg": float(np.mean(v["angular"]))
-                       if v["angular"] else float("nan"),
-                       "median_spectral_rmse": _q(v["rmse"]), "median_gfc": _q(v["gfc"])} for k, v in pm.items()},
-                "histories": sim["histories"],
-            }
-    else:
-        gain["skipped"] = "measured cameras and reflectances not found (illumon.datasets.shared_data_dir() is None)"
-
-    return gain
 
 
 def _detection(e: NDArray[np.float64], ids: list[str]) -> tuple[dict, dict]:
@@ -412,7 +295,7 @@ def daylight_report(
     out_dir
         Output folder (created): ``report.md``, ``figures.json``, ``summary.json`` and PNG plots.
     split, seed
-        Training / held-out split of the file (:func:`illumon.daylight_measured.split_indices`): ``"time"`` (file
+        Training / held-out split of the file (:func:`illumon.daylight.measured.split_indices`): ``"time"`` (file
         order, first half trains) or ``"random"`` halves.
     n_histories, n_frames, n_patches
         Simulated fixed-camera histories for the gain: count, frames each (held-out spectra), static patches each
@@ -420,7 +303,7 @@ def daylight_report(
     time_budget_s
         Wall-clock budget of the simulated retrievals; histories beyond it are skipped (the report says how many ran).
     simulate
-        Run the simulated retrievals (needs the measured cameras and reflectances of :mod:`illumon.datasets`).
+        Run the simulated retrievals (needs the measured cameras and reflectances of :mod:`illumon.simulation.datasets`).
     solver_kwargs
         Extra keyword arguments for :func:`~illumon.retrieval.joint.illuminant_retrieval_joint` (unknown ones are
         ignored).
@@ -449,12 +332,12 @@ def daylight_report(
     fits, err, resid, models_summary, by_cct, by_band, by_sky = _model_errors(e, cct, delta, sky)
     cause, rms_fail = _cause(err, resid, cct, delta, by_band, models_summary)
     data, held, extension, k_curve = _extension(e, train, test, str(spectra_csv_path), split, seed)
-    gain = _gain(e[test], data, split, seed, simulate=simulate, n_histories=n_histories, n_frames=n_frames,
-                 n_patches=n_patches, time_budget_s=time_budget_s, solver_kwargs=solver_kwargs)
+    gain = daylight_gain(e[test], data, split, seed, simulate=simulate, n_histories=n_histories, n_frames=n_frames,
+                         n_patches=n_patches, time_budget_s=time_budget_s, solver_kwargs=solver_kwargs)
     detection, band = _detection(e, ids)
     summary = {
         "input": {"path": str(spectra_csv_path), "n_spectra": n, **load_info,
-                  "cct_percentiles_5_50_95": [_q(cct, 5), _q(cct), _q(cct, 95)]},
+                  "cct_percentiles_5_50_95": [q(cct, 5), q(cct), q(cct, 95)]},
         "models": models_summary, "by_cct": by_cct, "by_band": by_band, "by_sky": by_sky, "cause": cause,
         "held_out": held, "extension": extension, "gain": gain, "detection": detection,
     }

@@ -1,7 +1,7 @@
 """Physics-based detection of distortions that a daylight model lacks, by residual analysis.
 
 Two kinds of departure are searched for in a set of measured spectra, each against the measured-daylight model of
-:mod:`illumon.daylight_measured` (no classifier is trained):
+:mod:`illumon.daylight.measured` (no classifier is trained):
 
 * **Absorption bands.** Every spectrum is fitted freely with the model's smooth basis; an absorber multiplies the
   spectrum by ``1 − d·g(λ)`` with a band profile ``g`` (Beer–Lambert for a weak line), so its trace in the relative
@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..daylight import cct_duv_from_xy, daylight_locus_duv, spectrum_to_xy
-from ..daylight_measured import MeasuredDaylightData, shipped_measured_daylight, unit_mean
+from ..daylight.measured import MeasuredDaylightData, shipped_measured_daylight, unit_mean
 from ..spectra import WAVELENGTHS
 
 __all__ = ["detect_band", "detect_tint", "otsu_threshold"]

@@ -3,6 +3,7 @@ and the Markdown text, from the report's figures and summary."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,7 @@ __all__ = ["plots", "markdown"]
 
 
 def plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) -> list[str]:
+    """Draw the report's PNG plots into ``out`` from its figures (matplotlib, Agg); the file names written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -28,6 +30,18 @@ def plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) -
         plt.close(figure)
         names.append(name)
 
+    _plot_error_vs_cct(plt, save, fig)
+    _plot_delta_vs_cct(plt, save, fig)
+    _plot_residual_by_wavelength(plt, save, fig)
+    _plot_held_out_error_by_k(plt, save, fig)
+    _plot_worst_fits(plt, save, fits, e, err)
+    _plot_band_scan(plt, save, fig)
+    _plot_gain_retrieval(plt, save, fig)
+    return names
+
+
+def _plot_error_vs_cct(plt: Any, save: Callable[[Any, str], None], fig: dict) -> None:
+    """1 − GFC and relative RMSE of the CIE models against CCT."""
     f, ax = plt.subplots(1, 2, figsize=(11, 4))
     cct = np.asarray(fig["error_vs_cct"]["cct"])
     for k in ("cie_cct", "cie_xy", "cie_free", "theta"):
@@ -42,6 +56,9 @@ def plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) -
     ax[0].axhline(1e-3, color="k", lw=0.8, ls="--")
     save(f, "error_vs_cct.png")
 
+
+def _plot_delta_vs_cct(plt: Any, save: Callable[[Any, str], None], fig: dict) -> None:
+    """δ (offset from the CIE daylight locus) against CCT by sky state, with the measured prior's mean."""
     d = fig["delta_vs_cct"]
     f, ax = plt.subplots(figsize=(6, 4))
     sky = np.asarray(d["sky"])
@@ -56,6 +73,9 @@ def plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) -
     ax.legend(markerscale=4, fontsize=8)
     save(f, "delta_vs_cct.png")
 
+
+def _plot_residual_by_wavelength(plt: Any, save: Callable[[Any, str], None], fig: dict) -> None:
+    """RMS relative residual of each model by wavelength."""
     r = fig["residual_by_wavelength"]
     f, ax = plt.subplots(figsize=(7, 4))
     for k in ("cie_cct", "cie_xy", "cie_free", "theta", "cie_xy_failing"):
@@ -65,6 +85,9 @@ def plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) -
     ax.legend(fontsize=8)
     save(f, "residual_by_wavelength.png")
 
+
+def _plot_held_out_error_by_k(plt: Any, save: Callable[[Any, str], None], fig: dict) -> None:
+    """Held-out and cross-validated error of the measured basis against the number of components."""
     h = fig["held_out_error_by_k"]
     f, ax = plt.subplots(figsize=(6, 4))
     ax.semilogy(h["k"], h["median_rmse"], "o-", label="held-out median")
@@ -74,6 +97,9 @@ def plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) -
     ax.legend()
     save(f, "held_out_error_by_k.png")
 
+
+def _plot_worst_fits(plt: Any, save: Callable[[Any, str], None], fits: dict, e: NDArray[np.float64], err: dict) -> None:
+    """The four spectra CIE D fits worst, with their fits."""
     worst = np.argsort(err["cie_xy"]["gfc"])[:4]
     f, axs = plt.subplots(1, 4, figsize=(14, 3.5))
     for a, i in zip(axs, worst, strict=False):
@@ -85,6 +111,9 @@ def plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) -
     axs[0].legend(fontsize=7)
     save(f, "worst_fits.png")
 
+
+def _plot_band_scan(plt: Any, save: Callable[[Any, str], None], fig: dict) -> None:
+    """The absorption-band scan's evidence by band centre."""
     b = fig["band_scan"]
     f, ax = plt.subplots(figsize=(7, 3.5))
     ax.plot(b["centre_nm"], b["evidence"])
@@ -92,6 +121,9 @@ def plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) -
     ax.set_ylabel("summed matched-filter evidence")
     save(f, "band_scan.png")
 
+
+def _plot_gain_retrieval(plt: Any, save: Callable[[Any, str], None], fig: dict) -> None:
+    """Median angular error per simulated history, CIE D against measured (when the retrievals ran)."""
     g = fig["gain"].get("retrieval_per_history")
     if g:
         f, ax = plt.subplots(figsize=(5, 4))
@@ -99,7 +131,6 @@ def plots(out: Path, fig: dict, fits: dict, e: NDArray[np.float64], err: dict) -
         ax.set_xticks([1, 2], ["CIE D", "measured"])
         ax.set_ylabel("median angular error per history (°)")
         save(f, "gain_retrieval.png")
-    return names
 
 
 def _fmt(x: float | None, p: int = 4) -> str:
@@ -107,7 +138,19 @@ def _fmt(x: float | None, p: int = 4) -> str:
 
 
 def markdown(s: dict) -> str:
-    m, c, ho, ex, g, det = s["models"], s["cause"], s["held_out"], s["extension"], s["gain"], s["detection"]
+    """The report's Markdown text from its summary, section by section."""
+    lines = _md_fits(s)
+    lines += _md_cause(s["cause"])
+    lines += _md_extension(s["extension"], s["held_out"], s["gain"])
+    lines += _md_gain(s["gain"])
+    lines += _md_detection(s["detection"])
+    lines += ["", "![band scan](band_scan.png)", "", f"Report written in {s['seconds']:.1f} s.", ""]
+    return "\n".join(lines)
+
+
+def _md_fits(s: dict) -> list[str]:
+    """The title, the input and section 1: how well the product's daylight models fit (overall, by CCT, band, sky)."""
+    m = s["models"]
     lines = [
         "# Daylight report",
         "",
@@ -142,6 +185,13 @@ def markdown(s: dict) -> str:
         "",
         "![error vs CCT](error_vs_cct.png) ![delta vs CCT](delta_vs_cct.png)",
         "![residual by wavelength](residual_by_wavelength.png) ![worst fits](worst_fits.png)",
+    ]
+    return lines
+
+
+def _md_cause(c: dict) -> list[str]:
+    """Section 2: where and why CIE D fails."""
+    lines = [
         "",
         "## 2. The cause",
         "",
@@ -162,6 +212,13 @@ def markdown(s: dict) -> str:
         "short-wave shape that S1/S2 cannot follow; direct-sun and low-sun spectra pass through long air paths whose "
         "absorption (ozone Chappuis band around 600 nm, O2 and H2O bands towards 700 nm) and aerosol extinction vary "
         "with the day, not with chromaticity; the 5-nm smoothed Fraunhofer lines differ with instrument resolution.",
+    ]
+    return lines
+
+
+def _md_extension(ex: dict, ho: dict, g: dict) -> list[str]:
+    """Section 3: the measured-daylight basis fitted on the training half and its held-out errors."""
+    lines = [
         "",
         "## 3. Extended model: measured-daylight basis with an off-locus parameter",
         "",
@@ -181,7 +238,13 @@ def markdown(s: dict) -> str:
                      f"{v['frac_gfc_9999']:.1%} |")
     lines += ["", "Held-out median RMSE by k: " + ", ".join(f"{i + 1}: {x:.4f}"
                                                          for i, x in enumerate(ex["held_out_median_rmse_by_k"])),
-              "", "![held-out error by k](held_out_error_by_k.png)", "", "## 4. Gain where it matters", ""]
+              "", "![held-out error by k](held_out_error_by_k.png)", ""]
+    return lines
+
+
+def _md_gain(g: dict) -> list[str]:
+    """Section 4: the gain in camera whites and simulated retrievals (or why it was skipped)."""
+    lines = ["## 4. Gain where it matters", ""]
     if "skipped" in g:
         lines.append(g["skipped"])
     else:
@@ -211,8 +274,13 @@ def markdown(s: dict) -> str:
                 "",
                 "![gain](gain_retrieval.png)",
             ]
+    return lines
+
+
+def _md_detection(det: dict) -> list[str]:
+    """The hidden-distortion search: an absorption band and an off-locus tint."""
     bd, td = det["band"], det["tint"]
-    lines += ["", "## Hidden distortions (residual analysis against the measured model)", ""]
+    lines = ["", "## Hidden distortions (residual analysis against the measured model)", ""]
     lines.append(
         f"- Absorption band: **found** at {bd['centre_nm']:.0f} nm (FWHM ≈ {bd['fwhm_nm']:.0f} nm, median depth "
         f"{bd['depth_median']:.3f}) in {bd['n_affected']} spectra; nearest known feature: {bd['feature']}."
@@ -223,5 +291,4 @@ def markdown(s: dict) -> str:
         f"(cluster separation {td['separation']:.1f} σ)."
         if td["found"] else f"- Off-locus tint: none (best two-cluster separation {td['separation']:.1f} σ)."
     )
-    lines += ["", "![band scan](band_scan.png)", "", f"Report written in {s['seconds']:.1f} s.", ""]
-    return "\n".join(lines)
+    return lines

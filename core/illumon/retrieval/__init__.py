@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from .._blas import single_blas_thread
 from ..camera.formation import gains_from_white
+from ..daylight import daylight_locus_duv, daylight_spectrum, xy_from_cct_duv
 from ..observations import Observations
 from .common import RetrievalResult, gray_world, make_result
 from .joint import illuminant_retrieval_joint
@@ -42,8 +43,6 @@ def illuminant_retrieval_gray_world(obs: Observations, sensitivities: NDArray[np
 
     The illuminant reported is the CIE daylight whose camera white is closest in chromaticity to that mean.
     """
-    from ..daylight import daylight_locus_duv, daylight_spectrum, xy_from_cct_duv
-
     gw = gray_world(obs)
     mired = np.linspace(40.0, 400.0, 721)
     cct = 1e6 / mired

@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 from ..camera import camera_white, gains_from_white
 from ..daylight import cct_duv_from_xy, daylight_locus_duv, daylight_spectrum, spectrum_to_xy, xy_from_cct_duv
 from ..observations import Observations
-from ..reflectance import ReflectanceBasis
+from ..priors import ReflectanceBasis
 
 __all__ = ["RetrievalResult", "imaging_operators", "make_result", "gray_world", "gray_world_mired", "CENSORED", "NEAR_WHITE",
            "censored", "white_level"]

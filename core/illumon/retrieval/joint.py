@@ -23,10 +23,9 @@ from scipy import sparse
 from scipy.optimize import least_squares
 
 from .._blas import single_blas_thread
-from ..daylight import DaylightModel, xy_from_cct_duv
-from ..daylight_models import daylight_model
+from ..daylight import DaylightModel, daylight_model, xy_from_cct_duv
 from ..observations import Observations
-from ..reflectance import ReflectanceBasis, reflectance_basis
+from ..priors import ReflectanceBasis, reflectance_basis
 from .common import RetrievalResult, censored, gray_world_mired, imaging_operators, make_result, white_level
 
 __all__ = ["EXPOSURE_MODES", "illuminant_retrieval_joint", "JointProblem"]

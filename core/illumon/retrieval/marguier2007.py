@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from .._blas import single_blas_thread
 from ..daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum, theta_curve
 from ..observations import Observations
-from ..reflectance import ReflectanceBasis, reflectance_basis
+from ..priors import ReflectanceBasis, reflectance_basis
 from .common import RetrievalResult, imaging_operators, make_result
 
 __all__ = ["illuminant_retrieval_Marguier2007", "marguier_error"]
@@ -101,7 +101,7 @@ def illuminant_retrieval_Marguier2007(
     23 cases of the first patch set), most of the gap to the paper's Tables 1–3 (docs/benchmarks.md, *Seeds and peers*). The
     gradient is divided by the current error so one setting serves any data scale. No exposure model: frames are compared as
     given, as in the paper's synthetic experiments, so eq. (3) is only unbiased when the frames are at the model's
-    scale (``ε1 = 1``; :func:`illumon.scenarios.paper_protocol` ``illuminant_scale="model"``).
+    scale (``ε1 = 1``; :func:`illumon.simulation.scenarios.paper_protocol` ``illuminant_scale="model"``).
     """
     rng = np.random.default_rng(rng)
     rb = reflectance or reflectance_basis()

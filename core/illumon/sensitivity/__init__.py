@@ -36,14 +36,6 @@ from .han2012 import sensitivities_Han2012
 from .huynh2014 import sensitivities_Huynh2014
 from .jiang2013 import sensitivities_Jiang2013
 from .kinoshita2023 import sensitivities_Kinoshita2023
-from .prior import (
-    CameraPrior,
-    DaylightPrior,
-    build_camera_prior,
-    build_daylight_prior,
-    default_camera_prior,
-    default_daylight_prior,
-)
 
 __all__ = [
     "METHODS",
@@ -61,12 +53,6 @@ __all__ = [
     "correct_Han2012",
     "transfer_matrix_Huynh2014",
     "to_cie1931_Huynh2014",
-    "CameraPrior",
-    "DaylightPrior",
-    "build_camera_prior",
-    "build_daylight_prior",
-    "default_camera_prior",
-    "default_daylight_prior",
 ]
 
 METHODS: dict[str, Callable[..., SensitivityResult]] = {

@@ -13,7 +13,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..camera import render
 from ..daylight import CIE_D_BASIS
-from .prior import DaylightPrior, default_daylight_prior
+from ..priors import DaylightPrior, default_daylight_prior
 
 __all__ = ["daylight_Han2012", "daylight_basis"]
 

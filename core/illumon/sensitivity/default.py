@@ -1,10 +1,10 @@
 """illumon's own single-chart estimator: everything measured, marginalised properly.
 
 The camera's stacked sensitivities ``c`` (183-vector) get a Gaussian prior from measured cameras
-(:class:`~illumon.sensitivity.prior.CameraPrior`: joint principal components with their sample variances, plus a
+(:class:`~illumon.priors.CameraPrior`: joint principal components with their sample variances, plus a
 smooth squared-exponential floor so that curves may leave the span of the training cameras only smoothly). The
 unknown daylight is ``E = mean + V y`` with the Gaussian prior of the measured Granada spectra
-(:class:`~illumon.sensitivity.prior.DaylightPrior`). Given ``E`` and an exposure ``a``, the chart values
+(:class:`~illumon.priors.DaylightPrior`). Given ``E`` and an exposure ``a``, the chart values
 ``x = a A(E) c + n`` are linear-Gaussian in ``c``, so ``c`` is integrated out analytically and the few daylight and
 exposure parameters are chosen by maximising the marginal likelihood (type-II maximum likelihood) plus the daylight
 prior. The sensitivities are then the non-negative MAP given that daylight (bounded least squares on the whitened
@@ -21,8 +21,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import lsq_linear, minimize
 
+from ..priors import CameraPrior, DaylightPrior, default_camera_prior, default_daylight_prior
 from .common import SensitivityResult, chart_operator, check_chart, finish, smooth_kernel
-from .prior import CameraPrior, DaylightPrior, default_camera_prior, default_daylight_prior
 
 __all__ = ["sensitivities_illumon", "camera_prior_covariance", "SMOOTH_FLOOR", "NEAR_CLIP"]
 

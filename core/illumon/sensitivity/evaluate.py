@@ -16,8 +16,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..camera import render
+from ..priors import CameraPrior, build_camera_prior
 from .common import SensitivityResult, rmse_per_channel
-from .prior import CameraPrior, build_camera_prior
 
 __all__ = ["simulate_chart", "camera_model", "camera_manufacturer", "leave_one_out", "LooResult"]
 

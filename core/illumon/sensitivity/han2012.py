@@ -24,7 +24,7 @@ from importlib import resources
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..reflectance import reflectance_basis
+from ..priors import reflectance_basis
 from ..spectra import GRID, WAVELENGTHS, read_spectral_csv, resample_columns
 from .common import SensitivityResult, check_chart, finish
 

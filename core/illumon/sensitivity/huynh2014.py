@@ -25,9 +25,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import minimize, nnls
 
+from ..priors import CameraPrior, default_camera_prior
 from ..spectra import WAVELENGTHS
 from .common import SensitivityResult, check_chart, finish, second_difference
-from .prior import CameraPrior, default_camera_prior
 
 __all__ = ["sensitivities_Huynh2014", "decompose_Huynh2014"]
 

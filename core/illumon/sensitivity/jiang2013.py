@@ -19,9 +19,9 @@ from numpy.typing import ArrayLike
 
 from ..camera import render
 from ..daylight import daylight_locus_xy, daylight_spectrum
+from ..priors import CameraPrior, default_camera_prior
 from ..spectra import GRID, WAVELENGTHS
 from .common import SensitivityResult, check_chart, finish
-from .prior import CameraPrior, default_camera_prior
 
 __all__ = ["sensitivities_Jiang2013"]
 

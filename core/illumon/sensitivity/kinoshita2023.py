@@ -9,7 +9,7 @@ spectral factor given the other two is Gaussian: for the sensitivity, eqs. (15)â
 The paper estimates one factor with the others known. Here the daylight is unknown too, so the two posteriors are
 alternated: sensitivity posterior given the current illuminant mean, then illumination posterior given the
 sensitivity mean, until the estimates settle. The priors are measured: the camera prior of
-:class:`~illumon.sensitivity.prior.CameraPrior` (eq. 18 uses the mean of measured cameras; the covariance is theirs
+:class:`~illumon.priors.CameraPrior` (eq. 18 uses the mean of measured cameras; the covariance is theirs
 too) and the Granada daylight prior (eq. 17 uses a mean daylight). The final estimate is max-normalised (eq. 19).
 """
 
@@ -19,8 +19,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ..bayes import GaussianPrior, gaussian_posterior
+from ..priors import CameraPrior, DaylightPrior, default_camera_prior, default_daylight_prior
 from .common import SensitivityResult, chart_operator, check_chart, finish
-from .prior import CameraPrior, DaylightPrior, default_camera_prior, default_daylight_prior
 
 __all__ = ["sensitivities_Kinoshita2023"]
 

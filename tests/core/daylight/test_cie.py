@@ -1,49 +1,29 @@
+"""CIE D-series (CIE 015): spectra from chromaticity, the daylight locus, the CIE daylight model and its priors."""
+
 import colour
 import numpy as np
 import pytest
-from illumon import daylight
+from illumon.daylight import cie, ohno2013
 
 
 def test_cie_d65_from_basis_matches_colour():
-    xy = daylight.daylight_locus_xy(6504)
-    spd = daylight.daylight_spectrum(xy)
+    xy = cie.daylight_locus_xy(6504)
+    spd = cie.daylight_spectrum(xy)
     ref = colour.SDS_ILLUMINANTS["D65"].copy().align(colour.SpectralShape(400, 700, 5)).values
     ref = 100 * ref / ref[(560 - 400) // 5]
     assert np.max(np.abs(spd - ref) / ref) < 0.01
 
 
-def test_cct_duv_round_trip_against_ohno():
-    cct = np.array([3000.0, 5000.0, 6500.0, 12000.0])
-    duv = np.array([0.004, -0.002, 0.0, 0.006])
-    xy = daylight.xy_from_cct_duv(cct, duv)
-    back_cct, back_duv = daylight.cct_duv_from_xy(xy)
-    assert np.max(np.abs(back_cct - cct) / cct) < 2e-4
-    assert np.max(np.abs(back_duv - duv)) < 2e-5
-    ohno = colour.temperature.uv_to_CCT_Ohno2013(colour.xy_to_UCS_uv(xy))
-    assert np.max(np.abs(ohno[:, 0] - cct) / cct) < 1e-3
-    assert np.max(np.abs(ohno[:, 1] - duv)) < 1e-4
-
-
 def test_daylight_locus_duv_positive_around_d65():
-    assert 0.002 < float(daylight.daylight_locus_duv(6500)) < 0.0045
-
-
-def test_theta_curve_passes_through_d_series():
-    curve = daylight.theta_curve()
-    t = daylight.cie_d_cct([4000, 6500, 10000])
-    spd = daylight.daylight_spectrum(daylight.daylight_locus_xy(t))
-    theta = curve.theta_of(spd / np.linalg.norm(spd, axis=1, keepdims=True))
-    back = curve.spectrum(theta)
-    back = 100 * back / back[:, [(560 - 400) // 5]]
-    assert np.max(np.abs(back - spd) / spd) < 0.03
+    assert 0.002 < float(cie.daylight_locus_duv(6500)) < 0.0045
 
 
 def test_cie_model_prior_and_spectra():
-    m = daylight.CIEDaylight()
+    m = cie.CIEDaylight()
     p = m.start(np.array([150.0, 200.0]))
     s = m.spectra(p)
     assert s.shape == (2, 61)
-    cct, _ = daylight.cct_duv_from_xy(daylight.spectrum_to_xy(s))
+    cct, _ = ohno2013.cct_duv_from_xy(cie.spectrum_to_xy(s))
     assert np.allclose(cct, [1e6 / 150, 1e6 / 200], rtol=0.01)
     assert np.allclose(m.prior_residuals(p)[:, 1], 0)
 
@@ -55,9 +35,9 @@ def test_history_prior_independent_and_hierarchical():
 
     rng = np.random.default_rng(3)
     params = np.column_stack([150 + 30 * rng.standard_normal(12), 0.002 * rng.standard_normal(12)])
-    dm = daylight.CIEDaylight()
+    dm = cie.CIEDaylight()
     assert np.isclose(dm.history_prior_cost(params), (dm.prior_residuals(params) ** 2).sum(), rtol=1e-12)
-    hier = daylight.CIEDaylight(mired_between=12.0, duv_between=0.0008)
+    hier = cie.CIEDaylight(mired_between=12.0, duv_between=0.0008)
     f = len(params)
     cost_shifted = []
     for p in (params, params + np.array([20.0, 0.001])):
@@ -73,15 +53,4 @@ def test_history_prior_independent_and_hierarchical():
     assert hier.history_prior_cost(params + shift) - hier.history_prior_cost(params) < (
         dm.history_prior_cost(params + shift) - dm.history_prior_cost(params))
     with pytest.raises(ValueError):
-        daylight.CIEDaylight(mired_between=45.0)
-
-
-def test_planck_locus_matches_colour_blackbody():
-    # Independent truth: colour-science's blackbody (its own c₂) through the same observer, at tabulated mireds.
-    loc = daylight.planck_locus()
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
-    for mired in (500.0, 250.0, 150.0, 100.0):
-        xyz = colour.sd_to_XYZ(colour.sd_blackbody(1e6 / mired, cmfs.shape), cmfs, method="Integration")
-        uv = colour.xy_to_UCS_uv(colour.XYZ_to_xy(xyz))
-        i = int(np.argmin(np.abs(loc.mired - mired)))
-        assert np.max(np.abs(loc.uv[i] - uv)) < 1e-8, (mired, loc.uv[i], uv)
+        cie.CIEDaylight(mired_between=45.0)

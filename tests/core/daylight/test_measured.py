@@ -2,16 +2,16 @@
 
 import numpy as np
 import pytest
-from illumon import datasets
 from illumon.daylight import (
     cct_duv_from_xy,
     daylight_locus_duv,
+    daylight_model,
     daylight_spectrum,
     spectrum_to_xy,
 )
-from illumon.daylight_measured import MeasuredDaylight, shipped_measured_daylight, split_indices, unit_mean
-from illumon.daylight_models import daylight_model
-from illumon.reports.daylight import gfc
+from illumon.daylight.measured import MeasuredDaylight, shipped_measured_daylight, split_indices, unit_mean
+from illumon.reports.metrics import gfc
+from illumon.simulation import datasets
 
 needs_data = pytest.mark.skipif(datasets.shared_data_dir() is None, reason="shared measured data not found")
 

@@ -13,24 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .camera import camera_white, render
-from .observations import Observations
+from ..camera import DEFAULT_NOISE, CameraNoise, camera_white, render
+from ..observations import Observations
 
-__all__ = ["CameraNoise", "DEFAULT_NOISE", "SimulatedHistory", "simulate_history"]
+__all__ = ["SimulatedHistory", "simulate_history"]
 
-
-@dataclass(frozen=True)
-class CameraNoise:
-    """Noise of a patch mean on a 0…1 scale: ``σ² = shot · y + read²``; ``exposure_jitter`` is the log-normal σ."""
-
-    shot: float = 2e-5
-    read: float = 5e-4
-    exposure_jitter: float = 0.15
-    target: float = 0.75
-
-
-DEFAULT_NOISE = CameraNoise()
-"""The default camera noise and auto-exposure model."""
 
 @dataclass
 class SimulatedHistory:

@@ -3,19 +3,20 @@
 * :func:`paper_protocol` — Marguier & Süsstrunk's synthetic protocol (CIC 2007, Tables 1–3): a ColorChecker seen by
   a measured camera under CIE D40…D100, 6 patches, 2–4 images.
 * :func:`measured_daylight_history` — a fixed camera over many frames lit by measured Granada daylight, with patches
-  the reflectance basis never saw (:func:`illumon.reflectance.unseen_reflectances`).
+  the reflectance basis never saw (:func:`illumon.priors.unseen_reflectances`).
 
-Both need the measured data beside the project (:mod:`illumon.datasets`).
+Both need the measured data beside the project (:mod:`illumon.simulation.datasets`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from ..camera import DEFAULT_NOISE, CameraNoise
+from ..daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum, theta_curve
+from ..priors import colourchecker_reflectances, unseen_reflectances
 from . import datasets
-from .daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum, theta_curve
-from .reflectance import colourchecker_reflectances, unseen_reflectances
-from .simulate import DEFAULT_NOISE, CameraNoise, SimulatedHistory, simulate_history
+from .simulate import SimulatedHistory, simulate_history
 
 __all__ = ["PAPER_TABLES", "PAPER_PATCH_SETS", "paper_cct", "paper_protocol", "measured_daylight_history"]
 

@@ -1,44 +1,39 @@
-"""Priors for camera spectral sensitivities and for the unknown daylight, built from measured data.
+"""Gaussian prior on camera spectral sensitivities, built from measured cameras.
 
-Two Gaussian priors feed the single-chart estimators:
+:class:`CameraPrior` models the 183-vector of a camera's (R, G, B) sensitivities on :data:`~illumon.spectra.GRID`,
+max-normalised over all channels, as ``mean + components @ z`` with ``z ~ N(0, diag(variances))`` (joint principal
+components, so correlations *between* channels are kept). It also carries per-channel uncentred eigenvectors, the basis
+Jiang et al. use. It feeds the single-chart sensitivity estimators (:mod:`illumon.sensitivity`) and stands for the
+camera nobody measured (:mod:`illumon.camera.calibration`).
 
-* :class:`CameraPrior` — the 183-vector of a camera's (R, G, B) sensitivities on
-:data:`~illumon.spectra.GRID`,
-  max-normalised over all channels, modelled as ``mean + components @ z`` with ``z ~ N(0, diag(variances))``
-  (joint principal components, so correlations *between* channels are kept). It also carries per-channel uncentred
-  eigenvectors, the basis Jiang et al. (WACV 2013) use.
-* :class:`DaylightPrior` — daylight spectra (scaled to unit mean over 400–700 nm) as ``mean + components @
-y`` with
-  ``y ~ N(coefficient_mean, coefficient_covariance)``, from the 2600 Granada measurements.
+It can be rebuilt from arrays (:func:`build_camera_prior`), which is what the leave-one-camera-out tests and benchmark
+do: the camera under test is never in its own prior. The shipped version (``illumon/data/camera_prior.csv|json``) is
+derived from all 24 measured cameras by ``tools/build_sensitivity_priors.py``.
 
-Both can be rebuilt from arrays (:func:`build_camera_prior`, :func:`build_daylight_prior`), which is what the
-leave-one-camera-out tests and benchmark do: the camera under test is never in its own prior. The shipped versions
-(``illumon/data/camera_prior.csv|json`` and ``daylight_prior.csv|json``) are derived from all 24 measured cameras and
-all Granada spectra by ``tools/build_sensitivity_priors.py``.
+References
+----------
+.. [1] J. Jiang, D. Liu, J. Gu and S. Süsstrunk, "What is the space of spectral sensitivity functions for digital
+   color cameras?", IEEE WACV, 2013.
 """
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from functools import lru_cache
-from importlib import resources
 
 import colour
 import numpy as np
 from colour.recovery import PCA_Jiang2013
 from numpy.typing import ArrayLike, NDArray
 
-from ..spectra import GRID, WAVELENGTHS, read_spectral_csv, resample_columns
+from ..spectra import WAVELENGTHS
+from ._data import shipped_csv, shipped_json
 
 __all__ = [
     "CameraPrior",
-    "DaylightPrior",
     "build_camera_prior",
-    "build_daylight_prior",
     "default_camera_prior",
-    "default_daylight_prior",
     "max_normalise",
     "jiang2013_channel_bases",
 ]
@@ -106,43 +101,6 @@ class CameraPrior:
         )
 
 
-@dataclass(frozen=True)
-class DaylightPrior:
-    """Gaussian prior on daylight spectra scaled to unit mean over the grid.
-
-    Attributes
-    ----------
-    mean
-        Mean spectrum (61,).
-    components
-        Orthonormal principal components (61 × J).
-    coefficient_mean, coefficient_covariance
-        Gaussian on the coefficients (J,), (J × J).
-    provenance
-        What built it.
-    """
-
-    mean: NDArray[np.float64]
-    components: NDArray[np.float64]
-    coefficient_mean: NDArray[np.float64]
-    coefficient_covariance: NDArray[np.float64]
-    provenance: dict = field(default_factory=dict)
-
-    @property
-    def size(self) -> int:
-        """Number of components J."""
-        return int(self.components.shape[1])
-
-    @property
-    def basis(self) -> NDArray[np.float64]:
-        """Mean followed by the components (61 × (J + 1)), for linear least-squares fits."""
-        return np.column_stack([self.mean, self.components])
-
-    def spectra(self, coefficients: ArrayLike) -> NDArray[np.float64]:
-        """Spectra (…, 61) for coefficients (…, J)."""
-        return self.mean + np.asarray(coefficients, dtype=float) @ self.components.T
-
-
 def build_camera_prior(
     cameras: Sequence[ArrayLike],
     n_components: int | None = None,
@@ -166,6 +124,11 @@ def build_camera_prior(
     -----
     The per-channel basis follows Jiang et al. (2013) as implemented by :func:`colour.recovery.PCA_Jiang2013`:
     eigenvectors of the uncentred scatter matrix of each channel's curves, each curve normalised to a maximum of 1.
+
+    References
+    ----------
+    .. [1] J. Jiang, D. Liu, J. Gu and S. Süsstrunk, "What is the space of spectral sensitivity functions for digital
+       color cameras?", IEEE WACV, 2013 (the per-channel basis).
     """
     arr = np.stack([max_normalise(c) for c in cameras])  # n × 61 × 3
     n = arr.shape[0]
@@ -198,6 +161,11 @@ def jiang2013_channel_bases(cameras: Sequence[ArrayLike], n_basis: int = 3) -> N
 
     Each channel curve is normalised to a maximum of 1 and the eigenvectors of the uncentred scatter matrix are
     taken, largest eigenvalue first, signs fixed so that each vector's largest excursion is positive.
+
+    References
+    ----------
+    .. [1] J. Jiang, D. Liu, J. Gu and S. Süsstrunk, "What is the space of spectral sensitivity functions for digital
+       color cameras?", IEEE WACV, 2013.
     """
     msds = {
         str(i): colour.MultiSpectralDistributions(np.asarray(c, dtype=float), WAVELENGTHS, labels=list("RGB"))
@@ -214,40 +182,11 @@ def jiang2013_channel_bases(cameras: Sequence[ArrayLike], n_basis: int = 3) -> N
     return np.stack(bases)
 
 
-def build_daylight_prior(
-    spectra: ArrayLike, n_components: int = 4, provenance: dict | None = None
-) -> DaylightPrior:
-    """Build a :class:`DaylightPrior` from measured daylight spectra (n × 61), each scaled to unit mean
-    first."""
-    d = np.asarray(spectra, dtype=float)
-    d = d / d.mean(axis=1, keepdims=True)
-    mean = d.mean(0)
-    _, _, vt = np.linalg.svd(d - mean, full_matrices=False)
-    comps = vt[:n_components].T
-    for j in range(n_components):
-        if comps[np.argmax(np.abs(comps[:, j])), j] < 0:
-            comps[:, j] *= -1
-    coef = (d - mean) @ comps
-    return DaylightPrior(
-        mean=mean,
-        components=comps,
-        coefficient_mean=coef.mean(0),
-        coefficient_covariance=np.cov(coef, rowvar=False),
-        provenance=dict(provenance or {"spectra": int(d.shape[0])}),
-    )
-
-
-def _read_csv_resource(name: str) -> tuple[NDArray[np.float64], list[str]]:
-    text = (resources.files("illumon") / "data" / name).read_text()
-    wl, values, names = read_spectral_csv(name, text=text)
-    return resample_columns(wl, values, GRID), names
-
-
 @lru_cache(maxsize=1)
 def default_camera_prior() -> CameraPrior:
     """The shipped camera prior, built from all 24 measured cameras (see ``illumon/data/README.md``)."""
-    values, names = _read_csv_resource("camera_prior.csv")
-    meta = json.loads((resources.files("illumon") / "data" / "camera_prior.json").read_text())
+    values, names = shipped_csv("camera_prior.csv")
+    meta = shipped_json("camera_prior.json")
     col = {n: i for i, n in enumerate(names)}
     mean = values[:, [col["mean_r"], col["mean_g"], col["mean_b"]]]
     k = int(meta["n_components"])
@@ -265,20 +204,4 @@ def default_camera_prior() -> CameraPrior:
         channel_bases=bases,
         residual_variance=float(meta["residual_variance"]),
         provenance={k_: meta[k_] for k_ in ("cameras", "source", "licence")},
-    )
-
-
-@lru_cache(maxsize=1)
-def default_daylight_prior() -> DaylightPrior:
-    """The shipped daylight prior, from the 2600 Granada spectra (see ``illumon/data/README.md``)."""
-    values, names = _read_csv_resource("daylight_prior.csv")
-    meta = json.loads((resources.files("illumon") / "data" / "daylight_prior.json").read_text())
-    col = {n: i for i, n in enumerate(names)}
-    j = int(meta["n_components"])
-    return DaylightPrior(
-        mean=values[:, col["mean"]],
-        components=np.column_stack([values[:, col[f"pc{i + 1}"]] for i in range(j)]),
-        coefficient_mean=np.asarray(meta["coefficient_mean"], dtype=float),
-        coefficient_covariance=np.asarray(meta["coefficient_covariance"], dtype=float),
-        provenance={k_: meta[k_] for k_ in ("spectra", "source", "licence")},
     )

@@ -5,20 +5,28 @@ Macbeth and natural spectra; Maloney 1986 shows 6–8 suffice). illumon's basis 
 of 1835 measured reflectances (Munsell matte, Vrhel objects, Joensuu natural colours, DuPont paints, SFU surfaces),
 each set weighted equally; it ships in ``illumon/data/reflectance_basis.csv`` with the coefficient mean and covariance
 of those sets (``reflectance_prior.json``), which serve as the Gaussian reflectance prior (Kinoshita & Kiya 2023).
+
+References
+----------
+.. [1] J. Marguier and S. Süsstrunk, "Illuminant retrieval for fixed location cameras", IS&T/SID 15th Color Imaging
+   Conference, 2007 (8 principal components of measured reflectances).
+.. [2] L. T. Maloney, "Evaluation of linear models of surface spectral reflectance with small numbers of parameters",
+   JOSA A 3(10), 1986.
+.. [3] Y. Kinoshita and H. Kiya, "Separated-spectral-distribution estimation based on Bayesian inference with single
+   RGB camera", 2023 (the Gaussian prior on reflectance coefficients).
 """
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from functools import lru_cache
-from importlib import resources
 
 import colour
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .spectra import GRID, read_spectral_csv, resample_columns
+from ..spectra import GRID, resample_columns
+from ._data import shipped_csv, shipped_json
 
 __all__ = ["ReflectanceBasis", "reflectance_basis", "colourchecker_reflectances", "unseen_reflectances"]
 
@@ -59,11 +67,8 @@ class ReflectanceBasis:
 @lru_cache(maxsize=1)
 def reflectance_basis() -> ReflectanceBasis:
     """The shipped 8-component reflectance basis (see module docstring for provenance)."""
-    root = resources.files("illumon") / "data"
-    text = (root / "reflectance_basis.csv").read_text()
-    wl, values, _ = read_spectral_csv("reflectance_basis.csv", text=text)
-    funcs = resample_columns(wl, values, GRID)
-    prior = json.loads((root / "reflectance_prior.json").read_text())
+    funcs, _ = shipped_csv("reflectance_basis.csv")
+    prior = shipped_json("reflectance_prior.json")
     return ReflectanceBasis(
         functions=funcs,
         prior_mean=np.asarray(prior["coefficient_mean"]),
@@ -90,7 +95,7 @@ def colourchecker_reflectances(name: str = "BabelColor Average") -> tuple[list[s
 @lru_cache(maxsize=1)
 def unseen_reflectances() -> tuple[list[str], NDArray[np.float64]]:
     """ColorChecker (BabelColor average), CIE 1995 TCS01–14 and NIST CQS 9.0 VS1–15, all shipped with colour-science
-    (53 spectra, on the grid), used by :mod:`illumon.scenarios` to simulate scenes. The ColorChecker and TCS spectra
+    (53 spectra, on the grid), used by :mod:`illumon.simulation.scenarios` to simulate scenes. The ColorChecker and TCS spectra
     were never used to build the shipped basis; the fifteen VS spectra were (they are Munsell matt chips, identical
     to spectra of ``munsell_matt_1269``), so scoring that must not see the basis' surfaces uses the first 38 only
     (``benchmarks/rawsim.py``'s score surfaces)."""

@@ -1,9 +1,9 @@
 """The effects that break the linear model of a fixed camera, and a generator that hides one in a simulated history.
 
 Effect names are the contract of ``illumon diagnose`` (:data:`EFFECTS`). :func:`hide_effect` renders a history from a
-measured camera, a run of measured Granada daylight and measured reflectances (:func:`illumon.reflectance.unseen_reflectances`),
+measured camera, a run of measured Granada daylight and measured reflectances (:func:`illumon.priors.unseen_reflectances`),
 adds one effect with seeded random parameters in realistic ranges, then auto-exposure jitter, shot and read noise
-(:class:`illumon.simulate.CameraNoise`) and the camera's response. Tests and benchmarks share it.
+(:class:`illumon.camera.noise.CameraNoise`) and the camera's response. Tests and benchmarks share it.
 
 Physical models of the effects (what the generator renders and what :mod:`illumon.diagnosis.fit` fits):
 
@@ -31,6 +31,13 @@ Physical models of the effects (what the generator renders and what :mod:`illumo
 Seeds and cameras: :data:`DEV_CAMERAS` with seeds 0…9 999 were used to develop and set the thresholds,
 :data:`TEST_CAMERAS` with seeds 10 000…19 999 are used by the tests, :data:`BENCHMARK_CAMERAS` (the retrieval benchmark's
 held-out cameras) with seeds ≥ 1 000 000 by ``benchmarks/diagnose.py``.
+
+References
+----------
+.. [1] S. Han, Y. Matsushita, I. Sato, T. Okabe and Y. Sato, "Camera spectral sensitivity estimation from a single
+   image under unknown illumination by using fluorescence", CVPR 2012 (eqs. 1–2: the fluorescent patch).
+.. [2] CIE 015:2018, *Colorimetry*, 4th ed.: the F, HP and LED illuminant tables of the off-locus lamps (via
+   colour-science).
 """
 
 from __future__ import annotations
@@ -42,13 +49,13 @@ from functools import lru_cache
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import datasets
-from ..camera import render
+from ..camera import DEFAULT_NOISE, CameraNoise, render
 from ..daylight import daylight_locus_xy, daylight_spectrum
 from ..observations import Observations
-from ..reflectance import unseen_reflectances
-from ..simulate import DEFAULT_NOISE, CameraNoise, SimulatedHistory
+from ..priors import unseen_reflectances
 from ..spectra import GRID, WAVELENGTHS, resample_columns
+from . import datasets
+from .simulate import SimulatedHistory
 
 __all__ = [
     "EFFECTS",
@@ -219,7 +226,7 @@ def hide_effect(
     effect
         One of :data:`EFFECTS`.
     camera
-        Name of a measured camera (:func:`illumon.datasets.camera_names`).
+        Name of a measured camera (:func:`illumon.simulation.datasets.camera_names`).
     seed
         Seed of every random choice (frames, patches, effect parameters, noise).
     frames, patches
@@ -243,10 +250,30 @@ def hide_effect(
     r = pool[chosen]
     clean = render(c, e, r)  # F × P × 3
     lit = e.copy()
+    patch, frame, params = _scene_effect(effect, rng, c, e, r, pool, chosen, clean, lit)
+    y, k = _camera_effect(effect, rng, clean, noise, params)
+    y = np.clip(y, 0.0, 1.0)
+    obs = Observations([f"f{i:05d}" for i in range(f)], [f"p{j:02d}" for j in range(p)], y, [""] * f)
+    hist = SimulatedHistory(obs, lit, r, k, c)
+    return HiddenEffect(effect, patch, frame, params, hist)
+
+
+def _scene_effect(effect: str, rng: np.random.Generator, c: NDArray[np.float64], e: NDArray[np.float64],
+                  r: NDArray[np.float64], pool: NDArray[np.float64], chosen: NDArray[np.int64],
+                  clean: NDArray[np.float64], lit: NDArray[np.float64]) -> tuple[int | None, int | None, dict]:
+    """The effects in the scene and its light (patch change, shadow, off-locus light, fluorescence), drawn from
+    ``rng`` and rendered into ``clean`` (F × P × 3) and ``lit`` (the light of each frame) in place; the affected
+    patch, onset frame and parameters. Other effects leave both unchanged.
+
+    References
+    ----------
+    .. [1] S. Han, Y. Matsushita, I. Sato, T. Okabe and Y. Sato, "Camera spectral sensitivity estimation from a single
+       image under unknown illumination by using fluorescence", CVPR 2012 (eqs. 1–2, the fluorescent patch).
+    """
+    f, p = clean.shape[0], clean.shape[1]
     patch: int | None = None
     frame: int | None = None
     params: dict = {}
-
     if effect == "patch_change":
         patch, frame = draw_patch_change(rng, f, p)
         if rng.random() < 0.5:
@@ -290,7 +317,15 @@ def hide_effect(
         s = ratio * np.median(refl[:, ch]) / np.median(cam_em[:, ch])
         clean[:, patch] = refl + s * cam_em
         params.update(fluorophore=name, emission_ratio=ratio, emission_peak_nm=float(WAVELENGTHS[int(np.argmax(em))]))
+    return patch, frame, params
 
+
+def _camera_effect(effect: str, rng: np.random.Generator, clean: NDArray[np.float64], noise: CameraNoise,
+                   params: dict) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The camera's part: auto-exposure (a brighter metering target for ``clipping``), shot and read noise, and the
+    output effects (tone curve, black offset), drawn from ``rng`` after the scene's; the values before the final
+    clip to 0…1 and the exposures. ``params`` gains the effect's parameters."""
+    f = clean.shape[0]
     peak = clean.max(axis=(1, 2))
     target = noise.target
     if effect == "clipping":
@@ -312,7 +347,4 @@ def hide_effect(
         params["offsets"] = [float(v) for v in b]
     elif effect == "clipping":
         params["clipped_fraction"] = float(np.mean(y >= 1.0))
-    y = np.clip(y, 0.0, 1.0)
-    obs = Observations([f"f{i:05d}" for i in range(f)], [f"p{j:02d}" for j in range(p)], y, [""] * f)
-    hist = SimulatedHistory(obs, lit, r, k, c)
-    return HiddenEffect(effect, patch, frame, params, hist)
+    return y, k

@@ -26,6 +26,14 @@ spectrum at that chromaticity with what measured daylight looks like there:
 The shipped model (``illumon/data/measured_daylight_basis.csv`` and ``measured_daylight_model.json``) is derived by
 ``tools/build_daylight_basis.py`` from the training half of the Granada spectra as distributed in the
 ``neuralsignal/dreye`` repository.
+
+References
+----------
+.. [1] J. Hernández-Andrés, J. Romero, J. L. Nieves and R. L. Lee, "Color and spectral analysis of daylight in
+   southern Europe", JOSA A 18(6), 2001.
+.. [2] CIE 015:2018, *Colorimetry*, 4th ed., §4.1.2 and eq. 4.8 (the CIE D weights the regression uses).
+.. [3] D. B. Judd, D. L. MacAdam and G. Wyszecki, "Spectral distribution of typical daylight as a function of
+   correlated color temperature", JOSA 54(8), 1964.
 """
 
 from __future__ import annotations
@@ -38,16 +46,10 @@ from importlib import resources
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .daylight import (
-    MIRED_RANGE,
-    DaylightModel,
-    cct_duv_from_xy,
-    cie_d_weights,
-    daylight_locus_duv,
-    spectrum_to_xy,
-    xy_from_cct_duv,
-)
-from .spectra import WAVELENGTHS, read_spectral_csv, resample_columns, write_spectral_csv
+from ..spectra import WAVELENGTHS, read_spectral_csv, resample_columns, write_spectral_csv
+from .base import MIRED_RANGE, DaylightModel
+from .cie import CMFS, cie_d_weights, daylight_locus_duv, spectrum_to_xy
+from .ohno2013 import cct_duv_from_xy, xy_from_cct_duv
 
 __all__ = [
     "MeasuredDaylightData",
@@ -60,7 +62,7 @@ __all__ = [
 ]
 
 DELTA_BOUND = 0.03
-"""Bound on the off-locus parameter δ (Duv units), as for :class:`~illumon.daylight.CIEDaylight`."""
+"""Bound on the off-locus parameter δ (Duv units), as for :class:`~illumon.daylight.cie.CIEDaylight`."""
 
 Z_BOUND = 5.0
 """Bound on the whitened extra coefficients (prior standard deviations)."""
@@ -212,8 +214,6 @@ class MeasuredDaylightData:
         a = _features(xy) @ self.regression.T
         if extra is not None:
             a = a + extra
-        from .daylight import CMFS
-
         x, y = xy[..., :1], xy[..., 1:2]
         s = CMFS.sum(1)
         gx = CMFS[:, 0][None] - x * s[None]  # (…, 61): x·(X+Y+Z) − X = 0
@@ -358,7 +358,7 @@ class MeasuredDaylight(DaylightModel):
     mired_mean, mired_sigma
         Weak Gaussian prior on the reciprocal temperature, which static patches alone cannot pin down (a common
         colour-temperature shift of all frames is nearly unobservable). The mean defaults to the training spectra's
-        mean; the width defaults to 45 MK⁻¹, the same as :class:`~illumon.daylight.CIEDaylight`'s, so comparisons
+        mean; the width defaults to 45 MK⁻¹, the same as :class:`~illumon.daylight.cie.CIEDaylight`'s, so comparisons
         between the two models measure the spectral model, not a tighter prior.
 
     Notes

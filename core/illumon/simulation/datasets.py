@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from .spectra import GRID, read_sensitivities, read_spectral_csv, resample_columns
+from ..spectra import GRID, read_sensitivities, read_spectral_csv, resample_columns
 
 __all__ = [
     "shared_data_dir",

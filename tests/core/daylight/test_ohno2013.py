@@ -1,0 +1,28 @@
+"""CCT and Duv through the tabulated Planckian locus (Ohno 2013), against colour-science."""
+
+import colour
+import numpy as np
+from illumon.daylight import ohno2013
+
+
+def test_cct_duv_round_trip_against_ohno():
+    cct = np.array([3000.0, 5000.0, 6500.0, 12000.0])
+    duv = np.array([0.004, -0.002, 0.0, 0.006])
+    xy = ohno2013.xy_from_cct_duv(cct, duv)
+    back_cct, back_duv = ohno2013.cct_duv_from_xy(xy)
+    assert np.max(np.abs(back_cct - cct) / cct) < 2e-4
+    assert np.max(np.abs(back_duv - duv)) < 2e-5
+    ohno = colour.temperature.uv_to_CCT_Ohno2013(colour.xy_to_UCS_uv(xy))
+    assert np.max(np.abs(ohno[:, 0] - cct) / cct) < 1e-3
+    assert np.max(np.abs(ohno[:, 1] - duv)) < 1e-4
+
+
+def test_planck_locus_matches_colour_blackbody():
+    # Independent truth: colour-science's blackbody (its own c₂) through the same observer, at tabulated mireds.
+    loc = ohno2013.planck_locus()
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    for mired in (500.0, 250.0, 150.0, 100.0):
+        xyz = colour.sd_to_XYZ(colour.sd_blackbody(1e6 / mired, cmfs.shape), cmfs, method="Integration")
+        uv = colour.xy_to_UCS_uv(colour.XYZ_to_xy(xyz))
+        i = int(np.argmin(np.abs(loc.mired - mired)))
+        assert np.max(np.abs(loc.uv[i] - uv)) < 1e-8, (mired, loc.uv[i], uv)

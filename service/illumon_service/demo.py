@@ -2,7 +2,7 @@
 
 Nothing here needs the measured data sets: sensitivities are the two NPL cameras shipped with colour-science, the
 scene is ColorChecker patches (shipped with colour-science), and the light is CIE daylight along the daylight locus,
-warm at dawn and dusk and bluest at noon, rendered and noised by :func:`illumon.simulate.simulate_history`.
+warm at dawn and dusk and bluest at noon, rendered and noised by :func:`illumon.simulation.simulate_history`.
 
 * ``roof``: a clear day, every patch seen in every frame.
 * ``yard``: an overcast day whose late frames lose two patches (a shadow or an obstruction: region values missing)

@@ -92,12 +92,13 @@ TEST_CAMERAS = ("Canon_300D", "Nikon_D3X", "Canon_50D", "Nikon_D40", "Hasselblad
 BENCHMARK_CAMERAS = ("Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf", "Phase_One")
 
 SHORT_WAVE_EXCITATION_NM = 600.0
-"""Fluorophores whose visible excitation peaks at or above this wavelength are not drawn. The issue defines the effect
-as emission proportional to the *short-wave* light a patch absorbs; the compilation's far-red-excited laboratory dyes
+"""Fluorophores whose visible excitation peaks at or above this wavelength are not drawn. The fluorescence effect is
+emission proportional to the *short-wave* light a patch absorbs; the compilation's far-red-excited laboratory dyes
 (Cy5, APC, ATTO 647, DY-6xx, chlorophyll; 19 % of its visible entries) absorb and emit within the red channel, where
 their emission follows the light exactly as reflected red light does. Even with the true illuminants, camera and
 reflectance (plus an 8-function correction), such a patch is fitted by a reflectance within noise (development seeds
-101, 107…109: excess χ² −14…+29 over ~90 values), so the history is, by the issue's definition of ``none``, clean."""
+101, 107…109: excess χ² −14…+29 over ~90 values), so the history is, by the definition of ``none`` (nothing the model cannot fit),
+clean."""
 
 _LAMPS = (
     "FL2", "FL4", "FL5", "FL11", "FL12", "FL3.1", "FL3.3", "FL3.5", "HP1", "HP2", "HP3",
@@ -173,7 +174,7 @@ def _compilation_fluorophores() -> list[tuple[str, NDArray[np.float64], NDArray[
         # the visible emission must lie mostly at longer wavelengths than the visible excitation (Stokes shift)
         if np.argmax(em) <= np.argmax(ex):
             continue
-        # the issue's effect is emission driven by short-wave light: excitation peaks in the blue…orange (< 600 nm, as
+        # the effect is emission driven by short-wave light: excitation peaks in the blue…orange (< 600 nm, as
         # in daylight-fluorescent pigments, inks and optical brighteners); see SHORT_WAVE_EXCITATION_NM
         if WAVELENGTHS[int(np.argmax(ex))] >= SHORT_WAVE_EXCITATION_NM:
             continue

@@ -19,6 +19,12 @@ their eqs. 15–16, here in the 3-dimensional basis spanned by ``C0``'s columns,
 What a reference pins: a grey card (flat) only each channel's scale (``T`` diagonal); a chart with chromatic patches
 the whole 3 × 3 ``T``. Without references ``T`` stays at its prior mean (the identity) and the estimate carries the
 spread of the measured cameras as an extra, honest uncertainty (:data:`CAMERA_WHITE_SD`).
+
+References
+----------
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: eqs. 15–16, the sensitivity posterior.
+.. [Finlayson1997] Finlayson & Drew, CIC 1997: white-point preservation.
+.. [Buchsbaum1980] Buchsbaum, 1980: grey world.
 """
 
 from __future__ import annotations
@@ -187,6 +193,10 @@ def camera_transform_Kinoshita2023(
     -------
     transform, transform_sd
         Posterior mean (3 × 3), normalised so the D65 white keeps its green, and standard deviations of its entries.
+
+    References
+    ----------
+    .. [Kinoshita2023] Kinoshita & Kiya, 2023: eqs. 15–16.
     """
     u = np.einsum("fl,pl,lj->fpj", illuminants, spectra, base)  # F × P × 3
     ok = np.all(np.isfinite(values), axis=-1) & (values.max(axis=-1) > 0)

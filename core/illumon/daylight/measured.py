@@ -29,11 +29,9 @@ The shipped model (``illumon/data/measured_daylight_basis.csv`` and ``measured_d
 
 References
 ----------
-.. [1] J. Hernández-Andrés, J. Romero, J. L. Nieves and R. L. Lee, "Color and spectral analysis of daylight in
-   southern Europe", JOSA A 18(6), 2001.
-.. [2] CIE 015:2018, *Colorimetry*, 4th ed., §4.1.2 and eq. 4.8 (the CIE D weights the regression uses).
-.. [3] D. B. Judd, D. L. MacAdam and G. Wyszecki, "Spectral distribution of typical daylight as a function of
-   correlated color temperature", JOSA 54(8), 1964.
+.. [HernandezAndres2001] Hernández-Andrés et al., JOSA A 2001.
+.. [CIE015] CIE 015:2018: §4.1.2 and eq. 4.8, the CIE D weights the regression uses.
+.. [Judd1964] Judd, MacAdam & Wyszecki, JOSA 1964.
 """
 
 from __future__ import annotations

@@ -9,8 +9,7 @@ solves; they agree with colour-science's :func:`colour.temperature.CCT_to_uv_Ohn
 
 References
 ----------
-.. [1] Y. Ohno, "Practical use and calculation of CCT and Duv", LEUKOS 10(1), 47–55 (2014; online 2013),
-   doi:10.1080/15502724.2014.839020.
+.. [Ohno2013] Ohno, LEUKOS 2014.
 """
 
 from __future__ import annotations
@@ -47,7 +46,7 @@ def planck_locus() -> PlanckLocus:
 
     References
     ----------
-    .. [1] Y. Ohno, LEUKOS 10(1), 47–55 (2014): the Planckian table the CCT and Duv are measured against.
+    .. [Ohno2013] Ohno, LEUKOS 2014: the Planckian table the CCT and Duv are measured against.
     """
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     wl = np.asarray(cmfs.wavelengths, dtype=float) * 1e-9
@@ -108,7 +107,7 @@ def xy_from_cct_duv(cct: ArrayLike, duv: ArrayLike) -> NDArray[np.float64]:
 
     References
     ----------
-    .. [1] Y. Ohno, LEUKOS 10(1), 47–55 (2014): the point at distance Duv along the locus normal.
+    .. [Ohno2013] Ohno, LEUKOS 2014: the point at distance Duv along the locus normal.
     """
     m = 1e6 / np.asarray(cct, dtype=float)
     duv = np.asarray(duv, dtype=float)
@@ -135,8 +134,8 @@ def cct_duv_from_xy(xy: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.floa
 
     References
     ----------
-    .. [1] Y. Ohno, LEUKOS 10(1), 47–55 (2014): CCT as the temperature of the nearest locus point in uv, Duv as the
-       signed distance to it.
+    .. [Ohno2013] Ohno, LEUKOS 2014: CCT as the temperature of the nearest locus point in uv, Duv as the signed
+       distance to it.
     """
     p = planck_locus()
     uv = _xy_to_uv(np.asarray(xy, dtype=float))

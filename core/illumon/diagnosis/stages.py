@@ -288,8 +288,7 @@ def spectral_stage(obs: Observations, sensitivities: NDArray[np.float64],
 
     References
     ----------
-    .. [1] S. Han, Y. Matsushita, I. Sato, T. Okabe and Y. Sato, "Camera spectral sensitivity estimation from a single
-       image under unknown illumination by using fluorescence", CVPR 2012 (eqs. 1–2, the emission model).
+    .. [Han2012] Han et al., CVPR 2012: eqs. 1–2, the emission model.
     """
     from scipy.stats import chi2
 

@@ -6,13 +6,10 @@ hypothesis with its own Poissonian-Gaussian noise learned in its linear light, s
 
 References
 ----------
-.. [1] IEC 61966-2-1:1999, Multimedia systems and equipment — Colour measurement and management — Default RGB colour
-   space — sRGB (the sRGB encoding and its inverse).
-.. [2] ITU-R BT.709-6, Parameter values for the HDTV standards for production and international programme exchange,
-   2015 (the BT.709 opto-electronic transfer function).
-.. [3] A. Foi, M. Trimeche, V. Katkovnik and K. Egiazarian, "Practical Poissonian-Gaussian noise modeling and fitting
-   for single-image raw-data", IEEE TIP 17(10), 2008 (the noise each hypothesis learns).
-.. [4] P. J. Huber, "Robust estimation of a location parameter", Ann. Math. Statist. 35(1), 1964 (the loss).
+.. [IEC61966-2-1] IEC 61966-2-1:1999 (sRGB): the sRGB encoding and its inverse.
+.. [ITU-BT709] ITU-R BT.709-6: the BT.709 opto-electronic transfer function.
+.. [Foi2008] Foi et al., IEEE TIP 2008: the noise each hypothesis learns.
+.. [Huber1964] Huber, 1964: the loss.
 """
 
 from __future__ import annotations
@@ -117,9 +114,9 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
 
     References
     ----------
-    .. [1] IEC 61966-2-1:1999 (sRGB) and ITU-R BT.709-6 (the standard curves tried beside a pure γ).
-    .. [2] A. Foi, M. Trimeche, V. Katkovnik and K. Egiazarian, IEEE TIP 17(10), 2008 (the Poissonian-Gaussian noise
-       each hypothesis learns).
+    .. [IEC61966-2-1] IEC 61966-2-1:1999 (sRGB): a standard curve tried beside a pure γ.
+    .. [ITU-BT709] ITU-R BT.709-6: a standard curve tried beside a pure γ.
+    .. [Foi2008] Foi et al., IEEE TIP 2008: the Poissonian-Gaussian noise each hypothesis learns.
     """
     # tone curve: y = x^(1/γ) (γ fitted) or the sRGB encoding (IEC 61966-2-1, the usual camera output curve, whose
     # linear toe a pure gamma does not follow); the factorisation holds for the linearised x = T(y). Each hypothesis

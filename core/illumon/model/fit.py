@@ -7,6 +7,11 @@ reflectances (:class:`~.solver.FrameSolver`), with over-relaxation and common-sh
 in which the alternation crawls. Long histories are fitted on a subsample of frames spread over the illuminant range.
 A camera nobody measured, or one with references of known reflectance, is fitted jointly with its transform
 (:mod:`illumon.camera.calibration`).
+
+References
+----------
+.. [Marguier2007] Marguier & Süsstrunk, CIC 2007: the joint model.
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: eqs. 13–14 in basis coefficients.
 """
 
 from __future__ import annotations

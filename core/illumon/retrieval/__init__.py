@@ -11,6 +11,11 @@ Methods (``retrieve_illuminants(..., method=...)``):
     (:mod:`illumon.retrieval.marguier2007`).
 ``gray_world``
     Buchsbaum's gray world on the same patches, the baseline.
+
+References
+----------
+.. [Marguier2007] Marguier & Süsstrunk, CIC 2007.
+.. [Buchsbaum1980] Buchsbaum, 1980: grey world.
 """
 
 from __future__ import annotations
@@ -42,6 +47,10 @@ def illuminant_retrieval_gray_world(obs: Observations, sensitivities: NDArray[np
     """Gray-world baseline (Buchsbaum 1980): the camera white of each frame is the mean of its patches.
 
     The illuminant reported is the CIE daylight whose camera white is closest in chromaticity to that mean.
+
+    References
+    ----------
+    .. [Buchsbaum1980] Buchsbaum, 1980: grey world.
     """
     gw = gray_world(obs)
     mired = np.linspace(40.0, 400.0, 721)

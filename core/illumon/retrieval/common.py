@@ -134,7 +134,12 @@ def make_result(
 
 
 def gray_world(obs: Observations) -> NDArray[np.float64]:
-    """Gray-world camera white per frame (F × 3): the mean of the frame's observed patches (Buchsbaum 1980)."""
+    """Gray-world camera white per frame (F × 3): the mean of the frame's observed patches (Buchsbaum 1980).
+
+    References
+    ----------
+    .. [Buchsbaum1980] Buchsbaum, 1980: grey world.
+    """
     v = np.where(np.isfinite(obs.values), obs.values, np.nan)
     white = np.nanmean(v, axis=1)
     return white / white[:, 1:2]

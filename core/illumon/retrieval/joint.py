@@ -13,6 +13,11 @@ as in Kinoshita & Kiya's Bayesian formulation), so the outer problem has only th
 Residuals are weighted by a noise model (relative model error plus a floor), missing patches simply drop out, and
 several starts seeded from gray-world chromaticities guard against local minima. A final stage enforces physical
 reflectances (0…1) where the unconstrained solution strays outside them.
+
+References
+----------
+.. [Marguier2007] Marguier & Süsstrunk, CIC 2007: the model.
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: the Gaussian priors.
 """
 
 from __future__ import annotations
@@ -66,10 +71,8 @@ class JointProblem:
 
     References
     ----------
-    .. [1] J. Marguier and S. Süsstrunk, "Illuminant retrieval for fixed location cameras", IS&T/SID 15th Color
-       Imaging Conference, 2007.
-    .. [2] Y. Kinoshita and H. Kiya, Bayesian estimation of spectral sensitivity and illumination (Gaussian priors on
-       the spectral coefficients).
+    .. [Marguier2007] Marguier & Süsstrunk, CIC 2007.
+    .. [Kinoshita2023] Kinoshita & Kiya, 2023: Gaussian priors on the spectral coefficients.
     """
 
     def __init__(

@@ -34,10 +34,8 @@ held-out cameras) with seeds ≥ 1 000 000 by ``benchmarks/diagnose.py``.
 
 References
 ----------
-.. [1] S. Han, Y. Matsushita, I. Sato, T. Okabe and Y. Sato, "Camera spectral sensitivity estimation from a single
-   image under unknown illumination by using fluorescence", CVPR 2012 (eqs. 1–2: the fluorescent patch).
-.. [2] CIE 015:2018, *Colorimetry*, 4th ed.: the F, HP and LED illuminant tables of the off-locus lamps (via
-   colour-science).
+.. [Han2012] Han et al., CVPR 2012: eqs. 1–2, the fluorescent patch.
+.. [CIE015] CIE 015:2018: the F, HP and LED illuminant tables of the off-locus lamps (via colour-science).
 """
 
 from __future__ import annotations
@@ -268,8 +266,7 @@ def _scene_effect(effect: str, rng: np.random.Generator, c: NDArray[np.float64],
 
     References
     ----------
-    .. [1] S. Han, Y. Matsushita, I. Sato, T. Okabe and Y. Sato, "Camera spectral sensitivity estimation from a single
-       image under unknown illumination by using fluorescence", CVPR 2012 (eqs. 1–2, the fluorescent patch).
+    .. [Han2012] Han et al., CVPR 2012: eqs. 1–2, the fluorescent patch.
     """
     f, p = clean.shape[0], clean.shape[1]
     patch: int | None = None

@@ -25,15 +25,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..daylight import CIEDaylight
+from ..registry import Registry
 from ..spectra import GRID
 
 __all__ = ["PRIMARIES", "SRGB_BALANCE_SD", "srgb_sensitivities", "check_primaries", "to_srgb_primaries",
            "srgb_matrix_for", "daylight_prior_for"]
 
-PRIMARIES = {
+PRIMARIES = Registry.choices({
     "camera": "sensor RGB: raw output, machine-vision cameras without a colour matrix",
     "srgb": "rendered output: the camera applied white-balance gains and a colour matrix to sRGB / BT.709 primaries",
-}
+})
 """The output spaces a camera may deliver, by name (CLI ``--primaries``, the service's ``response.primaries``)."""
 
 

@@ -16,9 +16,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..priors import colourchecker_reflectances
+from ..registry import Registry
 from ..spectra import GRID, SpectralInputError, read_spectral_csv, resample_columns
 
 __all__ = [
+    "REFERENCE_KINDS",
     "colorchecker_references",
     "grey_card_reference",
     "read_known_reflectances",
@@ -27,6 +29,12 @@ __all__ = [
     "neutral_references",
     "reference_chroma",
 ]
+
+REFERENCE_KINDS = Registry.choices({
+    "colorchecker": "a ColorChecker Classic chart (24 patches), found in the image or at the given corners",
+    "grey": "a spectrally flat grey card in the given region (reflectance 0.18 unless given)",
+})
+"""The kinds of reference a calibration image may show, by the name typed (the service's ``kind`` form field)."""
 
 
 def colorchecker_references(prefix: str = "chart:", chart: str = "BabelColor Average") -> dict[str, NDArray[np.float64]]:

@@ -15,6 +15,7 @@ their public names, so ``from illumon.daylight import daylight_spectrum`` is the
 
 from __future__ import annotations
 
+from ..registry import Registry
 from .base import MIRED_RANGE, DaylightModel
 from .cie import (
     CIE_D_BASIS,
@@ -54,8 +55,11 @@ __all__ = [
     "daylight_model",
 ]
 
-DAYLIGHT_MODELS: dict[str, type[DaylightModel]] = {"cie": CIEDaylight, "measured": MeasuredDaylight}
-"""Daylight models by name; more may be registered here."""
+DAYLIGHT_MODELS: Registry[type[DaylightModel]] = Registry({
+    "cie": (CIEDaylight, "CIE D-series daylight, two parameters a frame (default)"),
+    "measured": (MeasuredDaylight, "the measured-daylight model: PCA basis of Granada skies, off-locus prior"),
+})
+"""Daylight models by name (``illumon estimate --daylight-model``); more may be registered here."""
 
 
 def daylight_model(name: str | DaylightModel = "cie") -> DaylightModel:

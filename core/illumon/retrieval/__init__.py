@@ -29,6 +29,7 @@ from .._blas import single_blas_thread
 from ..camera.formation import gains_from_white
 from ..daylight import daylight_locus_duv, daylight_spectrum, xy_from_cct_duv
 from ..observations import Observations
+from ..registry import Registry
 from .common import RetrievalResult, gray_world, make_result
 from .joint import illuminant_retrieval_joint
 from .marguier2007 import illuminant_retrieval_Marguier2007
@@ -67,12 +68,13 @@ def illuminant_retrieval_gray_world(obs: Observations, sensitivities: NDArray[np
     return res
 
 
-METHODS: dict[str, Callable[..., RetrievalResult]] = {
-    "joint": illuminant_retrieval_joint,
-    "marguier2007": illuminant_retrieval_Marguier2007,
-    "gray_world": illuminant_retrieval_gray_world,
-}
-"""Retrieval methods by name."""
+METHODS: Registry[Callable[..., RetrievalResult]] = Registry({
+    "joint": (illuminant_retrieval_joint,
+              "illumon's joint fit of every frame's daylight and exposure and the patches' reflectances (default)"),
+    "marguier2007": (illuminant_retrieval_Marguier2007, "Marguier & Süsstrunk (CIC 2007) as published"),
+    "gray_world": (illuminant_retrieval_gray_world, "Buchsbaum's grey world on the same patches, the baseline"),
+})
+"""Retrieval methods by name (``illumon estimate --method``, the service's ``ILLUMON_REFIT_METHOD``)."""
 
 
 @single_blas_thread

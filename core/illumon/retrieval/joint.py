@@ -31,11 +31,16 @@ from .._blas import single_blas_thread
 from ..daylight import DaylightModel, daylight_model, xy_from_cct_duv
 from ..observations import Observations
 from ..priors import ReflectanceBasis, reflectance_basis
+from ..registry import Registry
 from .common import RetrievalResult, censored, gray_world_mired, imaging_operators, make_result, white_level
 
 __all__ = ["EXPOSURE_MODES", "illuminant_retrieval_joint", "JointProblem"]
 
-EXPOSURE_MODES = ("per_frame", "shared")
+EXPOSURE_MODES = Registry.choices({
+    "per_frame": "every frame's exposure fitted (default: auto-exposure, clouds)",
+    "shared": "one exposure for all frames (locked exposure under daylight of equal power, Marguier & Süsstrunk's "
+              "assumption)",
+})
 """Exposure models of :func:`illuminant_retrieval_joint`: one exposure per frame (default) or one for all."""
 
 

@@ -14,7 +14,7 @@ from pydantic_settings import BaseSettings, SettingsConfigDict
 __all__ = ["Settings", "REFIT_METHODS"]
 
 REFIT_METHODS: Registry[object] = METHODS.with_first(
-    "model", None, "fit the scene model and estimate every frame with it, linear in the history (default)")
+    "model", None, "fit the scene model and estimate every frame with it, linear in the history")
 """What a refit estimates with (``ILLUMON_REFIT_METHOD``): the scene model, or a multi-frame retrieval method of
 :data:`illumon.retrieval.METHODS`."""
 RefitMethod = REFIT_METHODS.literal()

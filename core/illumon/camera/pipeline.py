@@ -32,8 +32,8 @@ __all__ = ["ENCODINGS", "ResponseCurve", "CameraPipeline", "undo_applied", "srgb
 ENCODINGS = Registry.choices({
     "linear": "values proportional to the light",
     "srgb": "the sRGB encoding (IEC 61966-2-1)",
-    "gamma": "a pure power law, exponent ``gamma``",
-    "table": "a measured curve, ``table`` of output values",
+    "gamma": "a pure power law, exponent `gamma`",
+    "table": "a measured curve, `table` of output values",
 })
 """Tone curves a :class:`ResponseCurve` knows."""
 

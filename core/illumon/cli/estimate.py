@@ -23,7 +23,7 @@ from .common import (
 __all__ = ["add_estimate_command", "MODEL_EFFECTS"]
 
 MODEL_EFFECTS = Registry.choices({
-    "none": "estimate with the linear model as it is (default)",
+    "none": "estimate with the linear model as it is",
     "auto": "diagnose the history (`illumon diagnose`) and estimate with the effect found modelled",
 })
 """``illumon estimate --model-effects``."""

@@ -56,7 +56,7 @@ __all__ = [
 ]
 
 DAYLIGHT_MODELS: Registry[type[DaylightModel]] = Registry({
-    "cie": (CIEDaylight, "CIE D-series daylight, two parameters a frame (default)"),
+    "cie": (CIEDaylight, "CIE D-series daylight, two parameters a frame"),
     "measured": (MeasuredDaylight, "the measured-daylight model: PCA basis of Granada skies, off-locus prior"),
 })
 """Daylight models by name (``illumon estimate --daylight-model``); more may be registered here."""

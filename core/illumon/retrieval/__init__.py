@@ -70,7 +70,7 @@ def illuminant_retrieval_gray_world(obs: Observations, sensitivities: NDArray[np
 
 METHODS: Registry[Callable[..., RetrievalResult]] = Registry({
     "joint": (illuminant_retrieval_joint,
-              "illumon's joint fit of every frame's daylight and exposure and the patches' reflectances (default)"),
+              "illumon's joint fit of every frame's daylight and exposure and the patches' reflectances"),
     "marguier2007": (illuminant_retrieval_Marguier2007, "Marguier & Süsstrunk (CIC 2007) as published"),
     "gray_world": (illuminant_retrieval_gray_world, "Buchsbaum's grey world on the same patches, the baseline"),
 })

@@ -37,7 +37,7 @@ from .common import RetrievalResult, censored, gray_world_mired, imaging_operato
 __all__ = ["EXPOSURE_MODES", "illuminant_retrieval_joint", "JointProblem"]
 
 EXPOSURE_MODES = Registry.choices({
-    "per_frame": "every frame's exposure fitted (default: auto-exposure, clouds)",
+    "per_frame": "every frame's exposure fitted (auto-exposure, clouds)",
     "shared": "one exposure for all frames (locked exposure under daylight of equal power, Marguier & Süsstrunk's "
               "assumption)",
 })

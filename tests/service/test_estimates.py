@@ -88,7 +88,7 @@ def test_new_frame_estimated_by_scene_model(populated):
     assert err < MAX_LIMIT
     ill = c.get(f"/v1/cameras/{cam}/illuminant", headers=bearer(token)).json()
     assert ill["frame_id"] == r.json()["frame_id"]
-    # the interval is the model's; its coverage of the true CCT is checked in tests/core/test_model.py
+    # the interval is the model's; its coverage of the true CCT is checked in tests/core/model/test_model.py
     assert ill["intervals"]["cct_lo"] < ill["intervals"]["cct_hi"]
 
 

@@ -36,7 +36,7 @@ from ..daylight import CIEDaylight, daylight_model
 from ..model.general import cie_lamp_spectra
 from ..observations import Observations
 from ..priors import default_daylight_prior, reflectance_basis
-from ..retrieval.common import gray_world_mired, imaging_operators
+from ..retrieval.common import grey_world_mired, imaging_operators
 from ..retrieval.joint import JointProblem
 from ..spectra import WAVELENGTHS, read_spectral_csv
 from .noise import DARK_LEVEL
@@ -75,7 +75,7 @@ def fit_spectral_base(obs: Observations, sensitivities: NDArray[np.float64], max
     prob.W = np.where(np.nan_to_num(np.asarray(obs.values, dtype=float)) <= dark_level, 0.0, prob.W)
     lo, hi = prob.bounds()
     nfr = prob.F * prob.nf
-    x0 = np.clip(prob.start(gray_world_mired(obs, c)), lo + 1e-9, hi - 1e-9)
+    x0 = np.clip(prob.start(grey_world_mired(obs, c)), lo + 1e-9, hi - 1e-9)
     sol = least_squares(prob.projected_residuals, x0[:nfr], bounds=(lo[:nfr], hi[:nfr]), x_scale=prob.frame_scale(),
                         max_nfev=max_nfev, method="trf")
     fr = sol.x.reshape(prob.F, prob.nf)

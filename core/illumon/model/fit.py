@@ -32,7 +32,7 @@ from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
 from ..observations import Observations
 from ..priors import ReflectanceBasis, reflectance_basis
-from ..retrieval.common import RetrievalResult, censored, gray_world_mired, imaging_operators, white_level
+from ..retrieval.common import RetrievalResult, censored, grey_world_mired, imaging_operators, white_level
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
 from .intervals import MODEL_ERROR
@@ -404,7 +404,7 @@ def _fit_fixed_camera(
     scale = float(np.median(green)) if green.size else 1.0
     if not scale > 0:
         raise ValueError("observations are all black (median green is 0)")
-    gw_mired = gray_world_mired(obs, css)
+    gw_mired = grey_world_mired(obs, css)
     sub = spread_subsample(gw_mired, max_fit_frames)
     y = y_all[sub] / scale
     present = present_all[sub]

@@ -13,7 +13,7 @@ Errors: relative RMSE (RMSE / mean level, best scale) and the goodness-of-fit co
 Hernández-Andrés, JOSA A 14, 1997; GFC ≥ 0.999 "colorimetrically accurate", ≥ 0.9999 "good spectral fit"
 after Hernández-Andrés et al., JOSA A 18, 2001). Gain: the camera-white error each daylight model leaves at the true
 chromaticity (all held-out spectra × all cameras), and full joint retrieval on simulated fixed-camera histories lit
-by held-out spectra (:func:`illumon.retrieval.joint.illuminant_retrieval_joint`).
+by held-out spectra (:func:`illumon.retrieval.joint.illuminant_retrieval_illumon`).
 """
 
 from __future__ import annotations
@@ -305,7 +305,7 @@ def daylight_report(
     simulate
         Run the simulated retrievals (needs the measured cameras and reflectances of :mod:`illumon.simulation.datasets`).
     solver_kwargs
-        Extra keyword arguments for :func:`~illumon.retrieval.joint.illuminant_retrieval_joint` (unknown ones are
+        Extra keyword arguments for :func:`~illumon.retrieval.joint.illuminant_retrieval_illumon` (unknown ones are
         ignored).
     plots
         Draw the PNG plots (matplotlib, Agg).

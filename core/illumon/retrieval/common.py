@@ -12,7 +12,7 @@ from ..daylight import cct_duv_from_xy, daylight_locus_duv, daylight_spectrum, s
 from ..observations import Observations
 from ..priors import ReflectanceBasis
 
-__all__ = ["RetrievalResult", "imaging_operators", "make_result", "gray_world", "gray_world_mired", "CENSORED", "NEAR_WHITE",
+__all__ = ["RetrievalResult", "imaging_operators", "make_result", "grey_world", "grey_world_mired", "CENSORED", "NEAR_WHITE",
            "censored", "white_level"]
 
 CENSORED = 2.0
@@ -133,7 +133,7 @@ def make_result(
     )
 
 
-def gray_world(obs: Observations) -> NDArray[np.float64]:
+def grey_world(obs: Observations) -> NDArray[np.float64]:
     """Gray-world camera white per frame (F × 3): the mean of the frame's observed patches (Buchsbaum 1980).
 
     References
@@ -145,14 +145,14 @@ def gray_world(obs: Observations) -> NDArray[np.float64]:
     return white / white[:, 1:2]
 
 
-def gray_world_mired(obs: Observations, sensitivities: NDArray[np.float64]) -> NDArray[np.float64]:
+def grey_world_mired(obs: Observations, sensitivities: NDArray[np.float64]) -> NDArray[np.float64]:
     """Per-frame reciprocal temperature whose camera white is closest in chromaticity to the gray-world white."""
     grid = np.linspace(45.0, 380.0, 200)
     cct = 1e6 / grid
     xy = xy_from_cct_duv(cct, daylight_locus_duv(cct))
     whites = daylight_spectrum(xy) @ sensitivities
     chrom = np.log(whites[:, [0, 2]] / whites[:, 1:2])
-    gw = gray_world(obs)
+    gw = grey_world(obs)
     gchrom = np.log(np.clip(gw[:, [0, 2]], 1e-9, None))
     d = ((gchrom[:, None, :] - chrom[None, :, :]) ** 2).sum(-1)
     return grid[np.argmin(d, axis=1)]

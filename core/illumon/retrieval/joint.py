@@ -32,20 +32,20 @@ from ..daylight import DaylightModel, daylight_model, xy_from_cct_duv
 from ..observations import Observations
 from ..priors import ReflectanceBasis, reflectance_basis
 from ..registry import Registry
-from .common import RetrievalResult, censored, gray_world_mired, imaging_operators, make_result, white_level
+from .common import RetrievalResult, censored, grey_world_mired, imaging_operators, make_result, white_level
 
-__all__ = ["EXPOSURE_MODES", "illuminant_retrieval_joint", "JointProblem"]
+__all__ = ["EXPOSURE_MODES", "illuminant_retrieval_illumon", "JointProblem"]
 
 EXPOSURE_MODES = Registry.choices({
     "per_frame": "every frame's exposure fitted (auto-exposure, clouds)",
     "shared": "one exposure for all frames (locked exposure under daylight of equal power, Marguier & Süsstrunk's "
               "assumption)",
 })
-"""Exposure models of :func:`illuminant_retrieval_joint`: one exposure per frame (default) or one for all."""
+"""Exposure models of :func:`illuminant_retrieval_illumon`: one exposure per frame (default) or one for all."""
 
 
 class JointProblem:
-    """The joint least-squares problem behind :func:`illuminant_retrieval_joint`.
+    """The joint least-squares problem behind :func:`illuminant_retrieval_illumon`.
 
     Unknowns: per frame the daylight parameters and a log exposure; per patch the reflectance coefficients. Residuals
     (all whitened): the data, the Gaussian reflectance prior, the daylight prior and a hinge penalty on reflectances
@@ -289,7 +289,7 @@ class JointProblem:
 
 
 @single_blas_thread
-def illuminant_retrieval_joint(
+def illuminant_retrieval_illumon(
     obs: Observations,
     sensitivities: NDArray[np.float64],
     *,
@@ -348,7 +348,7 @@ def illuminant_retrieval_joint(
     )
     lo, hi = prob.bounds()
     nfr = prob.F * prob.nf
-    base = gray_world_mired(obs, c)
+    base = grey_world_mired(obs, c)
     best = None
     runs = []
     for off in start_offsets:

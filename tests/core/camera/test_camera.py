@@ -21,7 +21,7 @@ from illumon.daylight import CIEDaylight
 from illumon.model import SceneModel, fit_scene_model
 from illumon.observations import Observations
 from illumon.priors import max_normalise
-from illumon.retrieval.common import gray_world
+from illumon.retrieval.common import grey_world
 from illumon.simulation import datasets
 from illumon.spectra import WAVELENGTHS, SpectralInputError, write_spectral_csv
 
@@ -130,7 +130,7 @@ def test_unmeasured_camera_calibrations(shared_data):
             err[case].append(angular_error_deg(res.white, white))
             conf[case].append(extra["confidence"])
             if case == "none":
-                gw.append(angular_error_deg(gray_world(obs.select_patches(model.patches)), white))
+                gw.append(angular_error_deg(grey_world(obs.select_patches(model.patches)), white))
     e = {k: np.concatenate(v) for k, v in err.items()}
     c = {k: float(np.median(np.concatenate(v))) for k, v in conf.items()}
     assert np.median(e["grey"]) < 0.3 and e["grey"].max() < 1.5

@@ -11,7 +11,7 @@ from illumon.camera.primaries import srgb_sensitivities, to_srgb_primaries
 from illumon.camera.references import neutral_references, references_kind
 from illumon.model import fit_scene_model
 from illumon.observations import Observations
-from illumon.retrieval.common import gray_world
+from illumon.retrieval.common import grey_world
 from illumon.simulation import datasets
 from illumon.spectra import GRID
 
@@ -73,7 +73,7 @@ def test_rendered_output_needs_srgb_primaries(shared_data):
         srgb = np.median(angular_error_deg(_fit(obs, "srgb").history_estimate[0].white, truth))
         raw = np.median(angular_error_deg(_fit(obs, "camera").history_estimate[0].white, truth))
         nothing = np.median(angular_error_deg(np.ones(3), truth))
-        gw = np.median(angular_error_deg(gray_world(obs), truth))
+        gw = np.median(angular_error_deg(grey_world(obs), truth))
         assert srgb < 3.5 and srgb < 0.6 * raw and srgb < nothing and srgb < gw, (camera, srgb, raw, nothing, gw)
 
 

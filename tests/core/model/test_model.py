@@ -61,8 +61,8 @@ def test_per_frame_accuracy(day: dict) -> None:
     assert np.median(ae) <= 1.0
     # the limit fails gray-world on the same frames and a constant white (the history's mean camera white)
     rest = day["rest"].values
-    gray_world = np.array([np.nanmean(v, axis=0) for v in rest])
-    assert np.median(angular_error_deg(gray_world, day["white"])) > 1.0
+    grey_world = np.array([np.nanmean(v, axis=0) for v in rest])
+    assert np.median(angular_error_deg(grey_world, day["white"])) > 1.0
     constant = np.tile(day["white"].mean(axis=0), (len(rest), 1))
     assert np.median(angular_error_deg(constant, day["white"])) > 1.0
     # the 95 % CCT intervals cover the true CCT of most frames (truth: the rendered spectra)

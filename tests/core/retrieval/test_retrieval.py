@@ -154,7 +154,7 @@ def test_joint_shared_exposure_reads_brightness_on_the_paper_protocol(shared_dat
 def test_joint_problem_whitens_by_the_noise_model_and_penalises_reflectances_outside_0_1(shared_data):
     from illumon.daylight import daylight_model
     from illumon.priors import reflectance_basis
-    from illumon.retrieval.common import gray_world_mired
+    from illumon.retrieval.common import grey_world_mired
     from illumon.retrieval.joint import JointProblem
 
     h = measured_daylight_history("Canon_600D", frames=4, patches=6, seed=7, noise=None)
@@ -168,7 +168,7 @@ def test_joint_problem_whitens_by_the_noise_model_and_penalises_reflectances_out
     assert used.mean() > 0.9
     np.testing.assert_allclose(prob.W[used], expected[used], rtol=1e-9)
     # physical bounds: push one patch's reflectance above 1 and below 0 and read the hinge residuals
-    x = prob.start(gray_world_mired(h.observations, h.sensitivities))
+    x = prob.start(grey_world_mired(h.observations, h.sensitivities))
     nfr = prob.F * prob.nf
     sigma = x[nfr:].reshape(prob.P, prob.nk).copy()
     sigma[0] *= 3.0
@@ -184,7 +184,7 @@ def test_joint_problem_whitens_by_the_noise_model_and_penalises_reflectances_out
     assert np.sum(r**2) > np.sum(hinge**2) > 10.0
 
 
-def test_gray_world_baseline_reports_the_daylight_of_a_grey_scene(shared_data):
+def test_grey_world_baseline_reports_the_daylight_of_a_grey_scene(shared_data):
     # Every patch a flat grey: the patches' mean is the camera white, so the daylight reported is the true one.
     from illumon.daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum
     from illumon.simulation import datasets, simulate_history

@@ -26,7 +26,7 @@ from .cie import (
     daylight_locus_duv,
     daylight_locus_xy,
     daylight_spectrum,
-    spectrum_to_xy,
+    xy_from_spectrum,
 )
 from .marguier2007 import ThetaCurve, theta_curve
 from .measured import MeasuredDaylight, MeasuredDaylightData, shipped_measured_daylight
@@ -43,7 +43,7 @@ __all__ = [
     "daylight_locus_duv",
     "xy_from_cct_duv",
     "cct_duv_from_xy",
-    "spectrum_to_xy",
+    "xy_from_spectrum",
     "ThetaCurve",
     "theta_curve",
     "DaylightModel",

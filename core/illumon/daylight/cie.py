@@ -33,7 +33,7 @@ __all__ = [
     "daylight_locus_xy",
     "cie_d_cct",
     "daylight_locus_duv",
-    "spectrum_to_xy",
+    "xy_from_spectrum",
     "CIEDaylight",
 ]
 
@@ -142,7 +142,7 @@ def daylight_locus_duv(cct: ArrayLike) -> NDArray[np.float64]:
     return np.interp(1e6 / np.asarray(cct, dtype=float), mired, duv)
 
 
-def spectrum_to_xy(spd: ArrayLike) -> NDArray[np.float64]:
+def xy_from_spectrum(spd: ArrayLike) -> NDArray[np.float64]:
     """CIE 1931 chromaticity of grid spectra (…, 61)."""
     xyz = np.asarray(spd, dtype=float) @ CMFS
     return xyz[..., :2] / xyz.sum(-1, keepdims=True)

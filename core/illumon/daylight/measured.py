@@ -46,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..spectra import WAVELENGTHS, read_spectral_csv, resample_columns, write_spectral_csv
 from .base import MIRED_RANGE, DaylightModel
-from .cie import CMFS, cie_d_weights, daylight_locus_duv, spectrum_to_xy
+from .cie import CMFS, cie_d_weights, daylight_locus_duv, xy_from_spectrum
 from .ohno2013 import cct_duv_from_xy, xy_from_cct_duv
 
 __all__ = [
@@ -278,7 +278,7 @@ def fit_measured_daylight(
     k = int(n_components or k_cv)
     mu, v, _ = _pca(e, k)
     a = (e - mu) @ v  # N × k (orthonormal components)
-    xy = spectrum_to_xy(e)
+    xy = xy_from_spectrum(e)
     feats = _features(xy)
     b = np.linalg.lstsq(feats, a, rcond=None)[0].T  # k × 3
     resid = a - feats @ b.T

@@ -66,14 +66,14 @@ def planck_locus() -> PlanckLocus:
     return PlanckLocus(mired, uv, d, normal)
 
 
-def _uv_to_xy(uv: NDArray[np.float64]) -> NDArray[np.float64]:
+def _xy_from_uv(uv: NDArray[np.float64]) -> NDArray[np.float64]:
     """CIE 1960 uv → CIE 1931 xy (…, 2)."""
     u, v = uv[..., 0], uv[..., 1]
     den = 2 * u - 8 * v + 4
     return np.stack([3 * u / den, 2 * v / den], axis=-1)
 
 
-def _xy_to_uv(xy: NDArray[np.float64]) -> NDArray[np.float64]:
+def _uv_from_xy(xy: NDArray[np.float64]) -> NDArray[np.float64]:
     """CIE 1931 xy → CIE 1960 uv (…, 2)."""
     x, y = xy[..., 0], xy[..., 1]
     den = -2 * x + 12 * y + 3
@@ -113,7 +113,7 @@ def xy_from_cct_duv(cct: ArrayLike, duv: ArrayLike) -> NDArray[np.float64]:
     duv = np.asarray(duv, dtype=float)
     u0, v0, nu, nv = _locus_at(planck_locus(), m)
     uv = np.stack([u0 + duv * nu, v0 + duv * nv], axis=-1)
-    return _uv_to_xy(uv)
+    return _xy_from_uv(uv)
 
 
 def cct_duv_from_xy(xy: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -138,7 +138,7 @@ def cct_duv_from_xy(xy: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.floa
        distance to it.
     """
     p = planck_locus()
-    uv = _xy_to_uv(np.asarray(xy, dtype=float))
+    uv = _uv_from_xy(np.asarray(xy, dtype=float))
     flat = uv.reshape(-1, 2)
     cct = np.empty(flat.shape[0])
     duv = np.empty(flat.shape[0])

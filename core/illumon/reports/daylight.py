@@ -31,9 +31,9 @@ from ..daylight import (
     cct_duv_from_xy,
     daylight_locus_duv,
     daylight_spectrum,
-    spectrum_to_xy,
     theta_curve,
     xy_from_cct_duv,
+    xy_from_spectrum,
 )
 from ..daylight.measured import (
     MeasuredDaylightData,
@@ -105,7 +105,7 @@ def fit_daylight_models(
     e: NDArray[np.float64], data: MeasuredDaylightData | None = None
 ) -> dict[str, NDArray[np.float64]]:
     """Best-scaled fits (N × 61) of unit-mean spectra ``e`` by each model (see module docstring)."""
-    xy = spectrum_to_xy(e)
+    xy = xy_from_spectrum(e)
     cct, _ = cct_duv_from_xy(xy)
     fits = {
         "cie_cct": daylight_spectrum(xy_from_cct_duv(cct, daylight_locus_duv(cct))),
@@ -324,7 +324,7 @@ def daylight_report(
     ids, e, load_info = load_measured_spectra(spectra_csv_path)
     n = len(ids)
     train, test = split_indices(n, split, seed)
-    xy = spectrum_to_xy(e)
+    xy = xy_from_spectrum(e)
     cct, duv = cct_duv_from_xy(xy)
     delta = duv - daylight_locus_duv(cct)
     sky = sky_class(cct, delta)

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..camera import angular_error_deg
-from ..daylight import daylight_spectrum, spectrum_to_xy
+from ..daylight import daylight_spectrum, xy_from_spectrum
 from ..daylight.measured import MeasuredDaylight, MeasuredDaylightData, unit_mean
 from ..retrieval.joint import illuminant_retrieval_illumon
 from ..simulation import datasets, simulate_history
@@ -27,7 +27,7 @@ __all__ = ["daylight_gain"]
 
 def _camera_white_gain(e: NDArray[np.float64], data: MeasuredDaylightData, cameras: list) -> dict:
     """Angular error of the camera white each model predicts at the true chromaticity (all spectra × cameras)."""
-    xy = spectrum_to_xy(e)
+    xy = xy_from_spectrum(e)
     preds = {"cie": daylight_spectrum(xy), "measured": data.predict(xy)}
     out: dict[str, list[float]] = {k: [] for k in preds}
     for c in cameras:

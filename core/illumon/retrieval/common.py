@@ -8,7 +8,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..camera import camera_white, gains_from_white
-from ..daylight import cct_duv_from_xy, daylight_locus_duv, daylight_spectrum, spectrum_to_xy, xy_from_cct_duv
+from ..daylight import cct_duv_from_xy, daylight_locus_duv, daylight_spectrum, xy_from_cct_duv, xy_from_spectrum
 from ..observations import Observations
 from ..priors import ReflectanceBasis
 
@@ -112,7 +112,7 @@ def make_result(
     """Assemble a :class:`RetrievalResult` from estimated spectra (chromaticity from ``xy`` when the model knows it)."""
     f = len(obs.frames)
     if xy is None:
-        xy = spectrum_to_xy(spectra)
+        xy = xy_from_spectrum(spectra)
     cct, duv = cct_duv_from_xy(xy)
     white = camera_white(sensitivities, spectra)
     white = white / white[:, 1:2]

@@ -45,7 +45,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import rawsim  # noqa: E402
-from illumon.camera import angular_error_deg, camera_white, colorchecker_references, grey_card_reference  # noqa: E402
+from illumon.camera import angular_error_deg, camera_white, colourchecker_references, grey_card_reference  # noqa: E402
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
@@ -75,7 +75,7 @@ def render(sim: str, camera: str, case: str, seed: int) -> tuple[Observations, n
     css = datasets.load_camera(camera)
     e = rawsim.daylight_run(split, FRAMES, rng)
     scene = rawsim.draw_reflectances(split, PATCHES, rng)
-    known = grey_card_reference() if case.startswith("grey") else colorchecker_references() if case.startswith("chart") else {}
+    known = grey_card_reference() if case.startswith("grey") else colourchecker_references() if case.startswith("chart") else {}
     refl = np.concatenate([scene, np.stack(list(known.values()))]) if known else scene
     matrix = srgb_matrix(css) if case.endswith("matrix") else None
     rendered = case.endswith(("rendered", "awb"))

@@ -21,7 +21,7 @@ from ..spectra import GRID, SpectralInputError, read_spectral_csv, resample_colu
 
 __all__ = [
     "REFERENCE_KINDS",
-    "colorchecker_references",
+    "colourchecker_references",
     "grey_card_reference",
     "read_known_reflectances",
     "check_known_reflectances",
@@ -37,7 +37,7 @@ REFERENCE_KINDS = Registry.choices({
 """The kinds of reference a calibration image may show, by the name typed (the service's ``kind`` form field)."""
 
 
-def colorchecker_references(prefix: str = "chart:", chart: str = "BabelColor Average") -> dict[str, NDArray[np.float64]]:
+def colourchecker_references(prefix: str = "chart:", chart: str = "BabelColor Average") -> dict[str, NDArray[np.float64]]:
     """The 24 ColorChecker patches as references, ids ``{prefix}01`` … ``{prefix}24`` in the chart's standard order
     (dark skin … black), reflectances from colour-science's ``chart`` data."""
     _, spectra = colourchecker_reflectances(chart)

@@ -22,7 +22,7 @@ from ..observations import Observations
 from ..priors import ReflectanceBasis, reflectance_basis
 from .common import RetrievalResult, imaging_operators, make_result
 
-__all__ = ["illuminant_retrieval_Marguier2007", "marguier_error"]
+__all__ = ["illuminant_retrieval_Marguier2007", "error_Marguier2007"]
 
 
 def _d65_operator(sensitivities: NDArray[np.float64], rb: ReflectanceBasis) -> NDArray[np.float64]:
@@ -30,7 +30,7 @@ def _d65_operator(sensitivities: NDArray[np.float64], rb: ReflectanceBasis) -> N
     return np.einsum("lc,l,lj->cj", sensitivities, d65, rb.functions)
 
 
-def marguier_error(
+def error_Marguier2007(
     theta: NDArray[np.float64],
     y: NDArray[np.float64],
     present: NDArray[np.bool_],
@@ -132,7 +132,7 @@ def illuminant_retrieval_Marguier2007(
     n_iter = 0
 
     def error(theta: NDArray[np.float64]) -> float:
-        return marguier_error(theta, y, present, k_theta, m_d65)
+        return error_Marguier2007(theta, y, present, k_theta, m_d65)
 
     for _ in range(starts):
         theta = rng.uniform(curve.theta_range[0], curve.theta_range[1], f)

@@ -81,13 +81,13 @@ def test_marguier2007_descends_to_the_minimum_of_eq3(shared_data, temps):
     from illumon.daylight import theta_curve
     from illumon.priors import reflectance_basis
     from illumon.retrieval.common import imaging_operators
-    from illumon.retrieval.marguier2007 import _d65_operator, marguier_error
+    from illumon.retrieval.marguier2007 import _d65_operator, error_Marguier2007
 
     h = paper_protocol("Canon_300D", temps, (0, 1, 2, 3, 4, 5), noise=None, illuminant_scale="model")
     res = retrieve_illuminants(h.observations, h.sensitivities, method="marguier2007")
     curve, rb = theta_curve(), reflectance_basis()
     y = h.observations.values / np.median(h.observations.values[..., 1])
-    at_truth = marguier_error(curve.theta_of(h.illuminants), y, h.observations.present,
+    at_truth = error_Marguier2007(curve.theta_of(h.illuminants), y, h.observations.present,
                               imaging_operators(h.sensitivities, curve.basis, rb)[0], _d65_operator(h.sensitivities, rb))
     assert res.info["error"] <= 1.01 * at_truth, (res.info["error"], at_truth)
     assert np.all(angular_error_deg(res.white, h.true_white) < 2.0)

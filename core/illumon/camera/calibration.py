@@ -44,21 +44,14 @@ from ..priors import default_camera_prior
 from .formation import angular_error_deg
 from .references import neutral_references, references_kind
 
-__all__ = [
-    "CAMERA_MIRED_SD",
-    "CAMERA_WHITE_SD",
-    "CameraCalibration",
-    "prior_sensitivities",
-    "camera_transform_Kinoshita2023",
-    "calibrate_scene_model",
-]
+__all__ = ["CAMERA_MIRED_SD", "CAMERA_WHITE_SD", "CameraCalibration", "prior_sensitivities",
+           "camera_transform_Kinoshita2023", "calibrate_scene_model"]
 
 CAMERA_WHITE_SD = {"measured": 0.0, "grey": 0.005, "chart": 0.015, "none": 0.11}
 """Standard deviation (log units per chromatic channel, r/g and b/g) of the camera white that the camera model itself
 leaves uncertain, added to every estimate's intervals and confidence. ``none``: the spread of the measured cameras'
 daylight whites around the mean camera's (see :func:`prior_white_spread`); ``grey`` and ``chart``: what a reference
 leaves, measured on development cameras (``python benchmarks/unmeasured.py``)."""
-
 
 CAMERA_MIRED_SD = {"measured": 0.0, "chart": 13.0, "grey": 21.0, "none": 12.0}
 """Standard deviation (MK⁻¹) of the light's reciprocal temperature that an unmeasured camera leaves uncertain, added
@@ -193,10 +186,6 @@ def camera_transform_Kinoshita2023(
     -------
     transform, transform_sd
         Posterior mean (3 × 3), normalised so the D65 white keeps its green, and standard deviations of its entries.
-
-    References
-    ----------
-    .. [Kinoshita2023] Kinoshita & Kiya, 2023: eqs. 15–16.
     """
     u = np.einsum("fl,pl,lj->fpj", illuminants, spectra, base)  # F × P × 3
     ok = np.all(np.isfinite(values), axis=-1) & (values.max(axis=-1) > 0)

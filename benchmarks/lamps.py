@@ -16,6 +16,10 @@ Split, fixed before any parameter was chosen: **development** ``bmug``, ``diff``
 ``--sim N`` adds N simulated lamp-lit histories on the score cameras (:func:`simulated`).
 
 ``python benchmarks/lamps.py`` prints the table and writes ``benchmarks/results/lamps.json``.
+
+References
+----------
+.. [Beigpour2014] Beigpour, Riess, van de Weijer & Angelopoulou, IEEE TIP 2014: the MIMO lab set.
 """
 
 from __future__ import annotations

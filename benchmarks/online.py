@@ -21,7 +21,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import rawsim  # noqa: E402
 from illumon.camera import angular_error_deg  # noqa: E402
-from illumon.daylight import cct_duv_from_xy, spectrum_to_xy  # noqa: E402
+from illumon.daylight import cct_duv_from_xy, xy_from_spectrum  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.priors import colourchecker_reflectances  # noqa: E402
 from illumon.simulation import (
@@ -86,7 +86,7 @@ def morning_afternoon(histories: int, frames: int, sim: str = "illumon") -> dict
         model = fit_scene_model(obs.subset(slice(0, half)), css)
         fit_s.append(time.perf_counter() - t)
         res, extra = model.estimate(obs.subset(slice(half, None)))
-        cct, duv = cct_duv_from_xy(spectrum_to_xy(illum[half:]))
+        cct, duv = cct_duv_from_xy(xy_from_spectrum(illum[half:]))
         w = truth[half:]
         g = w[:, 1:2] / w
         hits["cct"] += list((cct >= extra["cct_lo"]) & (cct <= extra["cct_hi"]))

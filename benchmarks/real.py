@@ -81,12 +81,12 @@ def _measure_chart(rgb: NDArray, full_scale: float) -> NDArray[np.float64] | Non
     """Robust linear means of the 24 patches (24 × 3, 0…1) of the chart ``cv2.mcc`` finds in ``rgb``; ``None`` when
     the chart is too small to measure (:data:`MIN_PITCH`)."""
     from illumon.camera.pipeline import ResponseCurve
-    from illumon_service.calibration import chart_patch_ids, detect_colorchecker, measure_patches
+    from illumon_service.calibration import chart_patch_ids, detect_colourchecker, measure_patches
     from illumon_service.regions import Region
 
     # Detection sees a brightened, gamma-encoded copy (these raw frames are dark); measurement the raw values.
     bright = np.clip(rgb.astype(float) / np.percentile(rgb, 99.5), 0, 1) ** (1 / 2.2)
-    centres, pitch = detect_colorchecker((bright * 65535).astype(np.uint16), 65535)
+    centres, pitch = detect_colourchecker((bright * 65535).astype(np.uint16), 65535)
     if pitch < MIN_PITCH:
         return None
     ids = chart_patch_ids()
@@ -185,10 +185,10 @@ def _observations(s: RealSet, known: list[str]):
 
 def run_illumon(s: RealSet, mode: str, primaries: str | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], str]:
     """Camera whites (F × 3), their ``confidence`` and the CCT of frame 0, for ``mode`` none / grey / chart."""
-    from illumon.camera.references import colorchecker_references
+    from illumon.camera.references import colourchecker_references
     from illumon.model import fit_scene_model
 
-    refs = colorchecker_references()
+    refs = colourchecker_references()
     known = {"none": [], "grey": GREYS, "chart": ALL}[mode]
     obs = _observations(s, known)
     known_refs = {p.replace("chart:", "ref:"): refs[p] for p in known}
@@ -205,11 +205,11 @@ def dump_sets(sets: list[RealSet], folder: Path) -> None:
     """Each set as ``illumon estimate`` reads it: ``<set>/OBSERVATIONS-none.csv`` (the 18 scene patches, linear 0…1:
     ``--white-level 1``), ``OBSERVATIONS-grey.csv`` / ``OBSERVATIONS-chart.csv`` with the references (ids ``ref:NN``)
     in frame 0 and their ``KNOWN-grey.csv`` / ``KNOWN-chart.csv``, and ``TRUTH.csv`` (each frame's greys 20–22)."""
-    from illumon.camera.references import colorchecker_references
+    from illumon.camera.references import colourchecker_references
     from illumon.observations import write_observations
     from illumon.spectra import WAVELENGTHS, write_spectral_csv
 
-    refs = colorchecker_references()
+    refs = colourchecker_references()
     for s in sets:
         d = folder / s.name
         d.mkdir(parents=True, exist_ok=True)

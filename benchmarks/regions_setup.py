@@ -46,7 +46,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 import rawsim  # noqa: E402
 from illumon.camera import ResponseCurve, angular_error_deg, camera_white, render  # noqa: E402
-from illumon.daylight import cct_duv_from_xy, spectrum_to_xy  # noqa: E402
+from illumon.daylight import cct_duv_from_xy, xy_from_spectrum  # noqa: E402
 from illumon.spectra import WAVELENGTHS  # noqa: E402
 from illumon_service.api.routes.pages import ticked_score  # noqa: E402
 
@@ -181,7 +181,7 @@ def common_shift(est: list[dict], spectra: list[np.ndarray]) -> tuple[float, flo
     frames, which static patches determine worst (the scene model's priors set it); NaN without estimates."""
     if not est:
         return float("nan"), float("nan")
-    cct, duv = cct_duv_from_xy(spectrum_to_xy(np.asarray(spectra)))
+    cct, duv = cct_duv_from_xy(xy_from_spectrum(np.asarray(spectra)))
     mired = np.array([1e6 / e["cct_k"] for e in est])
     return float(np.mean(mired - 1e6 / cct)), float(np.mean(np.array([e["duv"] for e in est]) - duv))
 

@@ -45,12 +45,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import rawsim  # noqa: E402
-from illumon.camera import angular_error_deg, camera_white, colorchecker_references, grey_card_reference  # noqa: E402
+from illumon.camera import angular_error_deg, camera_white, colourchecker_references, grey_card_reference  # noqa: E402
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
 from illumon.priors import max_normalise  # noqa: E402
-from illumon.retrieval.common import gray_world  # noqa: E402
+from illumon.retrieval.common import grey_world  # noqa: E402
 from illumon.simulation import (
     datasets,  # noqa: E402
     simulate_history,  # noqa: E402
@@ -75,7 +75,7 @@ def render(sim: str, camera: str, case: str, seed: int) -> tuple[Observations, n
     css = datasets.load_camera(camera)
     e = rawsim.daylight_run(split, FRAMES, rng)
     scene = rawsim.draw_reflectances(split, PATCHES, rng)
-    known = grey_card_reference() if case.startswith("grey") else colorchecker_references() if case.startswith("chart") else {}
+    known = grey_card_reference() if case.startswith("grey") else colourchecker_references() if case.startswith("chart") else {}
     refl = np.concatenate([scene, np.stack(list(known.values()))]) if known else scene
     matrix = srgb_matrix(css) if case.endswith("matrix") else None
     rendered = case.endswith(("rendered", "awb"))
@@ -119,7 +119,7 @@ def run_case(sim: str, camera: str, case: str, seed: int) -> dict:
     seconds = time.perf_counter() - t0
     res, extra = model.history_estimate
     err = angular_error_deg(res.white, white)
-    gw = angular_error_deg(gray_world(obs.select_patches(model.patches)), white)
+    gw = angular_error_deg(grey_world(obs.select_patches(model.patches)), white)
     nothing = angular_error_deg(np.ones(3), white)  # the output as it is (what a balanced camera already did)
     return {"sim": sim, "camera": camera, "case": case, "seed": seed, "err": err.tolist(), "gray_world": gw.tolist(),
             "nothing": nothing.tolist(),

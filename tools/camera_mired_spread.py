@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "core"), str(ROOT / "benchmarks")]
 
 import rawsim  # noqa: E402
-from illumon.camera.references import colorchecker_references, grey_card_reference  # noqa: E402
+from illumon.camera.references import colourchecker_references, grey_card_reference  # noqa: E402
 from illumon.model.fit import fit_scene_model  # noqa: E402
 from illumon.model.intervals import Z95  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
@@ -47,7 +47,7 @@ def run(camera: str, case: str, seed: int, primaries: str) -> dict:
     d65 = colour.SDS_ILLUMINANTS["D65"].copy().align(GRID).values
     e[0] = d65 / d65.max() * e[0].max()
     scene = rawsim.draw_reflectances("dev", PATCHES, rng)
-    known = {"chart": colorchecker_references(), "grey": grey_card_reference(), "none": {}}[case]
+    known = {"chart": colourchecker_references(), "grey": grey_card_reference(), "none": {}}[case]
     refl = np.concatenate([scene, np.stack(list(known.values()))]) if known else scene
     v = np.einsum("fl,pl,lc->fpc", e, refl, css)
     if primaries == "srgb":  # a rendered camera: daylight preset and its matrix to sRGB, negatives clipped

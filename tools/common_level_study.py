@@ -31,7 +31,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import rawsim  # noqa: E402
 from illumon.camera import angular_error_deg, camera_white, render  # noqa: E402
-from illumon.daylight import CIEDaylight, cct_duv_from_xy, daylight_locus_duv, spectrum_to_xy  # noqa: E402
+from illumon.daylight import CIEDaylight, cct_duv_from_xy, daylight_locus_duv, xy_from_spectrum  # noqa: E402
 from illumon.model import IdentifiabilityWarning, fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
 from regions_setup import MARGIN, TexturedScene  # noqa: E402
@@ -39,7 +39,7 @@ from regions_setup import MARGIN, TexturedScene  # noqa: E402
 
 def mired_delta(spectra: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Reciprocal temperature (MK⁻¹) and offset from the CIE daylight locus of spectra (F × 61)."""
-    cct, duv = cct_duv_from_xy(spectrum_to_xy(spectra))
+    cct, duv = cct_duv_from_xy(xy_from_spectrum(spectra))
     return 1e6 / cct, duv - daylight_locus_duv(cct)
 
 

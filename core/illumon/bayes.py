@@ -19,6 +19,10 @@ In basis coefficients, ``v = B a`` with a prior ``N(m, P⁻¹)`` on ``a``: the s
 
 Priors from measured data (eqs. 17–18 use a mean; we also use the measured covariance, regularised): daylight spectra
 (Granada) for illumination, camera sensitivities (other cameras) for sensitivity, reflectance sets for reflectance.
+
+References
+----------
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: eqs. 6–19.
 """
 
 from __future__ import annotations

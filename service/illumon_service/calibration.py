@@ -11,7 +11,7 @@ reference's patches:
   gives the chart's four corners, placed by the perspective transform of the 4 × 6 grid (:func:`grid_from_corners`).
   Each patch is sampled over a square of half the patch pitch around its centre (the chart's black gaps and the
   patch edges stay out). Ids ``chart:01`` … ``chart:24`` in the chart's order (dark skin … black), the ids of
-  :func:`illumon.camera.colorchecker_references`.
+  :func:`illumon.camera.colourchecker_references`.
 * ``grey``: one rectangle of a grey card, id ``grey`` (:func:`illumon.camera.grey_card_reference`).
 
 The refit then adds each stored calibration to the history as one extra frame holding only these reference patches
@@ -42,7 +42,7 @@ __all__ = [
     "CHART_COLS",
     "chart_patch_ids",
     "grid_from_corners",
-    "detect_colorchecker",
+    "detect_colourchecker",
     "patch_regions",
     "measure_patches",
     "reference_box",
@@ -101,7 +101,7 @@ def grid_from_corners(corners: Sequence[Sequence[float]]) -> tuple[NDArray[np.fl
     return centres, float(np.min(step))
 
 
-def detect_colorchecker(image: NDArray, full_scale: float) -> tuple[NDArray[np.float64], float]:
+def detect_colourchecker(image: NDArray, full_scale: float) -> tuple[NDArray[np.float64], float]:
     """Patch centres (24 × 2, chart order) and pitch of the ColorChecker that OpenCV's ``cv2.mcc`` finds in ``image``
     (RGB, uint8 or uint16). Raises :class:`CalibrationError` when it finds none."""
     bgr = np.ascontiguousarray(image[:, :, ::-1])
@@ -206,7 +206,7 @@ def _reference(frame: DecodedFrame, upload: CalibrationUpload) -> tuple[list[Reg
                                    f"outside the {w}×{h} image")
         return [region], reference_box([region])
     centres, pitch = (grid_from_corners(upload.corners) if upload.corners is not None
-                      else detect_colorchecker(frame.image, frame.full_scale))
+                      else detect_colourchecker(frame.image, frame.full_scale))
     regions = patch_regions(chart_patch_ids(), centres, pitch, frame.size)
     return regions, reference_box(regions, margin=pitch)
 

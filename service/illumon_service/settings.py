@@ -6,10 +6,18 @@ from functools import cached_property
 from pathlib import Path
 from typing import Literal
 
+from illumon.registry import Registry
+from illumon.retrieval import METHODS
 from pydantic import Field, field_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-__all__ = ["Settings"]
+__all__ = ["Settings", "REFIT_METHODS"]
+
+REFIT_METHODS: Registry[object] = METHODS.with_first(
+    "model", None, "fit the scene model and estimate every frame with it, linear in the history")
+"""What a refit estimates with (``ILLUMON_REFIT_METHOD``): the scene model, or a multi-frame retrieval method of
+:data:`illumon.retrieval.METHODS`."""
+RefitMethod = REFIT_METHODS.literal()
 
 
 class Settings(BaseSettings):
@@ -34,7 +42,7 @@ class Settings(BaseSettings):
     """Keep uploaded images under ``data_dir/images``."""
     refit_max_frames: int = Field(default=100_000, ge=2)
     """A refit re-estimates at most this many of the most recent frames."""
-    refit_method: Literal["model", "joint", "marguier2007", "gray_world"] = "model"
+    refit_method: RefitMethod = "model"
     """``model``: fit the scene model and estimate every frame with it (linear in the history); or a multi-frame
     retrieval method (``joint`` grows faster than linearly: set ``refit_max_frames`` to a few hundred with it)."""
     refit_fit_frames: int = Field(default=300, ge=2)

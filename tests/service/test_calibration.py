@@ -1,7 +1,7 @@
 """``POST /v1/cameras/{id}/calibration`` and cameras nobody measured (issue 15, service part).
 
 A ColorChecker is rendered into a synthetic photograph: each patch's linear camera value from its reflectance
-(colour-science's BabelColor data, :func:`illumon.camera.colorchecker_references`) under CIE D55 through a measured
+(colour-science's BabelColor data, :func:`illumon.camera.colourchecker_references`) under CIE D55 through a measured
 camera, the chart (black surround, patches with gaps) drawn upright, tilted by a perspective warp or upside down, on a
 grey background, with 1 % pixel noise, sRGB-encoded 8-bit PNG. The route must find it with ``cv2.mcc`` (or from the
 given corners), in the right patch order, and answer each patch's linear value within 1.5 % (+0.002) of the rendered
@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
-from illumon.camera import ResponseCurve, angular_error_deg, camera_white, colorchecker_references, render
+from illumon.camera import ResponseCurve, angular_error_deg, camera_white, colourchecker_references, render
 from illumon.daylight import daylight_locus_xy, daylight_spectrum
 from illumon.simulation import datasets
 from illumon_service.app import create_app
@@ -32,7 +32,7 @@ def _chart_values(css: np.ndarray, cct: float = 5500.0, exposure: float = 0.8,
     """Linear camera values (24 × 3, 0…1) of the ColorChecker's patches in chart order, followed by those of the
     ``scene`` reflectances (n × 61) under the same light and exposure."""
     e = daylight_spectrum(daylight_locus_xy(np.array([cct]))[0])
-    refl = np.array(list(colorchecker_references().values()))
+    refl = np.array(list(colourchecker_references().values()))
     if scene is not None:
         refl = np.concatenate([refl, scene])
     lin = render(css, e[None], refl)[0]
@@ -100,13 +100,13 @@ def _post(client, cid, auth, png: bytes, **fields):
 
 
 def _check_values(answer: dict, truth: np.ndarray) -> None:
-    assert [p["id"] for p in answer["patches"]] == list(colorchecker_references())
+    assert [p["id"] for p in answer["patches"]] == list(colourchecker_references())
     got = np.array([[p["r"], p["g"], p["b"]] for p in answer["patches"]])
     np.testing.assert_allclose(got, truth, rtol=0.015, atol=0.002)
 
 
 @pytest.mark.parametrize("warp", ["upright", "tilted", "upside down"])
-def test_colorchecker_found_automatically(client, css, warp):
+def test_colourchecker_found_automatically(client, css, warp):
     cid, auth = _register(client, css)
     truth = _chart_values(css)
     img, _ = _chart_image(truth, warp=warp)
@@ -118,7 +118,7 @@ def test_colorchecker_found_automatically(client, css, warp):
 
 
 @pytest.mark.parametrize("warp", ["upright", "tilted", "upside down"])
-def test_colorchecker_from_corners(client, css, warp):
+def test_colourchecker_from_corners(client, css, warp):
     cid, auth = _register(client, css)
     truth = _chart_values(css, cct=7500)
     img, corners = _chart_image(truth, warp=warp, seed=1)
@@ -133,7 +133,7 @@ def test_clipped_patches_flagged(client, css):
     img, corners = _chart_image(np.clip(truth, 0, 1), seed=2)
     out = _post(client, cid, auth, _srgb_png(img), kind="colorchecker", corners=corners).json()
     clipped = {p["id"] for p in out["patches"] if p["clipped"]}
-    assert clipped == {pid for pid, v in zip(colorchecker_references(), truth, strict=True) if v.max() >= 0.97}
+    assert clipped == {pid for pid, v in zip(colourchecker_references(), truth, strict=True) if v.max() >= 0.97}
     assert out["clipped"] == len(clipped) > 0 and "clipped" in out["warnings"][0]
 
 

@@ -123,9 +123,9 @@ def test_measured_camera_day_through_real_server(tmp_path):
         # The limits mean something on this scene: gray-world on the same stored region means and a constant D65
         # white both fail them.
         means = np.array([[v for v in f["regions"].values() if v is not None] for f in stored], dtype=object)
-        gray_world = np.array([np.mean(np.array(list(m), dtype=float), axis=0) for m in means])
+        grey_world = np.array([np.mean(np.array(list(m), dtype=float), axis=0) for m in means])
         d65 = camera_white(css, daylight_spectrum(daylight_locus_xy(cie_d_cct(6500)))[None])[0]
-        for trivial in (gray_world, np.tile(d65, (N_FRAMES, 1))):
+        for trivial in (grey_world, np.tile(d65, (N_FRAMES, 1))):
             e_trivial = angular_error_deg(trivial, truth)
             assert np.median(e_trivial) >= MEDIAN_LIMIT, np.median(e_trivial)
         true_gains = truth[:, 1:2] / truth

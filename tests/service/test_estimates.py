@@ -38,9 +38,9 @@ def test_estimates_accuracy(populated):
     # The limits fail gray-world on the same stored region means and a constant D65 white on this scene.
     stored = c.get(f"/v1/cameras/{cam}/frames", headers=bearer(token)).json()
     stored = [f for f in stored if f["frame_id"] in populated.frame_ids]
-    gray_world = np.array([np.mean([v for v in f["regions"].values() if v is not None], axis=0) for f in stored])
+    grey_world = np.array([np.mean([v for v in f["regions"].values() if v is not None], axis=0) for f in stored])
     d65 = populated.scene.css.T @ daylight_spectrum(daylight_locus_xy(cie_d_cct(6500)))
-    for trivial in (gray_world, np.tile(d65, (len(est), 1))):
+    for trivial in (grey_world, np.tile(d65, (len(est), 1))):
         assert np.median(angular_error_deg(trivial, populated.scene.true_white)) >= MEDIAN_LIMIT
 
 
@@ -88,7 +88,7 @@ def test_new_frame_estimated_by_scene_model(populated):
     assert err < MAX_LIMIT
     ill = c.get(f"/v1/cameras/{cam}/illuminant", headers=bearer(token)).json()
     assert ill["frame_id"] == r.json()["frame_id"]
-    # the interval is the model's; its coverage of the true CCT is checked in tests/core/test_model.py
+    # the interval is the model's; its coverage of the true CCT is checked in tests/core/model/test_model.py
     assert ill["intervals"]["cct_lo"] < ill["intervals"]["cct_hi"]
 
 

@@ -13,7 +13,7 @@ calibration of a camera nobody measured.
 from .formation import angular_error_deg, camera_white, gains_from_white, render
 from .noise import DEFAULT_NOISE, CameraNoise
 from .pipeline import ENCODINGS, CameraPipeline, ResponseCurve, undo_applied
-from .references import colorchecker_references, grey_card_reference, read_known_reflectances
+from .references import colourchecker_references, grey_card_reference, read_known_reflectances
 
 __all__ = [
     "render",
@@ -24,7 +24,7 @@ __all__ = [
     "ResponseCurve",
     "CameraPipeline",
     "undo_applied",
-    "colorchecker_references",
+    "colourchecker_references",
     "grey_card_reference",
     "read_known_reflectances",
     "CameraNoise",

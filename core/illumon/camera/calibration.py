@@ -19,6 +19,12 @@ their eqs. 15–16, here in the 3-dimensional basis spanned by ``C0``'s columns,
 What a reference pins: a grey card (flat) only each channel's scale (``T`` diagonal); a chart with chromatic patches
 the whole 3 × 3 ``T``. Without references ``T`` stays at its prior mean (the identity) and the estimate carries the
 spread of the measured cameras as an extra, honest uncertainty (:data:`CAMERA_WHITE_SD`).
+
+References
+----------
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: eqs. 15–16, the sensitivity posterior.
+.. [Finlayson1997] Finlayson & Drew, CIC 1997: white-point preservation.
+.. [Buchsbaum1980] Buchsbaum, 1980: grey world.
 """
 
 from __future__ import annotations
@@ -38,21 +44,14 @@ from ..priors import default_camera_prior
 from .formation import angular_error_deg
 from .references import neutral_references, references_kind
 
-__all__ = [
-    "CAMERA_MIRED_SD",
-    "CAMERA_WHITE_SD",
-    "CameraCalibration",
-    "prior_sensitivities",
-    "camera_transform_Kinoshita2023",
-    "calibrate_scene_model",
-]
+__all__ = ["CAMERA_MIRED_SD", "CAMERA_WHITE_SD", "CameraCalibration", "prior_sensitivities",
+           "camera_transform_Kinoshita2023", "calibrate_scene_model"]
 
 CAMERA_WHITE_SD = {"measured": 0.0, "grey": 0.005, "chart": 0.015, "none": 0.11}
 """Standard deviation (log units per chromatic channel, r/g and b/g) of the camera white that the camera model itself
 leaves uncertain, added to every estimate's intervals and confidence. ``none``: the spread of the measured cameras'
 daylight whites around the mean camera's (see :func:`prior_white_spread`); ``grey`` and ``chart``: what a reference
 leaves, measured on development cameras (``python benchmarks/unmeasured.py``)."""
-
 
 CAMERA_MIRED_SD = {"measured": 0.0, "chart": 13.0, "grey": 21.0, "none": 12.0}
 """Standard deviation (MK⁻¹) of the light's reciprocal temperature that an unmeasured camera leaves uncertain, added

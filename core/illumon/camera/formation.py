@@ -3,6 +3,11 @@
 ``C`` are the camera's spectral sensitivities on the grid (61 × 3), ``E`` the illuminant's spectral power, ``R`` a
 surface reflectance and ``k`` an exposure factor (shutter, aperture, gain). Sums over the 5-nm grid stand for the
 integrals, as in Marguier & Süsstrunk (2007) and Kinoshita & Kiya (2023) eq. (1).
+
+References
+----------
+.. [Marguier2007] Marguier & Süsstrunk, CIC 2007.
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: eq. 1.
 """
 
 from __future__ import annotations

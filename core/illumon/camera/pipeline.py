@@ -24,11 +24,17 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ..priors import colourchecker_reflectances
+from ..registry import Registry
 from ..spectra import GRID
 
 __all__ = ["ENCODINGS", "ResponseCurve", "CameraPipeline", "undo_applied", "srgb_matrix"]
 
-ENCODINGS = ("linear", "srgb", "gamma", "table")
+ENCODINGS = Registry.choices({
+    "linear": "values proportional to the light",
+    "srgb": "the sRGB encoding (IEC 61966-2-1)",
+    "gamma": "a pure power law, exponent `gamma`",
+    "table": "a measured curve, `table` of output values",
+})
 """Tone curves a :class:`ResponseCurve` knows."""
 
 

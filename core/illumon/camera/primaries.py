@@ -12,10 +12,8 @@ measured, not assumed: :func:`srgb_prior_white_spread`.
 
 References
 ----------
-.. [1] IEC 61966-2-1:1999, Multimedia systems and equipment — Colour measurement and management — Default RGB colour
-   space — sRGB.
-.. [2] G. D. Finlayson and M. S. Drew, "White-point preserving color correction", Proc. IS&T/SID 5th Color Imaging
-   Conference, 1997, pp. 258–261.
+.. [IEC61966-2-1] IEC 61966-2-1:1999 (sRGB).
+.. [Finlayson1997] Finlayson & Drew, CIC 1997.
 """
 
 from __future__ import annotations
@@ -27,15 +25,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..daylight import CIEDaylight
+from ..registry import Registry
 from ..spectra import GRID
 
 __all__ = ["PRIMARIES", "SRGB_BALANCE_SD", "srgb_sensitivities", "check_primaries", "to_srgb_primaries",
            "srgb_matrix_for", "daylight_prior_for"]
 
-PRIMARIES = {
+PRIMARIES = Registry.choices({
     "camera": "sensor RGB: raw output, machine-vision cameras without a colour matrix",
     "srgb": "rendered output: the camera applied white-balance gains and a colour matrix to sRGB / BT.709 primaries",
-}
+})
 """The output spaces a camera may deliver, by name (CLI ``--primaries``, the service's ``response.primaries``)."""
 
 
@@ -90,7 +89,7 @@ def srgb_matrix_for(sensitivities: NDArray[np.float64]) -> NDArray[np.float64]:
     """The 3 × 3 ``M`` (``output = sensor @ M``, row vectors) a camera's pipeline would use to carry these sensor
     sensitivities (61 × 3) to sRGB primaries with a D65 daylight preset: least squares to the linear-sRGB
     colour-matching functions under D65 light, then each output channel scaled so D65 stays grey — white-preserving
-    (Finlayson & Drew [2]_). The white-balance preset is folded into ``M``."""
+    (Finlayson & Drew [Finlayson1997]_). The white-balance preset is folded into ``M``."""
     c = np.asarray(sensitivities, dtype=float)
     target = srgb_sensitivities()
     d65 = np.asarray(colour.SDS_ILLUMINANTS["D65"].copy().align(GRID).values, dtype=float)

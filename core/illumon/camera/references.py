@@ -16,10 +16,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..priors import colourchecker_reflectances
+from ..registry import Registry
 from ..spectra import GRID, SpectralInputError, read_spectral_csv, resample_columns
 
 __all__ = [
-    "colorchecker_references",
+    "REFERENCE_KINDS",
+    "colourchecker_references",
     "grey_card_reference",
     "read_known_reflectances",
     "check_known_reflectances",
@@ -28,8 +30,14 @@ __all__ = [
     "reference_chroma",
 ]
 
+REFERENCE_KINDS = Registry.choices({
+    "colorchecker": "a ColorChecker Classic chart (24 patches), found in the image or at the given corners",
+    "grey": "a spectrally flat grey card in the given region (reflectance 0.18 unless given)",
+})
+"""The kinds of reference a calibration image may show, by the name typed (the service's ``kind`` form field)."""
 
-def colorchecker_references(prefix: str = "chart:", chart: str = "BabelColor Average") -> dict[str, NDArray[np.float64]]:
+
+def colourchecker_references(prefix: str = "chart:", chart: str = "BabelColor Average") -> dict[str, NDArray[np.float64]]:
     """The 24 ColorChecker patches as references, ids ``{prefix}01`` … ``{prefix}24`` in the chart's standard order
     (dark skin … black), reflectances from colour-science's ``chart`` data."""
     _, spectra = colourchecker_reflectances(chart)

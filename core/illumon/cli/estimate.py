@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ..registry import Registry
 from .common import (
     UsageError,
     add_primaries,
@@ -19,7 +20,13 @@ from .common import (
     write_reflectances,
 )
 
-__all__ = ["add_estimate_command"]
+__all__ = ["add_estimate_command", "MODEL_EFFECTS"]
+
+MODEL_EFFECTS = Registry.choices({
+    "none": "estimate with the linear model as it is",
+    "auto": "diagnose the history (`illumon diagnose`) and estimate with the effect found modelled",
+})
+"""``illumon estimate --model-effects``."""
 
 
 def _cmd_estimate(args: argparse.Namespace) -> int:
@@ -95,20 +102,24 @@ def _estimate_calibrated(args: argparse.Namespace, obs, known: dict[str, np.ndar
 
 def add_estimate_command(sub: Any) -> None:
     """Register ``illumon estimate``."""
+    from ..daylight import DAYLIGHT_MODELS
+    from ..retrieval import METHODS
+    from ..retrieval.joint import EXPOSURE_MODES
+
     est = sub.add_parser("estimate", help="estimate every frame's illuminant and white-balance gains")
     est.add_argument("observations", help="OBSERVATIONS.csv with columns frame,time,patch,r,g,b")
     est.add_argument("--sensitivities", help="camera sensitivities CSV wavelength_nm,r,g,b (none: a camera nobody measured)")
     est.add_argument("--known-reflectances", help="KNOWN.csv wavelength_nm,<patch id>,…: references of known reflectance")
     est.add_argument("--model", help="scene model JSON from `illumon fit` (per-frame estimates with intervals)")
     est.add_argument("--out", required=True, help="ESTIMATES.csv to write")
-    est.add_argument("--method", default="joint", choices=["joint", "marguier2007", "gray_world"])
-    est.add_argument("--daylight-model", default="cie", choices=["cie", "measured"])
-    est.add_argument("--exposure", default="per-frame", choices=["per-frame", "shared"],
+    est.add_argument("--method", default="joint", choices=list(METHODS))
+    est.add_argument("--daylight-model", default="cie", choices=list(DAYLIGHT_MODELS))
+    est.add_argument("--exposure", default="per-frame", choices=[m.replace("_", "-") for m in EXPOSURE_MODES],
                      help="joint: fit every frame's exposure (default: auto-exposure, clouds) or one for all frames "
                           "(locked exposure under daylight of equal power, Marguier & Süsstrunk's assumption)")
     add_white_level(est)
     add_primaries(est)
     est.add_argument("--reflectances", help="also write the recovered patch reflectances to this CSV")
-    est.add_argument("--model-effects", default="none", choices=["none", "auto"],
+    est.add_argument("--model-effects", default="none", choices=list(MODEL_EFFECTS),
                      help="auto: diagnose the history (`illumon diagnose`) and estimate with the effect modelled")
     est.set_defaults(func=_cmd_estimate)

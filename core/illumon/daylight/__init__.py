@@ -15,6 +15,7 @@ their public names, so ``from illumon.daylight import daylight_spectrum`` is the
 
 from __future__ import annotations
 
+from ..registry import Registry
 from .base import MIRED_RANGE, DaylightModel
 from .cie import (
     CIE_D_BASIS,
@@ -25,7 +26,7 @@ from .cie import (
     daylight_locus_duv,
     daylight_locus_xy,
     daylight_spectrum,
-    spectrum_to_xy,
+    xy_from_spectrum,
 )
 from .marguier2007 import ThetaCurve, theta_curve
 from .measured import MeasuredDaylight, MeasuredDaylightData, shipped_measured_daylight
@@ -42,7 +43,7 @@ __all__ = [
     "daylight_locus_duv",
     "xy_from_cct_duv",
     "cct_duv_from_xy",
-    "spectrum_to_xy",
+    "xy_from_spectrum",
     "ThetaCurve",
     "theta_curve",
     "DaylightModel",
@@ -54,8 +55,11 @@ __all__ = [
     "daylight_model",
 ]
 
-DAYLIGHT_MODELS: dict[str, type[DaylightModel]] = {"cie": CIEDaylight, "measured": MeasuredDaylight}
-"""Daylight models by name; more may be registered here."""
+DAYLIGHT_MODELS: Registry[type[DaylightModel]] = Registry({
+    "cie": (CIEDaylight, "CIE D-series daylight, two parameters a frame"),
+    "measured": (MeasuredDaylight, "the measured-daylight model: PCA basis of Granada skies, off-locus prior"),
+})
+"""Daylight models by name (``illumon estimate --daylight-model``); more may be registered here."""
 
 
 def daylight_model(name: str | DaylightModel = "cie") -> DaylightModel:

@@ -8,8 +8,8 @@ illuminants lie on the *daylight locus*, Duv ≈ +0.003 around 6500 K; measured 
 
 References
 ----------
-.. [1] CIE 015:2018, *Colorimetry*, 4th ed., §4.1.2 and Appendix C (the D-series basis S0, S1, S2, eq. 4.8 for M1,
-   M2 and the daylight locus).
+.. [CIE015] CIE 015:2018: §4.1.2 and Appendix C (the D-series basis S0, S1, S2, eq. 4.8 for M1, M2 and the daylight
+   locus).
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ __all__ = [
     "daylight_locus_xy",
     "cie_d_cct",
     "daylight_locus_duv",
-    "spectrum_to_xy",
+    "xy_from_spectrum",
     "CIEDaylight",
 ]
 
@@ -68,7 +68,7 @@ def cie_d_weights(xy: ArrayLike) -> NDArray[np.float64]:
 
     References
     ----------
-    .. [1] CIE 015:2018, *Colorimetry*, 4th ed., eq. 4.8.
+    .. [CIE015] CIE 015:2018: eq. 4.8.
     """
     xy = np.asarray(xy, dtype=float)
     x, y = xy[..., 0], xy[..., 1]
@@ -85,7 +85,7 @@ def daylight_spectrum(xy: ArrayLike, normalise: bool = True) -> NDArray[np.float
 
     References
     ----------
-    .. [1] CIE 015:2018, *Colorimetry*, 4th ed., §4.1.2 and Appendix C.
+    .. [CIE015] CIE 015:2018: §4.1.2 and Appendix C.
     """
     w = cie_d_weights(xy)
     spd = CIE_D_BASIS[:, 0] + w[..., :1] * CIE_D_BASIS[:, 1] + w[..., 1:2] * CIE_D_BASIS[:, 2]
@@ -100,7 +100,7 @@ def daylight_locus_xy(cct: ArrayLike) -> NDArray[np.float64]:
 
     References
     ----------
-    .. [1] CIE 015:2018, *Colorimetry*, 4th ed., §4.1.2 (x_D as a cubic in 1/T, y_D as a quadratic in x_D).
+    .. [CIE015] CIE 015:2018: §4.1.2 (x_D as a cubic in 1/T, y_D as a quadratic in x_D).
     """
     t = np.asarray(cct, dtype=float)
     x = np.where(
@@ -118,7 +118,7 @@ def cie_d_cct(nominal: ArrayLike) -> NDArray[np.float64]:
 
     References
     ----------
-    .. [1] CIE 015:2018, *Colorimetry*, 4th ed., §4.1.2 (the D illuminants' nominal and correlated colour temperatures).
+    .. [CIE015] CIE 015:2018: §4.1.2 (the D illuminants' nominal and correlated colour temperatures).
     """
     return np.asarray(nominal, dtype=float) * 1.4388 / 1.4380
 
@@ -142,7 +142,7 @@ def daylight_locus_duv(cct: ArrayLike) -> NDArray[np.float64]:
     return np.interp(1e6 / np.asarray(cct, dtype=float), mired, duv)
 
 
-def spectrum_to_xy(spd: ArrayLike) -> NDArray[np.float64]:
+def xy_from_spectrum(spd: ArrayLike) -> NDArray[np.float64]:
     """CIE 1931 chromaticity of grid spectra (…, 61)."""
     xyz = np.asarray(spd, dtype=float) @ CMFS
     return xyz[..., :2] / xyz.sum(-1, keepdims=True)
@@ -166,8 +166,8 @@ class CIEDaylight(DaylightModel):
 
     References
     ----------
-    .. [1] CIE 015:2018, *Colorimetry*, 4th ed., §4.1.2 (the spectrum at a chromaticity).
-    .. [2] Y. Ohno, "Practical use and calculation of CCT and Duv", LEUKOS 10(1), 47–55, 2014 (CCT and Duv).
+    .. [CIE015] CIE 015:2018: §4.1.2 (the spectrum at a chromaticity).
+    .. [Ohno2013] Ohno, LEUKOS 2014: CCT and Duv.
     """
 
     name = "cie"

@@ -7,8 +7,7 @@ of :func:`illumon.retrieval.marguier2007.illuminant_retrieval_Marguier2007`.
 
 References
 ----------
-.. [1] J. Marguier and S. Süsstrunk, "Illuminant retrieval for fixed location cameras", IS&T/SID 15th Color Imaging
-   Conference, 2007 (Fig. 1 and the text around it).
+.. [Marguier2007] Marguier & Süsstrunk, CIC 2007: Fig. 1 and the text around it.
 """
 
 from __future__ import annotations
@@ -39,8 +38,7 @@ class ThetaCurve:
 
     References
     ----------
-    .. [1] J. Marguier and S. Süsstrunk, "Illuminant retrieval for fixed location cameras", IS&T/SID 15th Color
-       Imaging Conference, 2007.
+    .. [Marguier2007] Marguier & Süsstrunk, CIC 2007.
     """
 
     basis: NDArray[np.float64]
@@ -76,8 +74,7 @@ def theta_curve() -> ThetaCurve:
 
     References
     ----------
-    .. [1] J. Marguier and S. Süsstrunk, "Illuminant retrieval for fixed location cameras", IS&T/SID 15th Color
-       Imaging Conference, 2007.
+    .. [Marguier2007] Marguier & Süsstrunk, CIC 2007.
     """
     temps = cie_d_cct(np.arange(4000, 10001, 500))
     spds = daylight_spectrum(daylight_locus_xy(temps))

@@ -29,11 +29,9 @@ The shipped model (``illumon/data/measured_daylight_basis.csv`` and ``measured_d
 
 References
 ----------
-.. [1] J. Hernández-Andrés, J. Romero, J. L. Nieves and R. L. Lee, "Color and spectral analysis of daylight in
-   southern Europe", JOSA A 18(6), 2001.
-.. [2] CIE 015:2018, *Colorimetry*, 4th ed., §4.1.2 and eq. 4.8 (the CIE D weights the regression uses).
-.. [3] D. B. Judd, D. L. MacAdam and G. Wyszecki, "Spectral distribution of typical daylight as a function of
-   correlated color temperature", JOSA 54(8), 1964.
+.. [HernandezAndres2001] Hernández-Andrés et al., JOSA A 2001.
+.. [CIE015] CIE 015:2018: §4.1.2 and eq. 4.8, the CIE D weights the regression uses.
+.. [Judd1964] Judd, MacAdam & Wyszecki, JOSA 1964.
 """
 
 from __future__ import annotations
@@ -48,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ..spectra import WAVELENGTHS, read_spectral_csv, resample_columns, write_spectral_csv
 from .base import MIRED_RANGE, DaylightModel
-from .cie import CMFS, cie_d_weights, daylight_locus_duv, spectrum_to_xy
+from .cie import CMFS, cie_d_weights, daylight_locus_duv, xy_from_spectrum
 from .ohno2013 import cct_duv_from_xy, xy_from_cct_duv
 
 __all__ = [
@@ -280,7 +278,7 @@ def fit_measured_daylight(
     k = int(n_components or k_cv)
     mu, v, _ = _pca(e, k)
     a = (e - mu) @ v  # N × k (orthonormal components)
-    xy = spectrum_to_xy(e)
+    xy = xy_from_spectrum(e)
     feats = _features(xy)
     b = np.linalg.lstsq(feats, a, rcond=None)[0].T  # k × 3
     resid = a - feats @ b.T

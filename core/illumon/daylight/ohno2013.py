@@ -9,8 +9,7 @@ solves; they agree with colour-science's :func:`colour.temperature.CCT_to_uv_Ohn
 
 References
 ----------
-.. [1] Y. Ohno, "Practical use and calculation of CCT and Duv", LEUKOS 10(1), 47–55 (2014; online 2013),
-   doi:10.1080/15502724.2014.839020.
+.. [Ohno2013] Ohno, LEUKOS 2014.
 """
 
 from __future__ import annotations
@@ -47,7 +46,7 @@ def planck_locus() -> PlanckLocus:
 
     References
     ----------
-    .. [1] Y. Ohno, LEUKOS 10(1), 47–55 (2014): the Planckian table the CCT and Duv are measured against.
+    .. [Ohno2013] Ohno, LEUKOS 2014: the Planckian table the CCT and Duv are measured against.
     """
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     wl = np.asarray(cmfs.wavelengths, dtype=float) * 1e-9
@@ -67,14 +66,14 @@ def planck_locus() -> PlanckLocus:
     return PlanckLocus(mired, uv, d, normal)
 
 
-def _uv_to_xy(uv: NDArray[np.float64]) -> NDArray[np.float64]:
+def _xy_from_uv(uv: NDArray[np.float64]) -> NDArray[np.float64]:
     """CIE 1960 uv → CIE 1931 xy (…, 2)."""
     u, v = uv[..., 0], uv[..., 1]
     den = 2 * u - 8 * v + 4
     return np.stack([3 * u / den, 2 * v / den], axis=-1)
 
 
-def _xy_to_uv(xy: NDArray[np.float64]) -> NDArray[np.float64]:
+def _uv_from_xy(xy: NDArray[np.float64]) -> NDArray[np.float64]:
     """CIE 1931 xy → CIE 1960 uv (…, 2)."""
     x, y = xy[..., 0], xy[..., 1]
     den = -2 * x + 12 * y + 3
@@ -108,13 +107,13 @@ def xy_from_cct_duv(cct: ArrayLike, duv: ArrayLike) -> NDArray[np.float64]:
 
     References
     ----------
-    .. [1] Y. Ohno, LEUKOS 10(1), 47–55 (2014): the point at distance Duv along the locus normal.
+    .. [Ohno2013] Ohno, LEUKOS 2014: the point at distance Duv along the locus normal.
     """
     m = 1e6 / np.asarray(cct, dtype=float)
     duv = np.asarray(duv, dtype=float)
     u0, v0, nu, nv = _locus_at(planck_locus(), m)
     uv = np.stack([u0 + duv * nu, v0 + duv * nv], axis=-1)
-    return _uv_to_xy(uv)
+    return _xy_from_uv(uv)
 
 
 def cct_duv_from_xy(xy: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -135,11 +134,11 @@ def cct_duv_from_xy(xy: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.floa
 
     References
     ----------
-    .. [1] Y. Ohno, LEUKOS 10(1), 47–55 (2014): CCT as the temperature of the nearest locus point in uv, Duv as the
-       signed distance to it.
+    .. [Ohno2013] Ohno, LEUKOS 2014: CCT as the temperature of the nearest locus point in uv, Duv as the signed
+       distance to it.
     """
     p = planck_locus()
-    uv = _xy_to_uv(np.asarray(xy, dtype=float))
+    uv = _uv_from_xy(np.asarray(xy, dtype=float))
     flat = uv.reshape(-1, 2)
     cct = np.empty(flat.shape[0])
     duv = np.empty(flat.shape[0])

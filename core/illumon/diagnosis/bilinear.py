@@ -146,7 +146,7 @@ def fit_offset(y: NDArray[np.float64], w: NDArray[np.float64], rank: int, U0: ND
     starts: list[NDArray[np.float64]] = [np.zeros(3), 0.5 * low, 0.9 * low]
     if rank > 1:
         # the offset of the rank-(r−1) model: at full rank a free frame factor can absorb the pedestal (a constant
-        # column) and the alternation stays there (issue 16: a 1.6…4.9 % pedestal of a raw pipeline, found exactly
+        # column) and the alternation stays there (a 1.6…4.9 % pedestal of the raw pipeline was found exactly
         # at rank 3 and missed at rank 4 from the other starts)
         starts.append(_fit_offset_from(y0, w, rank - 1, U0[:, : rank - 1], iters)[1])
     for start in starts:
@@ -233,8 +233,8 @@ def column_prior(V: NDArray[np.float64]) -> NDArray[np.float64]:
 MIN_SHADOW_FRAMES = 2
 """Fewest frames of a shadow run. One patch off in one frame is an outlier (an occluder, a reflection, a glitch of
 the measurement), not a shadow, which over a fixed camera lasts several frames at any practical frame interval (the
-simulators hide runs of 3 or more). Issue 16: on the held-out image simulator (``benchmarks/imgsim.py``) a clean
-history whose colour matrix clips a saturated surface at 0 was reported as a one-frame shadow (ΔBIC −138)."""
+simulators hide runs of 3 or more). A one-frame run is not enough: on the held-out image simulator (``benchmarks/imgsim.py``) a
+clean history whose colour matrix clips a saturated surface at 0 was reported as a one-frame shadow (ΔBIC −138)."""
 
 
 def scan_patch_effects(y: NDArray[np.float64], w: NDArray[np.float64], U: NDArray[np.float64], min_out: int = 3,

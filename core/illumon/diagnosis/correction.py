@@ -117,9 +117,9 @@ def estimate_with_effect(obs: Observations, sensitivities: NDArray[np.float64], 
 
 
 def estimate_with_effects(obs: Observations, sensitivities: NDArray[np.float64], diag: Diagnosis, **kwargs):
-    """Illuminants re-estimated with *every* effect of ``diag.effects`` modelled (issue 28): the corrections of
-    :func:`corrected_observations` applied in the order the effects were found, lamp-lit frames left out of the joint
-    fit as in :func:`estimate_with_effect`. One effect (or none): :func:`estimate_with_effect`."""
+    """Illuminants re-estimated with *every* effect of ``diag.effects`` modelled (a history may carry more than one): the
+    corrections of :func:`corrected_observations` applied in the order the effects were found, lamp-lit frames left out of the
+    joint fit as in :func:`estimate_with_effect`. One effect (or none): :func:`estimate_with_effect`."""
     found = diag.info.get("found") or []
     if len(found) <= 1:
         return estimate_with_effect(obs, sensitivities, diag, **kwargs)

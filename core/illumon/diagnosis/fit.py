@@ -22,8 +22,8 @@ Two stages, each a penalised-likelihood comparison against its own base model (S
    supported: off-locus light and fluorescence, which the bilinear model cannot see, against the joint spectral fit
    (values near black censored).
 
-An extension is chosen when its BIC beats the base by more than :data:`NONE_MARGIN`; the margins were re-set in
-issue 16 on the development cameras of both simulators (:mod:`illumon.simulation.simulate` via
+An extension is chosen when its BIC beats the base by more than :data:`NONE_MARGIN`; the margins are set
+on the development cameras of both simulators, so that they hold beyond the project's own (:mod:`illumon.simulation.simulate` via
 :mod:`illumon.simulation.effects`, and the independent raw pipeline ``benchmarks/rawsim.py``: Nikon and Point Grey
 bodies, development surfaces and daylight, seeds 3 000…); otherwise the answer is ``none``.
 
@@ -33,12 +33,14 @@ noise, sets the scale of their gains, so each is measured against the history it
 * **Off-locus light** (:func:`.spectral.off_locus_gains`; daylight is the Gaussian mixture of measured Granada skies,
   :func:`.spectral.daylight_mixture`): each frame's gain from a free illuminant in units of the history's typical
   frame (median gain read as the median of χ²₅), ``z``; score ``min_k Σ_{top k} (τ − z)``, ``k`` = 2…F/3 frames,
-  ``τ`` = :data:`.stages.OFF_LOCUS_FRAME_Z` = 10. Margin 4 before issue 16 (the 1st percentile of the score on 200 clean
-  development histories of the project's simulator, −3.6); 14 since (clean raw-pipeline histories reach −13).
+  ``τ`` = :data:`.stages.OFF_LOCUS_FRAME_Z` = 10. Margin 4 when set on the project's simulator alone (the 1st
+  percentile of the score on 200 clean development histories of the project's simulator, −3.6); 14 with both
+  simulators (clean raw-pipeline histories reach −13).
 * **Fluorescence** (:func:`.spectral.generic_fluorescence_gains`, Han et al. 2012 eqs. 1–2): the best patch's gain
   from an emission of free colour driven by a generic short-wave band, divided by the runner-up patch's gain (at
-  least the median of χ²₃); score minus that ratio. Margin 2.3 before issue 16 (the 98th percentile of the ratio on
-  200 clean development histories of the project's simulator); 3.0 since (see :data:`NONE_MARGIN`).
+  least the median of χ²₃); score minus that ratio. Margin 2.3 when set on the project's simulator alone (the 98th
+  percentile of the ratio on 200 clean development histories of the project's simulator); 3.0 with both simulators
+  (see :data:`NONE_MARGIN`).
 
 Off-locus light is tested first (its misfit can make a patch look fluorescent, not the reverse), with the best
 fluorescent-looking patch left out when its ratio passes the margin. The illuminants are then re-estimated with the
@@ -76,10 +78,10 @@ NONE_MARGIN = {
     "fluorescence": 3.0,
 }
 """How much an extension's score must beat the base model's for the effect to be reported (ΔBIC for the bilinear
-effects; the spectral effects' scores are described in the module docstring). Re-set in issue 16 on development
-histories of both simulators (12 per effect and simulator, development cameras, surfaces and daylight; margins
-searched on a grid for the most effects named with no false effect on clean histories): tone curve 15 → 25 (clean
-raw-pipeline histories reach −18, weakest development tone curve −29), shadow 10 → 20 (a clean raw-pipeline history
+effects; the spectral effects' scores are described in the module docstring). Set on development
+histories of both simulators, so that they hold beyond the project's own (12 per effect and simulator, development cameras,
+surfaces and daylight; margins searched on a grid for the most effects named with no false effect on clean histories): tone curve
+15 → 25 (clean raw-pipeline histories reach −18, weakest development tone curve −29), shadow 10 → 20 (a clean raw-pipeline history
 at −8), off-locus 4 → 14 (clean raw-pipeline histories reach −13: the daylight mixture has not seen those bodies'
 misfit; development lamps mostly below −30), fluorescence 2.3 → 3.0 (clean raw-pipeline ratios reach 3.8; this
 leaves one false effect in 12 development clean raw-pipeline histories and most fluorescent patches undetected).
@@ -105,7 +107,7 @@ def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank:
     lamp's red saturating while the metering reads green). When a spectral effect passes its own margin too, the
     bilinear stage is run again without its frames (off-locus) or its patch (fluorescence); if no evidence of the
     global effect is left there (ΔBIC ≥ 0: not merely weaker, as any effect is on fewer values), the spectral effect
-    is its cause (issue 16: raw-pipeline histories with a lamp read as a tone curve at ΔBIC −198, +5.9 without the
+    is its cause (without this, raw-pipeline histories with a lamp read as a tone curve at ΔBIC −198, +5.9 without the
     lamp-lit frames, or as clipping at −320; a weak tone curve with a patch that looks fluorescent keeps −22 without
     that patch and stays a tone curve). Clipping is not put down to fluorescence: a patch whose values clip misfits
     the spectral model by that alone (a development history clipped in one patch passed the fluorescence margin).
@@ -170,7 +172,7 @@ def diagnose(
         ΔBIC margins per effect (default :data:`NONE_MARGIN`).
     learn_noise
         Learn the noise from the history's residuals (:func:`.bilinear.estimate_noise`); ``False`` assumes the
-        noise of :data:`illumon.camera.DEFAULT_NOISE` (the method before issue 16, for comparison).
+        noise of :data:`illumon.camera.DEFAULT_NOISE` (the former method, kept for comparison).
 
     Returns
     -------
@@ -196,8 +198,8 @@ def diagnose(
 
 def _further_effects(obs: Observations, css: NDArray[np.float64], rank: int, margins: dict[str, float],
                      learn_noise: bool, found: list[Diagnosis]) -> list[Diagnosis]:
-    """Several effects at once (issue 28): model the one found, look again in what is left, until nothing passes its
-    margin (at most :data:`MAX_EFFECTS`); every effect in the original history's indices."""
+    """Several effects at once (a history may carry more than one): model the one found, look again in what is left, until nothing
+    passes its margin (at most :data:`MAX_EFFECTS`); every effect in the original history's indices."""
     current = obs
     while found and len(found) < MAX_EFFECTS:
         current = _modelled(current, found[-1])
@@ -263,7 +265,7 @@ MAX_EFFECTS = 3
 """At most this many effects are reported for one history."""
 
 MINOR_CLIPPING_DEG = 0.1
-"""Clipping that moves the median illuminant by no more than this (degrees) is a note, not an effect (issue 28: a few
+"""Clipping that moves the median illuminant by no more than this (degrees) is a note, not an effect (a few
 values at the white level, censored by every fit anyway)."""
 
 MINOR_CLIPPING_FRACTION = 0.01

@@ -16,6 +16,10 @@ known of daylight, cameras and surfaces, i.e. against the joint spectral fit of 
   ``illumon/data/fluorophores.csv`` (reported as the closest shipped one).
 
 Both gains are in the whitened units of the joint fit, whose noise scale is profiled from its data residuals.
+
+References
+----------
+.. [Han2012] Han et al., CVPR 2012: eqs. 1–2, the emission model.
 """
 
 from __future__ import annotations
@@ -32,7 +36,7 @@ from ..daylight import CIEDaylight, daylight_model
 from ..model.general import cie_lamp_spectra
 from ..observations import Observations
 from ..priors import default_daylight_prior, reflectance_basis
-from ..retrieval.common import gray_world_mired, imaging_operators
+from ..retrieval.common import grey_world_mired, imaging_operators
 from ..retrieval.joint import JointProblem
 from ..spectra import WAVELENGTHS, read_spectral_csv
 from .noise import DARK_LEVEL
@@ -71,7 +75,7 @@ def fit_spectral_base(obs: Observations, sensitivities: NDArray[np.float64], max
     prob.W = np.where(np.nan_to_num(np.asarray(obs.values, dtype=float)) <= dark_level, 0.0, prob.W)
     lo, hi = prob.bounds()
     nfr = prob.F * prob.nf
-    x0 = np.clip(prob.start(gray_world_mired(obs, c)), lo + 1e-9, hi - 1e-9)
+    x0 = np.clip(prob.start(grey_world_mired(obs, c)), lo + 1e-9, hi - 1e-9)
     sol = least_squares(prob.projected_residuals, x0[:nfr], bounds=(lo[:nfr], hi[:nfr]), x_scale=prob.frame_scale(),
                         max_nfev=max_nfev, method="trf")
     fr = sol.x.reshape(prob.F, prob.nf)
@@ -262,7 +266,12 @@ def shipped_fluorophores() -> tuple[list[str], NDArray[np.float64], NDArray[np.f
 def fluorescence_gains(base: SpectralBase) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64], list[str]]:
     """Per patch, the best drop of whitened misfit (units of ``phi``) when the patch fluoresces, over the shipped
     fluorophores; with the index of the best fluorophore, its strength (relative to the patch's reflected green) and
-    the fluorophore names."""
+    the fluorophore names.
+
+    References
+    ----------
+    .. [Han2012] Han et al., CVPR 2012: eqs. 1–2, the emission model.
+    """
     prob = base.prob
     names, ex, em = shipped_fluorophores()
     if base.day_spectra is not None:  # frames re-fitted with measured daylight (off_locus_gains), exposure included
@@ -364,6 +373,10 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
     without the emission.
     Returns the best gain over bands per patch, the band index and the emission's share of the patch's signal per
     channel (median over frames, P × 3).
+
+    References
+    ----------
+    .. [Han2012] Han et al., CVPR 2012: eqs. 1–2, the emission model.
     """
     prob = base.prob
     if base.day_spectra is None:

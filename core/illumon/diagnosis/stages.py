@@ -30,7 +30,7 @@ __all__ = ["MIN_OFFSET", "REFINE_ITERS", "MIN_OFF_LOCUS_FRAMES", "OFF_LOCUS_FRAM
 MIN_OFFSET = 1.0 / 255.0
 """Smallest black offset reported (a fraction of white): one code of 8-bit output. A smaller pedestal cannot be told
 from the bias that output rounding leaves in dark regions' means (pixels the noise does not dither) and changes an
-estimate by less than the noise. Issue 16: on 8-bit raw histories at ISO 100 the offset test found pedestals of
+estimate by less than the noise. On the independent raw pipeline's 8-bit histories at ISO 100 the offset test found pedestals of
 0.0005…0.0015 at ΔBIC −10…−27 (a clean history and a fluorescent one); the hidden pedestals of both simulators are
 1.5…6 % of white, found within 0.001."""
 
@@ -106,9 +106,9 @@ MIN_INGEST_CLIPPED = 3
 
 
 def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64]) -> Candidate | None:
-    """Clipping that the measurement already removed (issue 28; the service drops pixels at the white level and
+    """Clipping that the measurement already removed (the service drops pixels at the white level and
     regions more than half clipped, so an over-exposed history reaches the diagnosis as *missing* regions, never as
-    values sharing a clip level: ``imgsim`` clipping was named in 0 of 20).
+    values sharing a clip level: a clip-level test alone named ``imgsim`` clipping in 0 of 20).
 
     Missing regions are compared as a Bernoulli outcome under two models: missing at random (one rate), and missing
     when the region would be bright — the rank-``r`` model's prediction of its brightest channel at or above a level
@@ -288,8 +288,7 @@ def spectral_stage(obs: Observations, sensitivities: NDArray[np.float64],
 
     References
     ----------
-    .. [1] S. Han, Y. Matsushita, I. Sato, T. Okabe and Y. Sato, "Camera spectral sensitivity estimation from a single
-       image under unknown illumination by using fluorescence", CVPR 2012 (eqs. 1–2, the emission model).
+    .. [Han2012] Han et al., CVPR 2012: eqs. 1–2, the emission model.
     """
     from scipy.stats import chi2
 

@@ -6,13 +6,10 @@ hypothesis with its own Poissonian-Gaussian noise learned in its linear light, s
 
 References
 ----------
-.. [1] IEC 61966-2-1:1999, Multimedia systems and equipment — Colour measurement and management — Default RGB colour
-   space — sRGB (the sRGB encoding and its inverse).
-.. [2] ITU-R BT.709-6, Parameter values for the HDTV standards for production and international programme exchange,
-   2015 (the BT.709 opto-electronic transfer function).
-.. [3] A. Foi, M. Trimeche, V. Katkovnik and K. Egiazarian, "Practical Poissonian-Gaussian noise modeling and fitting
-   for single-image raw-data", IEEE TIP 17(10), 2008 (the noise each hypothesis learns).
-.. [4] P. J. Huber, "Robust estimation of a location parameter", Ann. Math. Statist. 35(1), 1964 (the loss).
+.. [IEC61966-2-1] IEC 61966-2-1:1999 (sRGB): the sRGB encoding and its inverse.
+.. [ITU-BT709] ITU-R BT.709-6: the BT.709 opto-electronic transfer function.
+.. [Foi2008] Foi et al., IEEE TIP 2008: the noise each hypothesis learns.
+.. [Huber1964] Huber, 1964: the loss.
 """
 
 from __future__ import annotations
@@ -33,7 +30,7 @@ __all__ = [
 
 GAMMA_NOISE_FLOOR = 0.025
 """Read and rounding noise of the linear light, in units of the shot noise's signal (σ² ∝ x + 0.025), with which γ is
-estimated once a tone curve is detected (it changes the reported γ, not the diagnosis). Re-chosen in issue 16 on
+estimated once a tone curve is detected (it changes the reported γ, not the diagnosis). Re-chosen on
 development data only (``benchmarks/diagnose.py --split dev`` histories, seeds 4000…4013: 14 γ curves of the project's
 simulator and 5 of the raw pipeline, the other raw ones being sRGB): median |γ̂/γ − 1| 15.7 % with 0 (pure shot
 noise), 5.1 % with 0.0125, 2.4 % with 0.025 (worst 12.7 %), 7.1 % with 0.05 (the value before, partly chosen looking
@@ -47,7 +44,7 @@ ADAPTIVE_DARK = 3.0
 band of values just above it misfits the linear hypothesis's learned noise this many times more than the values above
 the band (mean squared standardised residual, winsorised at 3σ): a camera whose output is rounded to 8 (or 10) bits
 delivers dark regions whose pixel noise is below half a code, so the rounding does not average out and biases their
-means by up to half a code — tens of σ of a region mean — which a γ of 1.2…1.4 otherwise fits (issue 16: clean 8-bit
+means by up to half a code — tens of σ of a region mean — which a γ of 1.2…1.4 otherwise fits (clean 8-bit
 raw histories at ISO 100…200, ΔBIC −42 and −69 with the censoring fixed at 3 %). A tone curve lifts the whole range,
 so the test keeps its power on the brighter values. Chosen on development histories of both simulators (ratio 2 left
 a clean raw history at −17, 3 none below −4; no tone curve of either simulator moved); 0 disables."""
@@ -58,7 +55,7 @@ DARK_STEP = 1.5
 MIN_GAMMA = 1.0
 """Least exponent of the tone test's decoding ``x = y^γ``: an output encoding compresses (sRGB, BT.709, gammas
 1.8…2.6, log curves: γ > 1 in this direction); none expands. An expanding fit (γ < 1) is the bilinear model's misfit
-from something else: dark values rounded by 10-bit output, clipped highlights, lamp-lit frames. Issue 16: on the
+from something else: dark values rounded by 10-bit output, clipped highlights, lamp-lit frames. On the
 score histories of the raw pipeline every false ``nonlinear_response`` (a clean 10-bit Canon 500D at ΔBIC −149 and
 −33, a clipped history at −181, an off-locus one at −198, a fluorescent one at −75) had γ̂ = 0.46…0.80, every real
 tone curve γ̂ ≥ 1.4. The sRGB and BT.709 hypotheses are compressive by construction."""
@@ -117,9 +114,9 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
 
     References
     ----------
-    .. [1] IEC 61966-2-1:1999 (sRGB) and ITU-R BT.709-6 (the standard curves tried beside a pure γ).
-    .. [2] A. Foi, M. Trimeche, V. Katkovnik and K. Egiazarian, IEEE TIP 17(10), 2008 (the Poissonian-Gaussian noise
-       each hypothesis learns).
+    .. [IEC61966-2-1] IEC 61966-2-1:1999 (sRGB): a standard curve tried beside a pure γ.
+    .. [ITU-BT709] ITU-R BT.709-6: a standard curve tried beside a pure γ.
+    .. [Foi2008] Foi et al., IEEE TIP 2008: the Poissonian-Gaussian noise each hypothesis learns.
     """
     # tone curve: y = x^(1/γ) (γ fitted) or the sRGB encoding (IEC 61966-2-1, the usual camera output curve, whose
     # linear toe a pure gamma does not follow); the factorisation holds for the linearised x = T(y). Each hypothesis
@@ -128,8 +125,8 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
     # in how their spread grows with the signal, without assuming how large the noise is
     # values delivered on a grid (rounded in the output, after the curve) carry the rounding's variance step²/12 in
     # the output domain, which each hypothesis carries into its own linear light through the curve's slope: constant
-    # output noise is otherwise exactly what a γ = 2 curve makes of shot noise (issue 16, region means rounded to
-    # 8-bit codes)
+    # output noise is otherwise exactly what a γ = 2 curve makes of shot noise (as region means rounded to
+    # 8-bit codes showed)
     q = noise.step**2 / 12.0
     yv = np.nan_to_num(y)
     dark = nz.DARK_LEVEL

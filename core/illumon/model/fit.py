@@ -7,6 +7,11 @@ reflectances (:class:`~.solver.FrameSolver`), with over-relaxation and common-sh
 in which the alternation crawls. Long histories are fitted on a subsample of frames spread over the illuminant range.
 A camera nobody measured, or one with references of known reflectance, is fitted jointly with its transform
 (:mod:`illumon.camera.calibration`).
+
+References
+----------
+.. [Marguier2007] Marguier & Süsstrunk, CIC 2007: the joint model.
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: eqs. 13–14 in basis coefficients.
 """
 
 from __future__ import annotations
@@ -27,7 +32,7 @@ from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
 from ..observations import Observations
 from ..priors import ReflectanceBasis, reflectance_basis
-from ..retrieval.common import RetrievalResult, censored, gray_world_mired, imaging_operators, white_level
+from ..retrieval.common import RetrievalResult, censored, grey_world_mired, imaging_operators, white_level
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
 from .intervals import MODEL_ERROR
@@ -399,7 +404,7 @@ def _fit_fixed_camera(
     scale = float(np.median(green)) if green.size else 1.0
     if not scale > 0:
         raise ValueError("observations are all black (median green is 0)")
-    gw_mired = gray_world_mired(obs, css)
+    gw_mired = grey_world_mired(obs, css)
     sub = spread_subsample(gw_mired, max_fit_frames)
     y = y_all[sub] / scale
     present = present_all[sub]

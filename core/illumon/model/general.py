@@ -4,9 +4,9 @@ reflectances learned under daylight (:func:`general_whites`, the white :mod:`.la
 
 References
 ----------
-.. [1] CIE 015:2018, *Colorimetry*, 4th ed.: illuminant A and the F, HP and LED illuminant tables (via colour-science).
-.. [2] Y. Kinoshita and H. Kiya, "Separated-spectral-distribution estimation based on Bayesian inference with single
-   RGB camera", 2023 (the linear Gaussian posterior, eqs. 13–14, with the roles of light and surface exchanged).
+.. [CIE015] CIE 015:2018: illuminant A and the F, HP and LED illuminant tables (via colour-science).
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: the linear Gaussian posterior, eqs. 13–14, with the roles of light and
+   surface exchanged.
 """
 
 from __future__ import annotations

@@ -147,6 +147,6 @@ def interval_columns(result: RetrievalResult, extra: dict[str, NDArray[np.float6
     for c, name in ((0, "r"), (2, "b")):
         out[f"gain_{name}_lo"] = result.info["gain_lo"][:, c]
         out[f"gain_{name}_hi"] = result.info["gain_hi"][:, c]
-    if "non_daylight" in extra:  # last: the column issue 28 added (:mod:`illumon.model.lamps`)
+    if "non_daylight" in extra:  # last, after the older columns, whose order readers rely on (:mod:`illumon.model.lamps`)
         out["non_daylight"] = extra["non_daylight"]
     return out

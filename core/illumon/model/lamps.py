@@ -23,12 +23,11 @@ reported and keep the daylight fit's white.
 
 References
 ----------
-.. [1] G. Buchsbaum, "A spatial processor model for object colour perception", J. Franklin Inst. 310(1), 1980.
-.. [2] CIE 015:2018, *Colorimetry*, 4th ed.: illuminant A and the F, HP and LED illuminant tables (via colour-science).
-.. [3] J. Marguier, S. Süsstrunk, "Illuminant retrieval for fixed location cameras", IS&T/SID CIC 2007 (the daylight
-   model this module tests frames against).
-.. [4] Y. Kinoshita, H. Kiya, "Separated-spectral-distribution estimation based on Bayesian inference with single RGB
-   camera" (the linear Gaussian posterior, eqs. 13–14, used for the general illuminant).
+.. [Buchsbaum1980] Buchsbaum, 1980.
+.. [CIE015] CIE 015:2018: illuminant A and the F, HP and LED illuminant tables (via colour-science).
+.. [Marguier2007] Marguier & Süsstrunk, CIC 2007: the daylight model this module tests frames against.
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: the linear Gaussian posterior, eqs. 13–14, used for the general
+   illuminant.
 """
 
 from __future__ import annotations

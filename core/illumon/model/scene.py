@@ -5,6 +5,10 @@ covariance (Y. Kinoshita & H. Kiya, "Bayesian spectral estimation", eqs. 11–16
 illuminants and sensitivities), the camera (effective) sensitivities and how they were calibrated, the wavelength grid,
 the daylight model and its prior, the noise level measured from the fit residuals, a summary of the data it was fitted
 on and an identifiability report. It is saved as human-readable JSON (``illumon fit``) and loaded back identically.
+
+References
+----------
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: eqs. 11–16, the reflectance posterior.
 """
 
 from __future__ import annotations

@@ -12,8 +12,7 @@ derived from all 24 measured cameras by ``tools/build_sensitivity_priors.py``.
 
 References
 ----------
-.. [1] J. Jiang, D. Liu, J. Gu and S. Süsstrunk, "What is the space of spectral sensitivity functions for digital
-   color cameras?", IEEE WACV, 2013.
+.. [Jiang2013] Jiang et al., WACV 2013.
 """
 
 from __future__ import annotations
@@ -127,8 +126,7 @@ def build_camera_prior(
 
     References
     ----------
-    .. [1] J. Jiang, D. Liu, J. Gu and S. Süsstrunk, "What is the space of spectral sensitivity functions for digital
-       color cameras?", IEEE WACV, 2013 (the per-channel basis).
+    .. [Jiang2013] Jiang et al., WACV 2013: the per-channel basis.
     """
     arr = np.stack([max_normalise(c) for c in cameras])  # n × 61 × 3
     n = arr.shape[0]
@@ -164,8 +162,7 @@ def jiang2013_channel_bases(cameras: Sequence[ArrayLike], n_basis: int = 3) -> N
 
     References
     ----------
-    .. [1] J. Jiang, D. Liu, J. Gu and S. Süsstrunk, "What is the space of spectral sensitivity functions for digital
-       color cameras?", IEEE WACV, 2013.
+    .. [Jiang2013] Jiang et al., WACV 2013.
     """
     msds = {
         str(i): colour.MultiSpectralDistributions(np.asarray(c, dtype=float), WAVELENGTHS, labels=list("RGB"))

@@ -8,8 +8,7 @@ is derived from all Granada spectra by ``tools/build_sensitivity_priors.py``.
 
 References
 ----------
-.. [1] J. Hernández-Andrés, J. Romero, J. L. Nieves and R. L. Lee, "Color and spectral analysis of daylight in
-   southern Europe", JOSA A 18(6), 2001.
+.. [HernandezAndres2001] Hernández-Andrés et al., JOSA A 2001.
 """
 
 from __future__ import annotations
@@ -79,8 +78,8 @@ def build_daylight_prior(
 
     References
     ----------
-    .. [1] J. Hernández-Andrés, J. Romero, J. L. Nieves and R. L. Lee, "Color and spectral analysis of daylight in
-       southern Europe", JOSA A 18(6), 2001 (the Granada spectra and their principal components).
+    .. [HernandezAndres2001] Hernández-Andrés et al., JOSA A 2001: the Granada spectra and their principal
+       components.
     """
     d = np.asarray(spectra, dtype=float)
     d = d / d.mean(axis=1, keepdims=True)

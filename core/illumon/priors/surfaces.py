@@ -8,12 +8,9 @@ of those sets (``reflectance_prior.json``), which serve as the Gaussian reflecta
 
 References
 ----------
-.. [1] J. Marguier and S. Süsstrunk, "Illuminant retrieval for fixed location cameras", IS&T/SID 15th Color Imaging
-   Conference, 2007 (8 principal components of measured reflectances).
-.. [2] L. T. Maloney, "Evaluation of linear models of surface spectral reflectance with small numbers of parameters",
-   JOSA A 3(10), 1986.
-.. [3] Y. Kinoshita and H. Kiya, "Separated-spectral-distribution estimation based on Bayesian inference with single
-   RGB camera", 2023 (the Gaussian prior on reflectance coefficients).
+.. [Marguier2007] Marguier & Süsstrunk, CIC 2007: 8 principal components of measured reflectances.
+.. [Maloney1986] Maloney, JOSA A 1986.
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: the Gaussian prior on reflectance coefficients.
 """
 
 from __future__ import annotations

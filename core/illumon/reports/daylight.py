@@ -13,7 +13,7 @@ Errors: relative RMSE (RMSE / mean level, best scale) and the goodness-of-fit co
 Hernández-Andrés, JOSA A 14, 1997; GFC ≥ 0.999 "colorimetrically accurate", ≥ 0.9999 "good spectral fit"
 after Hernández-Andrés et al., JOSA A 18, 2001). Gain: the camera-white error each daylight model leaves at the true
 chromaticity (all held-out spectra × all cameras), and full joint retrieval on simulated fixed-camera histories lit
-by held-out spectra (:func:`illumon.retrieval.joint.illuminant_retrieval_joint`).
+by held-out spectra (:func:`illumon.retrieval.joint.illuminant_retrieval_illumon`).
 """
 
 from __future__ import annotations
@@ -31,9 +31,9 @@ from ..daylight import (
     cct_duv_from_xy,
     daylight_locus_duv,
     daylight_spectrum,
-    spectrum_to_xy,
     theta_curve,
     xy_from_cct_duv,
+    xy_from_spectrum,
 )
 from ..daylight.measured import (
     MeasuredDaylightData,
@@ -105,7 +105,7 @@ def fit_daylight_models(
     e: NDArray[np.float64], data: MeasuredDaylightData | None = None
 ) -> dict[str, NDArray[np.float64]]:
     """Best-scaled fits (N × 61) of unit-mean spectra ``e`` by each model (see module docstring)."""
-    xy = spectrum_to_xy(e)
+    xy = xy_from_spectrum(e)
     cct, _ = cct_duv_from_xy(xy)
     fits = {
         "cie_cct": daylight_spectrum(xy_from_cct_duv(cct, daylight_locus_duv(cct))),
@@ -305,7 +305,7 @@ def daylight_report(
     simulate
         Run the simulated retrievals (needs the measured cameras and reflectances of :mod:`illumon.simulation.datasets`).
     solver_kwargs
-        Extra keyword arguments for :func:`~illumon.retrieval.joint.illuminant_retrieval_joint` (unknown ones are
+        Extra keyword arguments for :func:`~illumon.retrieval.joint.illuminant_retrieval_illumon` (unknown ones are
         ignored).
     plots
         Draw the PNG plots (matplotlib, Agg).
@@ -324,7 +324,7 @@ def daylight_report(
     ids, e, load_info = load_measured_spectra(spectra_csv_path)
     n = len(ids)
     train, test = split_indices(n, split, seed)
-    xy = spectrum_to_xy(e)
+    xy = xy_from_spectrum(e)
     cct, duv = cct_duv_from_xy(xy)
     delta = duv - daylight_locus_duv(cct)
     sky = sky_class(cct, delta)

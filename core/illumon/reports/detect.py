@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from ..daylight import cct_duv_from_xy, daylight_locus_duv, spectrum_to_xy
+from ..daylight import cct_duv_from_xy, daylight_locus_duv, xy_from_spectrum
 from ..daylight.measured import MeasuredDaylightData, shipped_measured_daylight, unit_mean
 from ..spectra import WAVELENGTHS
 
@@ -173,7 +173,7 @@ def detect_tint(
         ``z`` (standardised offsets) and the mixture diagnostics.
     """
     data = data or shipped_measured_daylight()
-    cct, duv = cct_duv_from_xy(spectrum_to_xy(np.asarray(spectra, dtype=float)))
+    cct, duv = cct_duv_from_xy(xy_from_spectrum(np.asarray(spectra, dtype=float)))
     delta = duv - daylight_locus_duv(cct)
     z = (delta - data.delta_mean(1e6 / cct)) / data.delta_sd
     post, info = _gmm2(z)

@@ -2,7 +2,7 @@
 
 Two measures, on the held-out spectra: the camera-white error each daylight model leaves at the true chromaticity
 (every held-out spectrum through every measured camera), and full joint retrieval
-(:func:`illumon.retrieval.joint.illuminant_retrieval_joint`) on simulated fixed-camera histories
+(:func:`illumon.retrieval.joint.illuminant_retrieval_illumon`) on simulated fixed-camera histories
 (:func:`illumon.simulation.simulate_history`) lit by held-out spectra, with each model. Both need the measured cameras
 and reflectances of :mod:`illumon.simulation.datasets`; without them the step says it was skipped.
 """
@@ -16,9 +16,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..camera import angular_error_deg
-from ..daylight import daylight_spectrum, spectrum_to_xy
+from ..daylight import daylight_spectrum, xy_from_spectrum
 from ..daylight.measured import MeasuredDaylight, MeasuredDaylightData, unit_mean
-from ..retrieval.joint import illuminant_retrieval_joint
+from ..retrieval.joint import illuminant_retrieval_illumon
 from ..simulation import datasets, simulate_history
 from .metrics import gfc, q, rel_rmse
 
@@ -27,7 +27,7 @@ __all__ = ["daylight_gain"]
 
 def _camera_white_gain(e: NDArray[np.float64], data: MeasuredDaylightData, cameras: list) -> dict:
     """Angular error of the camera white each model predicts at the true chromaticity (all spectra × cameras)."""
-    xy = spectrum_to_xy(e)
+    xy = xy_from_spectrum(e)
     preds = {"cie": daylight_spectrum(xy), "measured": data.predict(xy)}
     out: dict[str, list[float]] = {k: [] for k in preds}
     for c in cameras:
@@ -52,7 +52,7 @@ def _simulate_gain(
     rng = np.random.default_rng(seed)
     cams = datasets.camera_names()
     refl = np.concatenate([datasets.load_reflectance_set(n)[1] for n in datasets.REFLECTANCE_SETS])
-    accepted = set(inspect.signature(illuminant_retrieval_joint).parameters)
+    accepted = set(inspect.signature(illuminant_retrieval_illumon).parameters)
     kw = {k: v for k, v in (solver_kwargs or {}).items() if k in accepted}
     models = {"cie": "cie", "measured": MeasuredDaylight(data)}
     res: dict[str, dict[str, list[float]]] = {k: {"angular": [], "rmse": [], "gfc": []} for k in models}
@@ -69,7 +69,7 @@ def _simulate_gain(
         true_white = sim.true_white
         row = {"camera": cam_name, "frames": frames.tolist()}
         for name, model in models.items():
-            est = illuminant_retrieval_joint(sim.observations, cam, daylight=model, **kw)
+            est = illuminant_retrieval_illumon(sim.observations, cam, daylight=model, **kw)
             ae = angular_error_deg(est.white, true_white)
             truth = unit_mean(e_test[frames])
             res[name]["angular"].extend(ae.tolist())

@@ -3,10 +3,9 @@ after the best scale, and a percentile that tolerates empty rows.
 
 References
 ----------
-.. [1] J. Romero, A. García-Beltrán and J. Hernández-Andrés, "Linear bases for representation of natural and
-   artificial illuminants", JOSA A 14(5), 1997 (the GFC).
-.. [2] J. Hernández-Andrés, J. Romero, J. L. Nieves and R. L. Lee, "Color and spectral analysis of daylight in
-   southern Europe", JOSA A 18(6), 2001 (GFC ≥ 0.999 colorimetrically accurate, ≥ 0.9999 a good spectral fit).
+.. [Romero1997] Romero et al., JOSA A 1997: the GFC.
+.. [HernandezAndres2001] Hernández-Andrés et al., JOSA A 2001: GFC ≥ 0.999 colorimetrically accurate, ≥ 0.9999 a good
+   spectral fit.
 """
 
 from __future__ import annotations
@@ -22,8 +21,7 @@ def gfc(a: NDArray[np.float64], b: NDArray[np.float64]) -> NDArray[np.float64]:
 
     References
     ----------
-    .. [1] J. Romero, A. García-Beltrán and J. Hernández-Andrés, "Linear bases for representation of natural and
-       artificial illuminants", JOSA A 14(5), 1997.
+    .. [Romero1997] Romero et al., JOSA A 1997.
     """
     return np.abs((a * b).sum(-1)) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
 

@@ -5,12 +5,17 @@ Methods (``retrieve_illuminants(..., method=...)``):
 ``joint`` (default)
     illumon's solver of Marguier & Süsstrunk's model: all frames' daylight parameters, exposures and the patches'
     reflectances fitted jointly by bounded non-linear least squares (variable projection, then a full polish), with
-    Gaussian priors on reflectance and daylight (:mod:`illumon.retrieval.joint`).
+    Gaussian priors on reflectance and daylight (:func:`.joint.illuminant_retrieval_illumon`).
 ``marguier2007``
     J. Marguier & S. Süsstrunk, "Illuminant retrieval for fixed location cameras", CIC 2007, as written
     (:mod:`illumon.retrieval.marguier2007`).
 ``gray_world``
-    Buchsbaum's gray world on the same patches, the baseline.
+    Buchsbaum's grey world on the same patches, the baseline (:func:`illuminant_retrieval_Buchsbaum1980`).
+
+References
+----------
+.. [Marguier2007] Marguier & Süsstrunk, CIC 2007.
+.. [Buchsbaum1980] Buchsbaum, 1980: grey world.
 """
 
 from __future__ import annotations
@@ -24,26 +29,31 @@ from .._blas import single_blas_thread
 from ..camera.formation import gains_from_white
 from ..daylight import daylight_locus_duv, daylight_spectrum, xy_from_cct_duv
 from ..observations import Observations
-from .common import RetrievalResult, gray_world, make_result
-from .joint import illuminant_retrieval_joint
+from ..registry import Registry
+from .common import RetrievalResult, grey_world, make_result
+from .joint import illuminant_retrieval_illumon
 from .marguier2007 import illuminant_retrieval_Marguier2007
 
 __all__ = [
     "METHODS",
     "RetrievalResult",
     "retrieve_illuminants",
-    "illuminant_retrieval_joint",
+    "illuminant_retrieval_illumon",
     "illuminant_retrieval_Marguier2007",
-    "illuminant_retrieval_gray_world",
+    "illuminant_retrieval_Buchsbaum1980",
 ]
 
 
-def illuminant_retrieval_gray_world(obs: Observations, sensitivities: NDArray[np.float64]) -> RetrievalResult:
+def illuminant_retrieval_Buchsbaum1980(obs: Observations, sensitivities: NDArray[np.float64]) -> RetrievalResult:
     """Gray-world baseline (Buchsbaum 1980): the camera white of each frame is the mean of its patches.
 
     The illuminant reported is the CIE daylight whose camera white is closest in chromaticity to that mean.
+
+    References
+    ----------
+    .. [Buchsbaum1980] Buchsbaum, 1980: grey world.
     """
-    gw = gray_world(obs)
+    gw = grey_world(obs)
     mired = np.linspace(40.0, 400.0, 721)
     cct = 1e6 / mired
     xy = xy_from_cct_duv(cct, daylight_locus_duv(cct))
@@ -58,12 +68,13 @@ def illuminant_retrieval_gray_world(obs: Observations, sensitivities: NDArray[np
     return res
 
 
-METHODS: dict[str, Callable[..., RetrievalResult]] = {
-    "joint": illuminant_retrieval_joint,
-    "marguier2007": illuminant_retrieval_Marguier2007,
-    "gray_world": illuminant_retrieval_gray_world,
-}
-"""Retrieval methods by name."""
+METHODS: Registry[Callable[..., RetrievalResult]] = Registry({
+    "joint": (illuminant_retrieval_illumon,
+              "illumon's joint fit of every frame's daylight and exposure and the patches' reflectances"),
+    "marguier2007": (illuminant_retrieval_Marguier2007, "Marguier & Süsstrunk (CIC 2007) as published"),
+    "gray_world": (illuminant_retrieval_Buchsbaum1980, "Buchsbaum's grey world on the same patches, the baseline"),
+})
+"""Retrieval methods by name (``illumon estimate --method``, the service's ``ILLUMON_REFIT_METHOD``)."""
 
 
 @single_blas_thread

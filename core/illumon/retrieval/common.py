@@ -8,11 +8,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..camera import camera_white, gains_from_white
-from ..daylight import cct_duv_from_xy, daylight_locus_duv, daylight_spectrum, spectrum_to_xy, xy_from_cct_duv
+from ..daylight import cct_duv_from_xy, daylight_locus_duv, daylight_spectrum, xy_from_cct_duv, xy_from_spectrum
 from ..observations import Observations
 from ..priors import ReflectanceBasis
 
-__all__ = ["RetrievalResult", "imaging_operators", "make_result", "gray_world", "gray_world_mired", "CENSORED", "NEAR_WHITE",
+__all__ = ["RetrievalResult", "imaging_operators", "make_result", "grey_world", "grey_world_mired", "CENSORED", "NEAR_WHITE",
            "censored", "white_level"]
 
 CENSORED = 2.0
@@ -112,7 +112,7 @@ def make_result(
     """Assemble a :class:`RetrievalResult` from estimated spectra (chromaticity from ``xy`` when the model knows it)."""
     f = len(obs.frames)
     if xy is None:
-        xy = spectrum_to_xy(spectra)
+        xy = xy_from_spectrum(spectra)
     cct, duv = cct_duv_from_xy(xy)
     white = camera_white(sensitivities, spectra)
     white = white / white[:, 1:2]
@@ -133,21 +133,26 @@ def make_result(
     )
 
 
-def gray_world(obs: Observations) -> NDArray[np.float64]:
-    """Gray-world camera white per frame (F × 3): the mean of the frame's observed patches (Buchsbaum 1980)."""
+def grey_world(obs: Observations) -> NDArray[np.float64]:
+    """Gray-world camera white per frame (F × 3): the mean of the frame's observed patches (Buchsbaum 1980).
+
+    References
+    ----------
+    .. [Buchsbaum1980] Buchsbaum, 1980: grey world.
+    """
     v = np.where(np.isfinite(obs.values), obs.values, np.nan)
     white = np.nanmean(v, axis=1)
     return white / white[:, 1:2]
 
 
-def gray_world_mired(obs: Observations, sensitivities: NDArray[np.float64]) -> NDArray[np.float64]:
+def grey_world_mired(obs: Observations, sensitivities: NDArray[np.float64]) -> NDArray[np.float64]:
     """Per-frame reciprocal temperature whose camera white is closest in chromaticity to the gray-world white."""
     grid = np.linspace(45.0, 380.0, 200)
     cct = 1e6 / grid
     xy = xy_from_cct_duv(cct, daylight_locus_duv(cct))
     whites = daylight_spectrum(xy) @ sensitivities
     chrom = np.log(whites[:, [0, 2]] / whites[:, 1:2])
-    gw = gray_world(obs)
+    gw = grey_world(obs)
     gchrom = np.log(np.clip(gw[:, [0, 2]], 1e-9, None))
     d = ((gchrom[:, None, :] - chrom[None, :, :]) ** 2).sum(-1)
     return grid[np.argmin(d, axis=1)]

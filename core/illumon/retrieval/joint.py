@@ -13,6 +13,11 @@ as in Kinoshita & Kiya's Bayesian formulation), so the outer problem has only th
 Residuals are weighted by a noise model (relative model error plus a floor), missing patches simply drop out, and
 several starts seeded from gray-world chromaticities guard against local minima. A final stage enforces physical
 reflectances (0…1) where the unconstrained solution strays outside them.
+
+References
+----------
+.. [Marguier2007] Marguier & Süsstrunk, CIC 2007: the model.
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: the Gaussian priors.
 """
 
 from __future__ import annotations
@@ -26,16 +31,21 @@ from .._blas import single_blas_thread
 from ..daylight import DaylightModel, daylight_model, xy_from_cct_duv
 from ..observations import Observations
 from ..priors import ReflectanceBasis, reflectance_basis
-from .common import RetrievalResult, censored, gray_world_mired, imaging_operators, make_result, white_level
+from ..registry import Registry
+from .common import RetrievalResult, censored, grey_world_mired, imaging_operators, make_result, white_level
 
-__all__ = ["EXPOSURE_MODES", "illuminant_retrieval_joint", "JointProblem"]
+__all__ = ["EXPOSURE_MODES", "illuminant_retrieval_illumon", "JointProblem"]
 
-EXPOSURE_MODES = ("per_frame", "shared")
-"""Exposure models of :func:`illuminant_retrieval_joint`: one exposure per frame (default) or one for all."""
+EXPOSURE_MODES = Registry.choices({
+    "per_frame": "every frame's exposure fitted (auto-exposure, clouds)",
+    "shared": "one exposure for all frames (locked exposure under daylight of equal power, Marguier & Süsstrunk's "
+              "assumption)",
+})
+"""Exposure models of :func:`illuminant_retrieval_illumon`: one exposure per frame (default) or one for all."""
 
 
 class JointProblem:
-    """The joint least-squares problem behind :func:`illuminant_retrieval_joint`.
+    """The joint least-squares problem behind :func:`illuminant_retrieval_illumon`.
 
     Unknowns: per frame the daylight parameters and a log exposure; per patch the reflectance coefficients. Residuals
     (all whitened): the data, the Gaussian reflectance prior, the daylight prior and a hinge penalty on reflectances
@@ -66,10 +76,8 @@ class JointProblem:
 
     References
     ----------
-    .. [1] J. Marguier and S. Süsstrunk, "Illuminant retrieval for fixed location cameras", IS&T/SID 15th Color
-       Imaging Conference, 2007.
-    .. [2] Y. Kinoshita and H. Kiya, Bayesian estimation of spectral sensitivity and illumination (Gaussian priors on
-       the spectral coefficients).
+    .. [Marguier2007] Marguier & Süsstrunk, CIC 2007.
+    .. [Kinoshita2023] Kinoshita & Kiya, 2023: Gaussian priors on the spectral coefficients.
     """
 
     def __init__(
@@ -281,7 +289,7 @@ class JointProblem:
 
 
 @single_blas_thread
-def illuminant_retrieval_joint(
+def illuminant_retrieval_illumon(
     obs: Observations,
     sensitivities: NDArray[np.float64],
     *,
@@ -340,7 +348,7 @@ def illuminant_retrieval_joint(
     )
     lo, hi = prob.bounds()
     nfr = prob.F * prob.nf
-    base = gray_world_mired(obs, c)
+    base = grey_world_mired(obs, c)
     best = None
     runs = []
     for off in start_offsets:

@@ -5,6 +5,10 @@ every frame's test illuminant each patch's reflectance descriptor is the pseudo-
 its sensor response under D65 follows from eq. 2, and the error of eq. 3 measures how much the D65 responses of the
 same patch disagree across frames. The frames' angles are found by finite-difference gradient descent (eq. 5, with
 an adaptive rate) from random starts on the curve; the start with the lowest final error wins.
+
+References
+----------
+.. [Marguier2007] Marguier & Süsstrunk, CIC 2007: eqs. 1–5.
 """
 
 from __future__ import annotations
@@ -18,7 +22,7 @@ from ..observations import Observations
 from ..priors import ReflectanceBasis, reflectance_basis
 from .common import RetrievalResult, imaging_operators, make_result
 
-__all__ = ["illuminant_retrieval_Marguier2007", "marguier_error"]
+__all__ = ["illuminant_retrieval_Marguier2007", "error_Marguier2007"]
 
 
 def _d65_operator(sensitivities: NDArray[np.float64], rb: ReflectanceBasis) -> NDArray[np.float64]:
@@ -26,7 +30,7 @@ def _d65_operator(sensitivities: NDArray[np.float64], rb: ReflectanceBasis) -> N
     return np.einsum("lc,l,lj->cj", sensitivities, d65, rb.functions)
 
 
-def marguier_error(
+def error_Marguier2007(
     theta: NDArray[np.float64],
     y: NDArray[np.float64],
     present: NDArray[np.bool_],
@@ -37,6 +41,10 @@ def marguier_error(
 
     ``y`` are the observations (F × P × 3, zero where missing), ``k_theta`` the imaging operators of the θ-curve basis
     (3 × 3 × K) and ``m_d65`` the D65 operator (3 × K). Pairs with a missing patch are skipped.
+
+    References
+    ----------
+    .. [Marguier2007] Marguier & Süsstrunk, CIC 2007: eq. 3.
     """
     curve = theta_curve()
     coef = curve.coefficients(theta)
@@ -102,6 +110,10 @@ def illuminant_retrieval_Marguier2007(
     gradient is divided by the current error so one setting serves any data scale. No exposure model: frames are compared as
     given, as in the paper's synthetic experiments, so eq. (3) is only unbiased when the frames are at the model's
     scale (``ε1 = 1``; :func:`illumon.simulation.scenarios.paper_protocol` ``illuminant_scale="model"``).
+
+    References
+    ----------
+    .. [Marguier2007] Marguier & Süsstrunk, CIC 2007: eqs. 1–5, as published.
     """
     rng = np.random.default_rng(rng)
     rb = reflectance or reflectance_basis()
@@ -120,7 +132,7 @@ def illuminant_retrieval_Marguier2007(
     n_iter = 0
 
     def error(theta: NDArray[np.float64]) -> float:
-        return marguier_error(theta, y, present, k_theta, m_d65)
+        return error_Marguier2007(theta, y, present, k_theta, m_d65)
 
     for _ in range(starts):
         theta = rng.uniform(curve.theta_range[0], curve.theta_range[1], f)

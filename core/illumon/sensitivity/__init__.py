@@ -23,6 +23,7 @@ from collections.abc import Callable
 from numpy.typing import ArrayLike
 
 from .._blas import single_blas_thread
+from ..registry import Registry
 from .common import SensitivityResult, rmse_per_channel
 from .correction import (
     channel_gains_Han2012,
@@ -55,14 +56,15 @@ __all__ = [
     "to_cie1931_Huynh2014",
 ]
 
-METHODS: dict[str, Callable[..., SensitivityResult]] = {
-    "default": sensitivities_illumon,
-    "kinoshita2023": sensitivities_Kinoshita2023,
-    "jiang2013": sensitivities_Jiang2013,
-    "huynh2014": sensitivities_Huynh2014,
-    "han2012": sensitivities_Han2012,
-}
-"""Sensitivity estimators by name (after the paper and year each implements)."""
+METHODS: Registry[Callable[..., SensitivityResult]] = Registry({
+    "default": (sensitivities_illumon, "illumon's estimator: measured-camera and measured-daylight priors"),
+    "kinoshita2023": (sensitivities_Kinoshita2023,
+                      "Kinoshita & Kiya's Gaussian posteriors, alternated for an unknown daylight"),
+    "jiang2013": (sensitivities_Jiang2013, "Jiang et al. (WACV 2013): camera PCA basis and a CIE daylight search"),
+    "huynh2014": (sensitivities_Huynh2014, "Huynh & Robles-Kelly (ICPR 2014): NNLS and coordinate descent"),
+    "han2012": (sensitivities_Han2012, "Han et al. (CVPR 2012): a fluorescent chart beside a reference chart"),
+})
+"""Sensitivity estimators by name (after the paper and year each implements; ``illumon sensitivity --method``)."""
 
 ALIASES: dict[str, str] = {"bayes": "kinoshita2023", "huynh2016": "huynh2014"}
 """Earlier names of methods, still accepted: ``huynh2016`` was misdated (the paper is ICPR 2014)."""

@@ -6,6 +6,11 @@ for
 * :func:`transfer_matrix_Huynh2014` — Huynh & Robles-Kelly §IV: camera colours ``I`` (m × 3) map to the CIE
 1931
   2° observer as ``I Q† Q̂ diag(σ)``, with ``Q`` the camera's and ``Q̂`` the observer's (normalised) curves.
+
+References
+----------
+.. [Han2012] Han et al., CVPR 2012: eq. 20.
+.. [Huynh2014] Huynh & Robles-Kelly, ICPR 2014: §IV.
 """
 
 from __future__ import annotations
@@ -25,7 +30,12 @@ def channel_gains_Han2012(
     target_sensitivities: ArrayLike | None = None,
     target_illuminant: ArrayLike | None = None,
 ) -> NDArray[np.float64]:
-    """Per-channel gains (3,) of Han et al. eq. (20) from (camera, light) to (target camera, target light)."""
+    """Per-channel gains (3,) of Han et al. eq. (20) from (camera, light) to (target camera, target light).
+
+    References
+    ----------
+    .. [Han2012] Han et al., CVPR 2012: eq. 20.
+    """
     c_dst = sensitivities if target_sensitivities is None else target_sensitivities
     l_dst = illuminant if target_illuminant is None else target_illuminant
     return camera_white(c_dst, l_dst) / camera_white(sensitivities, illuminant)
@@ -43,6 +53,10 @@ def transfer_matrix_Huynh2014(
 
     ``Q`` and ``Q̂`` are each normalised to a maximum of 1 (the paper normalises both); ``σ`` (default ones)
     rescales the output channels.
+
+    References
+    ----------
+    .. [Huynh2014] Huynh & Robles-Kelly, ICPR 2014: §IV.
     """
     q = np.asarray(sensitivities, dtype=float)
     q = q / q.max()

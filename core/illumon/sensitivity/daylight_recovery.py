@@ -4,6 +4,11 @@ With the sensitivities ``c`` known, a chart patch's value is linear in the coeff
 (eqs. 17–19): ``R_q = Σ_j γ_j ∫ s_q c_R b_j``. The 3 × 24 equations give the coefficients by least squares. The
 basis is either the CIE D-series S0, S1, S2 (Judd et al., the paper's choice) or illumon's measured-daylight basis
 (mean and principal components of the Granada spectra).
+
+References
+----------
+.. [Han2012] Han et al., CVPR 2012: §6.2, eqs. 17–19.
+.. [CIE015] CIE 015:2018: the D-series basis S0, S1, S2.
 """
 
 from __future__ import annotations
@@ -55,6 +60,10 @@ def daylight_Han2012(
     -------
     ndarray
         The spectrum scaled to unit mean (negative values clipped).
+
+    References
+    ----------
+    .. [Han2012] Han et al., CVPR 2012: eqs. 17–19.
     """
     b = daylight_basis(basis, n=n) if isinstance(basis, str) else np.asarray(basis, dtype=float)
     x = np.asarray(chart_rgb, dtype=float)

@@ -30,8 +30,8 @@ __all__ = ["sensitivities_illumon", "camera_prior_covariance", "SMOOTH_FLOOR", "
 SMOOTH_FLOOR = 1.6e-3
 """Variance of the smooth prior floor outside the PCA span of the training cameras. Chosen leave-one-manufacturer-out
 on the development cameras (``benchmarks/rawsim.py``: Nikon and Point Grey, each manufacturer held out in turn, charts
-of the linear model and of the raw pipeline under development daylight): mean RMSE 0.046 at 1e-4 (the value before
-issue 16, chosen leave-one-camera-out), 0.042 at 4e-4, 0.038 at 1.6e-3, 0.039 at 6.4e-3, 0.047 at 2.5e-2 (length
+of the linear model and of the raw pipeline under development daylight): mean RMSE 0.046 at 1e-4 (the former
+value, chosen leave-one-camera-out), 0.042 at 4e-4, 0.038 at 1.6e-3, 0.039 at 6.4e-3, 0.047 at 2.5e-2 (length
 30 nm; 60 nm and 20 nm were worse). A prior that has not seen the manufacturer must let curves leave the span of the
 others' more freely."""
 

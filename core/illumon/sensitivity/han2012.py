@@ -14,6 +14,10 @@ a
 
 :func:`render_fluorescent_chart` simulates such a chart from measured excitation / emission spectra (the 12
 fluorophores shipped in ``illumon/data/fluorophores.csv``).
+
+References
+----------
+.. [Han2012] Han et al., CVPR 2012: eqs. 1–16, the fluorescent-chart method.
 """
 
 from __future__ import annotations
@@ -110,6 +114,10 @@ def separate_fluorescence_Han2012(
 
     The reference chart gives the unknown integrals ``∫ b_n c l`` (eq. 10, least squares over Q ≥ 8 patches);
     the reflective parts follow from eq. (9) and are subtracted (eq. 11).
+
+    References
+    ----------
+    .. [Han2012] Han et al., CVPR 2012: eqs. 6–11, reflective and fluorescent parts.
     """
     basis = reflectance_basis().functions  # 61 × 8, orthonormal
     a_ref = np.asarray(reference_reflectances, dtype=float) @ basis
@@ -153,6 +161,10 @@ def sensitivities_Han2012(
     SensitivityResult
         Max-normalised sensitivities (no illuminant: the method never needs it; see
         :func:`illumon.sensitivity.daylight_recovery.daylight_Han2012`).
+
+    References
+    ----------
+    .. [Han2012] Han et al., CVPR 2012: eqs. 12–16, the sensitivities from the fluorescent chromaticities.
     """
     x, r = check_chart(chart_rgb, chart_reflectances)
     fl = separate_fluorescence_Han2012(fluorescent_rgb, fluorescent_reflectances, x, r)

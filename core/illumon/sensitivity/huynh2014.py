@@ -17,6 +17,11 @@ the first three per-channel eigenvectors of measured cameras (Jiang et al. 2013)
 by optimising an unnormalised non-negative vector ``u`` with ``Q = u / ‖u‖`` (every term is then scale-free), each
 step by L-BFGS-B with analytic gradients instead of the paper's interior-point solver. Per-channel scales lost to
 the normalisation are restored by least squares against the chart values (the ``s_c`` of eq. 1).
+
+References
+----------
+.. [Huynh2014] Huynh & Robles-Kelly, ICPR 2014: eqs. 3–8 and Algorithm 1.
+.. [Jiang2013] Jiang et al., WACV 2013: the camera subspace.
 """
 
 from __future__ import annotations
@@ -69,6 +74,10 @@ def decompose_Huynh2014(
     """Algorithm 1: split ``P_c`` (n × 3) into a unit-norm illuminant ``L`` (n,) and unit-norm ``Q_c`` (n × 3).
 
     ``bases`` are the per-channel subspaces ``B_c`` (3 × n × d). Returns ``(L, Q, iterations)``.
+
+    References
+    ----------
+    .. [Huynh2014] Huynh & Robles-Kelly, ICPR 2014: eq. 8 by coordinate descent, Algorithm 1.
     """
     n = p.shape[0]
     d = second_difference(n)
@@ -159,6 +168,10 @@ def sensitivities_Huynh2014(
     -------
     SensitivityResult
         Sensitivities and the recovered smooth illuminant (unit mean).
+
+    References
+    ----------
+    .. [Huynh2014] Huynh & Robles-Kelly, ICPR 2014: eqs. 3–8 and Algorithm 1.
     """
     x, r = check_chart(chart_rgb, chart_reflectances)
     xn = x / x.max()

@@ -6,6 +6,10 @@ curves; for a *known* illuminant the coefficients follow by least squares — th
 :func:`colour.recovery.RGB_to_msds_camera_sensitivities_Jiang2013`, used unchanged. For the unknown daylight the
 method searches CIE D-series illuminants over correlated colour temperature and keeps the one whose recovered
 sensitivities reproduce the chart best (smallest relative residual).
+
+References
+----------
+.. [Jiang2013] Jiang et al., WACV 2013: the PCA basis and the daylight search.
 """
 
 from __future__ import annotations
@@ -56,6 +60,11 @@ def sensitivities_Jiang2013(
     -------
     SensitivityResult
         Sensitivities, the selected CIE daylight (unit mean) and its nominal CCT in ``info``.
+
+    References
+    ----------
+    .. [Jiang2013] Jiang et al., WACV 2013.
+    .. [CIE015] CIE 015:2018: the D-series searched.
     """
     x, r = check_chart(chart_rgb, chart_reflectances)
     cp = camera_prior or default_camera_prior()

@@ -11,6 +11,10 @@ alternated: sensitivity posterior given the current illuminant mean, then illumi
 sensitivity mean, until the estimates settle. The priors are measured: the camera prior of
 :class:`~illumon.priors.CameraPrior` (eq. 18 uses the mean of measured cameras; the covariance is theirs
 too) and the Granada daylight prior (eq. 17 uses a mean daylight). The final estimate is max-normalised (eq. 19).
+
+References
+----------
+.. [Kinoshita2023] Kinoshita & Kiya, 2023: eqs. 6–19.
 """
 
 from __future__ import annotations
@@ -61,6 +65,10 @@ def sensitivities_Kinoshita2023(
     SensitivityResult
         Posterior-mean sensitivities (max-normalised, eq. 19) and illuminant; the posterior precision of the
         sensitivities is in ``info["precision"]``.
+
+    References
+    ----------
+    .. [Kinoshita2023] Kinoshita & Kiya, 2023: eqs. 11–12 and 15–16, alternated.
     """
     x, r = check_chart(chart_rgb, chart_reflectances)
     cp = camera_prior or default_camera_prior()

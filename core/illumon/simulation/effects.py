@@ -34,10 +34,8 @@ held-out cameras) with seeds ≥ 1 000 000 by ``benchmarks/diagnose.py``.
 
 References
 ----------
-.. [1] S. Han, Y. Matsushita, I. Sato, T. Okabe and Y. Sato, "Camera spectral sensitivity estimation from a single
-   image under unknown illumination by using fluorescence", CVPR 2012 (eqs. 1–2: the fluorescent patch).
-.. [2] CIE 015:2018, *Colorimetry*, 4th ed.: the F, HP and LED illuminant tables of the off-locus lamps (via
-   colour-science).
+.. [Han2012] Han et al., CVPR 2012: eqs. 1–2, the fluorescent patch.
+.. [CIE015] CIE 015:2018: the F, HP and LED illuminant tables of the off-locus lamps (via colour-science).
 """
 
 from __future__ import annotations
@@ -92,12 +90,13 @@ TEST_CAMERAS = ("Canon_300D", "Nikon_D3X", "Canon_50D", "Nikon_D40", "Hasselblad
 BENCHMARK_CAMERAS = ("Canon_600D", "Nikon_D5100", "Pentax_K-5", "Point_Grey_Grasshopper2_14S5C", "Nikon_Z6_ssf", "Phase_One")
 
 SHORT_WAVE_EXCITATION_NM = 600.0
-"""Fluorophores whose visible excitation peaks at or above this wavelength are not drawn. The issue defines the effect
-as emission proportional to the *short-wave* light a patch absorbs; the compilation's far-red-excited laboratory dyes
+"""Fluorophores whose visible excitation peaks at or above this wavelength are not drawn. The fluorescence effect is
+emission proportional to the *short-wave* light a patch absorbs; the compilation's far-red-excited laboratory dyes
 (Cy5, APC, ATTO 647, DY-6xx, chlorophyll; 19 % of its visible entries) absorb and emit within the red channel, where
 their emission follows the light exactly as reflected red light does. Even with the true illuminants, camera and
 reflectance (plus an 8-function correction), such a patch is fitted by a reflectance within noise (development seeds
-101, 107…109: excess χ² −14…+29 over ~90 values), so the history is, by the issue's definition of ``none``, clean."""
+101, 107…109: excess χ² −14…+29 over ~90 values), so the history is, by the definition of ``none`` (nothing the model cannot fit),
+clean."""
 
 _LAMPS = (
     "FL2", "FL4", "FL5", "FL11", "FL12", "FL3.1", "FL3.3", "FL3.5", "HP1", "HP2", "HP3",
@@ -173,7 +172,7 @@ def _compilation_fluorophores() -> list[tuple[str, NDArray[np.float64], NDArray[
         # the visible emission must lie mostly at longer wavelengths than the visible excitation (Stokes shift)
         if np.argmax(em) <= np.argmax(ex):
             continue
-        # the issue's effect is emission driven by short-wave light: excitation peaks in the blue…orange (< 600 nm, as
+        # the effect is emission driven by short-wave light: excitation peaks in the blue…orange (< 600 nm, as
         # in daylight-fluorescent pigments, inks and optical brighteners); see SHORT_WAVE_EXCITATION_NM
         if WAVELENGTHS[int(np.argmax(ex))] >= SHORT_WAVE_EXCITATION_NM:
             continue
@@ -267,8 +266,7 @@ def _scene_effect(effect: str, rng: np.random.Generator, c: NDArray[np.float64],
 
     References
     ----------
-    .. [1] S. Han, Y. Matsushita, I. Sato, T. Okabe and Y. Sato, "Camera spectral sensitivity estimation from a single
-       image under unknown illumination by using fluorescence", CVPR 2012 (eqs. 1–2, the fluorescent patch).
+    .. [Han2012] Han et al., CVPR 2012: eqs. 1–2, the fluorescent patch.
     """
     f, p = clean.shape[0], clean.shape[1]
     patch: int | None = None

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from datetime import datetime, timezone
 
 from fastapi import HTTPException, Request
+from illumon.camera.references import REFERENCE_KINDS
 
 from ..calibration import CalibrationUpload
 from ..idempotency import Claim, form_fingerprint, parse_key
@@ -217,8 +218,8 @@ async def read_calibration_form(request: Request, limit: int) -> CalibrationUplo
     fields, files = await read_multipart(request, limit)
     data = image_part(files)
     kind = fields.get("kind", "")
-    if kind not in ("colorchecker", "grey"):
-        raise HTTPException(422, f"kind {kind!r}: expected 'colorchecker' or 'grey'")
+    if kind not in REFERENCE_KINDS:
+        raise HTTPException(422, f"kind {kind!r}: expected {' or '.join(map(repr, REFERENCE_KINDS))}")
     corners = _json_field(fields, "corners") if kind == "colorchecker" and "corners" in fields else None
     region = _grey_region(_json_field(fields, "region")) if kind == "grey" else None
     reflectance = None

@@ -116,13 +116,13 @@ def calibration_frames(
     """Stored calibrations (:class:`~..storage.Calibration` rows) as extra frames of a refit's history:
     ``calibration-<id>`` holding the reference patches and the camera's regions seen in the same image (the camera's
     applied gains divided out); the known reflectances of the references — the ColorChecker's
-    (:func:`illumon.camera.colorchecker_references`, ids ``chart:01`` …) and each grey card's
+    (:func:`illumon.camera.colourchecker_references`, ids ``chart:01`` …) and each grey card's
     (:func:`illumon.camera.grey_card_reference`, id ``grey:<calibration id>``); and a warning for each calibration
     left out because its image shows fewer than two usable regions of the scene."""
-    from illumon.camera import colorchecker_references, grey_card_reference
+    from illumon.camera import colourchecker_references, grey_card_reference
 
     frames, known, warnings = [], {}, []
-    chart = colorchecker_references()
+    chart = colourchecker_references()
     for c in cals:
         scene = {k: v for k, v in (c.scene or {}).items() if v is not None}
         refs = {k: v for k, v in c.patches.items() if v is not None}

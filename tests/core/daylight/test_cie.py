@@ -23,7 +23,7 @@ def test_cie_model_prior_and_spectra():
     p = m.start(np.array([150.0, 200.0]))
     s = m.spectra(p)
     assert s.shape == (2, 61)
-    cct, _ = ohno2013.cct_duv_from_xy(cie.spectrum_to_xy(s))
+    cct, _ = ohno2013.cct_duv_from_xy(cie.xy_from_spectrum(s))
     assert np.allclose(cct, [1e6 / 150, 1e6 / 200], rtol=0.01)
     assert np.allclose(m.prior_residuals(p)[:, 1], 0)
 

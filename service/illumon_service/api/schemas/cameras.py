@@ -6,6 +6,9 @@ from __future__ import annotations
 from typing import Annotated, Literal
 
 import numpy as np
+from illumon.camera import ENCODINGS
+from illumon.camera.primaries import PRIMARIES
+from illumon.camera.references import REFERENCE_KINDS
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from ...limits import (
@@ -21,6 +24,13 @@ from .common import MAX_SIDE, Strict, Text, optional_key
 
 __all__ = ["SensitivitiesIn", "RegionIn", "ResponseIn", "ImageSizeIn", "CameraIn", "RegionsIn", "ResponseOut",
            "CalibrationRef", "AlertOut", "CameraOut", "CameraCreated", "DeletedOut"]
+
+Encoding = ENCODINGS.literal()
+"""A tone curve by name (:data:`illumon.camera.ENCODINGS`)."""
+Primaries = PRIMARIES.literal()
+"""An output space by name (:data:`illumon.camera.primaries.PRIMARIES`)."""
+ReferenceKind = REFERENCE_KINDS.literal()
+"""A calibration reference by name (:data:`illumon.camera.references.REFERENCE_KINDS`)."""
 
 
 Sensitivity = Annotated[float, Field(allow_inf_nan=False, ge=0, le=SENSITIVITY_MAX, strict=True)]
@@ -79,7 +89,7 @@ class ResponseIn(Strict):
     to the white level. A refit warns when the stored history still looks non-linear for the declared encoding.
     """
 
-    encoding: Literal["linear", "srgb", "gamma", "table"] = "srgb"
+    encoding: Encoding = "srgb"
     gamma: float = Field(default=2.2, ge=GAMMA_RANGE[0], le=GAMMA_RANGE[1], allow_inf_nan=False, strict=True)
     black_level: float = Field(default=0.0, ge=0, lt=LEVEL_MAX, allow_inf_nan=False, strict=True)
     white_level: float | None = Field(default=None, gt=0, le=LEVEL_MAX, allow_inf_nan=False, strict=True)
@@ -87,7 +97,7 @@ class ResponseIn(Strict):
         default=None, min_length=2, max_length=65536)
     matrix: list[Annotated[list[MatrixEntry], Field(min_length=3, max_length=3)]] | None = Field(
         default=None, min_length=3, max_length=3)
-    primaries: Literal["camera", "srgb"] | None = None
+    primaries: Primaries | None = None
     """The output space: ``srgb`` (rendered output — the camera white-balanced its sensor and applied a colour matrix
     to sRGB / BT.709 primaries: IP, surveillance, phone cameras) or ``camera`` (sensor RGB: raw, machine-vision cameras
     without a colour matrix). Default: ``srgb`` for a camera registered without sensitivities whose encoding is
@@ -164,20 +174,20 @@ class ResponseOut(BaseModel):
 
     model_config = ConfigDict(extra="allow")
 
-    encoding: Literal["linear", "srgb", "gamma", "table"] = optional_key("tone curve")
+    encoding: Encoding = optional_key("tone curve")
     gamma: float = optional_key("exponent of the ``gamma`` encoding")
     black_level: float = optional_key("black level in the image's units")
     white_level: float | None = optional_key("white level in the image's units (``null``: the image's full scale)")
     table: list[float] | None = optional_key("``table`` encoding: linear values of evenly spaced codes")
     matrix: list[list[float]] | None = optional_key("3 × 3 colour matrix the camera applies (output = matrix @ RGB)")
-    primaries: Literal["camera", "srgb"] = optional_key("output space: sensor RGB or rendered sRGB primaries")
+    primaries: Primaries = optional_key("output space: sensor RGB or rendered sRGB primaries")
 
 
 class CalibrationRef(BaseModel):
     """A stored calibration image of a camera."""
 
     calibration_id: int
-    kind: Literal["colorchecker", "grey"]
+    kind: ReferenceKind
     created_at: str
 
 

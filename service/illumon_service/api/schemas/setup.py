@@ -6,6 +6,8 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict
 
+from .cameras import ReferenceKind
+
 __all__ = ["CalibrationPatchOut", "CalibrationOut", "ProposalReasons", "ProposalOut", "ProposalsOut", "JobRef",
            "JobOut"]
 
@@ -25,7 +27,7 @@ class CalibrationOut(BaseModel):
     shows (``scene_regions``: fewer than two and a refit leaves it out) and warnings."""
 
     calibration_id: int
-    kind: Literal["colorchecker", "grey"]
+    kind: ReferenceKind
     patches: list[CalibrationPatchOut]
     clipped: int
     scene_regions: int

@@ -1,7 +1,7 @@
 """The tone-curve test alone (issue 29): :func:`illumon.diagnosis.stages.tone_stage` gives exactly the
 ``nonlinear_response`` candidate of the whole diagnosis, so the service's tone-response check, which now runs it alone,
 decides as before on the diagnosis's test histories (every effect, the test cameras and seeds of
-``tests/core/test_diagnosis.py``), and the matrix-product Gram sums of the bilinear fit equal the einsums they
+``tests/core/diagnosis/test_diagnosis.py``), and the matrix-product Gram sums of the bilinear fit equal the einsums they
 replace."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from illumon.diagnosis.stages import tone_stage
 from illumon.simulation.effects import EFFECTS, TEST_CAMERAS, hide_effect
 from illumon_service.estimation import check_response
 
-SEED0 = 10_000  # tests/core/test_diagnosis.py's histories
+SEED0 = 10_000  # tests/core/diagnosis/test_diagnosis.py's histories
 
 
 def _hist(effect: str, i: int):

@@ -81,13 +81,13 @@ def test_marguier2007_descends_to_the_minimum_of_eq3(shared_data, temps):
     from illumon.daylight import theta_curve
     from illumon.priors import reflectance_basis
     from illumon.retrieval.common import imaging_operators
-    from illumon.retrieval.marguier2007 import _d65_operator, marguier_error
+    from illumon.retrieval.marguier2007 import _d65_operator, error_Marguier2007
 
     h = paper_protocol("Canon_300D", temps, (0, 1, 2, 3, 4, 5), noise=None, illuminant_scale="model")
     res = retrieve_illuminants(h.observations, h.sensitivities, method="marguier2007")
     curve, rb = theta_curve(), reflectance_basis()
     y = h.observations.values / np.median(h.observations.values[..., 1])
-    at_truth = marguier_error(curve.theta_of(h.illuminants), y, h.observations.present,
+    at_truth = error_Marguier2007(curve.theta_of(h.illuminants), y, h.observations.present,
                               imaging_operators(h.sensitivities, curve.basis, rb)[0], _d65_operator(h.sensitivities, rb))
     assert res.info["error"] <= 1.01 * at_truth, (res.info["error"], at_truth)
     assert np.all(angular_error_deg(res.white, h.true_white) < 2.0)
@@ -154,7 +154,7 @@ def test_joint_shared_exposure_reads_brightness_on_the_paper_protocol(shared_dat
 def test_joint_problem_whitens_by_the_noise_model_and_penalises_reflectances_outside_0_1(shared_data):
     from illumon.daylight import daylight_model
     from illumon.priors import reflectance_basis
-    from illumon.retrieval.common import gray_world_mired
+    from illumon.retrieval.common import grey_world_mired
     from illumon.retrieval.joint import JointProblem
 
     h = measured_daylight_history("Canon_600D", frames=4, patches=6, seed=7, noise=None)
@@ -168,7 +168,7 @@ def test_joint_problem_whitens_by_the_noise_model_and_penalises_reflectances_out
     assert used.mean() > 0.9
     np.testing.assert_allclose(prob.W[used], expected[used], rtol=1e-9)
     # physical bounds: push one patch's reflectance above 1 and below 0 and read the hinge residuals
-    x = prob.start(gray_world_mired(h.observations, h.sensitivities))
+    x = prob.start(grey_world_mired(h.observations, h.sensitivities))
     nfr = prob.F * prob.nf
     sigma = x[nfr:].reshape(prob.P, prob.nk).copy()
     sigma[0] *= 3.0
@@ -184,7 +184,7 @@ def test_joint_problem_whitens_by_the_noise_model_and_penalises_reflectances_out
     assert np.sum(r**2) > np.sum(hinge**2) > 10.0
 
 
-def test_gray_world_baseline_reports_the_daylight_of_a_grey_scene(shared_data):
+def test_grey_world_baseline_reports_the_daylight_of_a_grey_scene(shared_data):
     # Every patch a flat grey: the patches' mean is the camera white, so the daylight reported is the true one.
     from illumon.daylight import cie_d_cct, daylight_locus_xy, daylight_spectrum
     from illumon.simulation import datasets, simulate_history

@@ -6,12 +6,12 @@ import colour
 import numpy as np
 import pytest
 import rawsim
-from illumon.camera import angular_error_deg, colorchecker_references
+from illumon.camera import angular_error_deg, colourchecker_references
 from illumon.camera.primaries import srgb_sensitivities, to_srgb_primaries
 from illumon.camera.references import neutral_references, references_kind
 from illumon.model import fit_scene_model
 from illumon.observations import Observations
-from illumon.retrieval.common import gray_world
+from illumon.retrieval.common import grey_world
 from illumon.simulation import datasets
 from illumon.spectra import GRID
 
@@ -24,7 +24,7 @@ def test_srgb_sensitivities_are_the_srgb_of_colour_science():
     white = e @ c
     assert np.allclose(white / white[1], 1.0, atol=1e-9)  # the daylight preset: D65 is grey
     assert c[:, 0].min() < -0.05  # the red negative lobe is kept
-    refs = colorchecker_references()
+    refs = colourchecker_references()
     for pid in ("chart:01", "chart:07", "chart:13", "chart:15"):
         sd = colour.SpectralDistribution(dict(zip(GRID.wavelengths, refs[pid], strict=True)))
         xyz = colour.sd_to_XYZ(sd, illuminant=d65, shape=GRID) / 100
@@ -34,7 +34,7 @@ def test_srgb_sensitivities_are_the_srgb_of_colour_science():
 
 
 def test_references_of_any_subset():
-    refs = colorchecker_references()
+    refs = colourchecker_references()
     greys = {k: refs[k] for k in [f"chart:{i}" for i in range(19, 25)]}
     assert references_kind(greys) == "grey"  # the six greys pin channel scales, not a 3 × 3 ("Singular matrix")
     assert references_kind(refs) == "chart"
@@ -73,14 +73,14 @@ def test_rendered_output_needs_srgb_primaries(shared_data):
         srgb = np.median(angular_error_deg(_fit(obs, "srgb").history_estimate[0].white, truth))
         raw = np.median(angular_error_deg(_fit(obs, "camera").history_estimate[0].white, truth))
         nothing = np.median(angular_error_deg(np.ones(3), truth))
-        gw = np.median(angular_error_deg(gray_world(obs), truth))
+        gw = np.median(angular_error_deg(grey_world(obs), truth))
         assert srgb < 3.5 and srgb < 0.6 * raw and srgb < nothing and srgb < gw, (camera, srgb, raw, nothing, gw)
 
 
 def test_reference_frame_reproduces_its_own_greys(shared_data):
     """A chart or its greys known in frame 0 of a rendered camera: that frame's white is the greys' own, within 0.5°,
     and the other frames are no worse than without the reference."""
-    refs = colorchecker_references()
+    refs = colourchecker_references()
     for subset in (refs, {k: refs[k] for k in [f"chart:{i}" for i in range(19, 25)]}):
         obs, truth = _rendered_history("Nikon_D80", 5, subset)
         model = _fit(obs, "srgb", subset)

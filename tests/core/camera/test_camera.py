@@ -9,7 +9,7 @@ from illumon.camera import (
     CameraPipeline,
     ResponseCurve,
     angular_error_deg,
-    colorchecker_references,
+    colourchecker_references,
     grey_card_reference,
     read_known_reflectances,
     undo_applied,
@@ -21,7 +21,7 @@ from illumon.daylight import CIEDaylight
 from illumon.model import SceneModel, fit_scene_model
 from illumon.observations import Observations
 from illumon.priors import max_normalise
-from illumon.retrieval.common import gray_world
+from illumon.retrieval.common import grey_world
 from illumon.simulation import datasets
 from illumon.spectra import WAVELENGTHS, SpectralInputError, write_spectral_csv
 
@@ -71,14 +71,14 @@ def test_read_known_reflectances_checks(tmp_path):
         with pytest.raises(SpectralInputError, match=msg):
             read_known_reflectances(path)
     assert references_kind(grey_card_reference()) == "grey"
-    assert references_kind(colorchecker_references()) == "chart"
+    assert references_kind(colourchecker_references()) == "chart"
 
 
 def test_transform_posterior_recovers_a_colour_matrix(shared_data):
     """With the illuminant known, a chart gives T exactly (noise-free); a grey card only its diagonal."""
     css = datasets.load_camera("Nikon_D5100")
     m = srgb_matrix(css)
-    refs = colorchecker_references()
+    refs = colourchecker_references()
     spectra = np.stack(list(refs.values()))
     e = CIEDaylight().spectra(np.array([[180.0, 0.0]]))
     values = 0.01 * np.einsum("fl,pl,lc->fpc", e, spectra, css @ m.T)
@@ -93,7 +93,7 @@ def _history(camera, seed, case):
     css = datasets.load_camera(camera)
     e = rawsim.daylight_run("dev", 30, rng)
     scene = rawsim.draw_reflectances("dev", 10, rng)
-    known = {"grey": grey_card_reference()["grey"]} if case == "grey" else colorchecker_references() if case == "chart" else {}
+    known = {"grey": grey_card_reference()["grey"]} if case == "grey" else colourchecker_references() if case == "chart" else {}
     refl = np.concatenate([scene, np.stack(list(known.values()))]) if known else scene
     matrix = srgb_matrix(css) if case == "chart" else None
     h = rawsim.simulate_raw_history(css, e, refl, rng=rng, matrix=matrix)
@@ -130,7 +130,7 @@ def test_unmeasured_camera_calibrations(shared_data):
             err[case].append(angular_error_deg(res.white, white))
             conf[case].append(extra["confidence"])
             if case == "none":
-                gw.append(angular_error_deg(gray_world(obs.select_patches(model.patches)), white))
+                gw.append(angular_error_deg(grey_world(obs.select_patches(model.patches)), white))
     e = {k: np.concatenate(v) for k, v in err.items()}
     c = {k: float(np.median(np.concatenate(v))) for k, v in conf.items()}
     assert np.median(e["grey"]) < 0.3 and e["grey"].max() < 1.5

@@ -42,10 +42,10 @@ def test_lamp_lit_frames_are_flagged_and_their_white_follows_the_lamp(shared_dat
     err = angular_error_deg(res.white, truth)
     daylight_only = angular_error_deg(retrieve_illuminants(obs, css, start_offsets=(0.0,), polish_max_frames=0).white,
                                       truth)
-    gray_world = angular_error_deg(np.nanmean(obs.values, axis=1), truth)
+    grey_world = angular_error_deg(np.nanmean(obs.values, axis=1), truth)
     # the lamp-lit frames: better than forcing them onto the daylight locus, and far better than gray-world
     assert np.median(err[lamp]) < np.median(daylight_only[lamp]), (err[lamp], daylight_only[lamp])
-    assert np.median(err[lamp]) < 0.5 * np.median(gray_world[lamp]), (err[lamp], gray_world[lamp])
+    assert np.median(err[lamp]) < 0.5 * np.median(grey_world[lamp]), (err[lamp], grey_world[lamp])
     # the daylight frames gain too: the lamp-lit frames are left out of the reflectance fit
     assert np.median(err[day]) < min(1.0, np.median(daylight_only[day]))
     # a saved model judges new frames the same way

@@ -8,7 +8,7 @@ import warnings
 import numpy as np
 import pytest
 from illumon.camera import angular_error_deg
-from illumon.daylight import cct_duv_from_xy, spectrum_to_xy
+from illumon.daylight import cct_duv_from_xy, xy_from_spectrum
 from illumon.model import MODEL_VERSION, IdentifiabilityWarning, SceneModel, fit_scene_model
 from illumon.observations import Observations
 from illumon.priors import colourchecker_reflectances
@@ -61,12 +61,12 @@ def test_per_frame_accuracy(day: dict) -> None:
     assert np.median(ae) <= 1.0
     # the limit fails gray-world on the same frames and a constant white (the history's mean camera white)
     rest = day["rest"].values
-    gray_world = np.array([np.nanmean(v, axis=0) for v in rest])
-    assert np.median(angular_error_deg(gray_world, day["white"])) > 1.0
+    grey_world = np.array([np.nanmean(v, axis=0) for v in rest])
+    assert np.median(angular_error_deg(grey_world, day["white"])) > 1.0
     constant = np.tile(day["white"].mean(axis=0), (len(rest), 1))
     assert np.median(angular_error_deg(constant, day["white"])) > 1.0
     # the 95 % CCT intervals cover the true CCT of most frames (truth: the rendered spectra)
-    true_cct, _ = cct_duv_from_xy(spectrum_to_xy(day["e"]))
+    true_cct, _ = cct_duv_from_xy(xy_from_spectrum(day["e"]))
     covered = (extra["cct_lo"] <= true_cct) & (true_cct <= extra["cct_hi"])
     assert covered.mean() > 0.8, covered.mean()
 
@@ -89,7 +89,7 @@ def test_interval_calibration_over_many_histories() -> None:
             warnings.simplefilter("ignore", IdentifiabilityWarning)
             model = fit_scene_model(h.observations.subset(slice(0, 60)), h.sensitivities)
         res, extra = model.estimate(h.observations.subset(slice(60, None)))
-        cct, duv = cct_duv_from_xy(spectrum_to_xy(h.illuminants[60:]))
+        cct, duv = cct_duv_from_xy(xy_from_spectrum(h.illuminants[60:]))
         hits["cct"] += list((cct >= extra["cct_lo"]) & (cct <= extra["cct_hi"]))
         hits["duv"] += list((duv >= extra["duv_lo"]) & (duv <= extra["duv_hi"]))
         ae += list(angular_error_deg(res.white, h.true_white[60:]))

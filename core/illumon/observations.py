@@ -16,6 +16,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from .spectra import finite_number
+
 __all__ = ["Observations", "ObservationError", "read_observations", "write_observations"]
 
 REQUIRED_COLUMNS = ("frame", "time", "patch", "r", "g", "b")
@@ -141,12 +143,7 @@ def read_observations(path: str | Path, *, white_level: float = 255.0, text: str
         rgb = []
         for c in "rgb":
             cell = (row.get(c) or "").strip()
-            try:
-                v = float(cell)
-            except ValueError:
-                raise ObservationError(f"{where}: column {c}: non-numeric value {cell!r}") from None
-            if not math.isfinite(v):
-                raise ObservationError(f"{where}: column {c}: non-finite value {cell!r}")
+            v = finite_number(cell, f"{where}: column {c}", ObservationError)
             if v < 0:
                 raise ObservationError(f"{where}: column {c}: negative value {cell!r}")
             rgb.append(v / white_level)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -21,6 +22,7 @@ __all__ = [
     "GRID",
     "WAVELENGTHS",
     "SpectralInputError",
+    "finite_number",
     "resample",
     "resample_columns",
     "read_spectral_csv",
@@ -38,6 +40,17 @@ WAVELENGTHS: NDArray[np.float64] = np.asarray(GRID.wavelengths, dtype=float)
 
 class SpectralInputError(ValueError):
     """A spectral file or array that illumon cannot use, with a message naming where and why."""
+
+
+def finite_number(cell: str, where: str, error: type[ValueError] = ValueError) -> float:
+    """``cell`` (a text field of an input file) as a finite float, or ``error`` naming ``where`` and the value."""
+    try:
+        value = float(cell)
+    except ValueError:
+        raise error(f"{where}: non-numeric value {cell!r}") from None
+    if not math.isfinite(value):
+        raise error(f"{where}: non-finite value {cell!r}")
+    return value
 
 
 def resample(
@@ -138,13 +151,7 @@ def read_spectral_csv(
         if len(cells) != width:
             raise SpectralInputError(f"{source}: row {lineno}: expected {width} columns, found {len(cells)}")
         for j, cell in enumerate(cells):
-            try:
-                value = float(cell)
-            except ValueError:
-                raise SpectralInputError(f"{source}: row {lineno}: non-numeric value {cell!r}") from None
-            if not np.isfinite(value):
-                raise SpectralInputError(f"{source}: row {lineno}: non-finite value {cell!r}")
-            data[i, j] = value
+            data[i, j] = finite_number(cell, f"{source}: row {lineno}", SpectralInputError)
     order = np.argsort(data[:, 0], kind="stable")
     data = data[order]
     if np.any(np.diff(data[:, 0]) == 0):

@@ -330,7 +330,7 @@ def main() -> None:
           f"wrote {RESULTS / 'ingest.json'}")
 
 
-STAGES = ("receive", "decode", "regions", "estimate", "commit")
+STAGES = ("receive", "decode", "register", "regions", "estimate", "commit")
 
 
 def _server_ingest(http: httpx.Client, workers: int = 1) -> dict:

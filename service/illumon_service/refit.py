@@ -173,7 +173,7 @@ class _ViewRows:
         self.ids += [r.id for r in rows]
         self.taken_at += [r.taken_at for r in rows]
         self.times += [h[1] for h in hist]
-        self.used += [sum(r.patches.get(k) is not None for k in self.region_ids) for r in rows]
+        self.used += np.isfinite(obs.values).any(axis=2).sum(axis=1).tolist()  # stored values are finite (limits)
         self.values.append(obs.values)
         self.sd.append(obs.sd if obs.sd is not None else np.full_like(obs.values, np.nan))
 

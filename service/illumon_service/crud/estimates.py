@@ -137,7 +137,7 @@ def replace_estimates(session: Session, rows: Iterable[Sequence[dict]]) -> int:
         if not ids:
             continue
         session.execute(delete(Estimate).where(Estimate.frame_id.in_(ids)))
-        session.execute(insert(Estimate), list(part))
+        session.execute(insert(Estimate.__table__), list(part))  # Core: one executemany, no ORM bulk path
         session.execute(update(Frame).where(Frame.id.in_(ids)).values(not_estimated=None))
         written += len(ids)
     return written

@@ -25,11 +25,15 @@ JPEG runs once per ``--jpeg-reduction`` value, each on its own server started wi
 ``ILLUMON_JPEG_MAX_REDUCTION`` (default ``1,2``: full size, then half size where the regions allow); the ``ingest
 decode`` column is the scale the server reports having decoded at (``illumon_ingest_decodes_total``; ``?`` for a
 server that does not count them), while ``decode f/s`` and ``ratio`` stay against the full-size decode.
-``dec cpu`` / ``srv cpu`` / ``cli cpu`` are CPU milliseconds per frame of the decode-only run (this process), of the
-server (its process and children, from ``/proc``) and of the posting client: unlike wall time they hardly depend on
-what else loads the machine. ``f/commit`` is the mean number of frames per durable commit. ``--server-workers N`` runs
-``illumon serve --workers N`` (its ``/metrics`` sums the workers' published figures, read after a 1.2 s wait). The
-1-minute load average (all processes of the machine) is printed with each row.
+The server's stages (``illumon_ingest_stage_seconds``, mean ms per frame) add up to ``srv ms``: ``receive`` (the
+upload read and the view's regions looked up), ``decode``, ``register`` (thumbnail and registration to the view's
+reference frame), ``regions`` (the wait for the region statistics after the registration: they run beside it),
+``estimate``, ``commit`` (the rows written and committed, group commit). ``dec cpu`` / ``srv cpu`` / ``cli cpu`` are
+CPU milliseconds per frame of the decode-only run (this process), of the server (its process and children, from
+``/proc``) and of the posting client: unlike wall time they hardly depend on what else loads the machine. ``f/commit``
+is the mean number of frames per durable commit. ``--server-workers N`` runs ``illumon serve --workers N`` (its
+``/metrics`` sums the workers' published figures, read after a 1.2 s wait). The 1-minute load average (all processes
+of the machine) is printed with each row.
 Frames: a textured gradient background (JPEG ≈ 0.23 MB at quality 90), 16 patches rendered with measured spectra
 (Nikon D5100, Granada daylight, Munsell) where ``../shared/data`` exists (synthetic spectra otherwise), noise and a
 moving clutter rectangle. The accuracy of the reduced decode is measured by ``benchmarks/reduced_decode.py``.
@@ -330,7 +334,7 @@ def main() -> None:
           f"wrote {RESULTS / 'ingest.json'}")
 
 
-STAGES = ("receive", "decode", "regions", "estimate", "commit")
+STAGES = ("receive", "decode", "register", "regions", "estimate", "commit")
 
 
 def _server_ingest(http: httpx.Client, workers: int = 1) -> dict:

@@ -5,7 +5,10 @@ Run: ``python benchmarks/refit.py [--quick] [--sizes 1000,10000,100000] [--camer
 [--no-fleet]``. Prints a table and writes ``benchmarks/results/refit.json``.
 
 Each one-camera refit runs in a fresh (spawned) process whose peak resident set (``ru_maxrss``, imports included) is
-reported as ``peak MiB``; ``check s`` is the tone-response check's part of ``fit+est s`` (issue 29).
+reported as ``peak MiB``, with the peak reached before the refit (``imports``: the process, its imports and the
+engine), by the end of the read step (``to read``) and by the end of the fit and check (``to fit``): whatever the
+write step adds shows only in ``peak MiB``. ``check s`` is the tone-response check's part of ``fit+est s`` (issue 29);
+``load`` the 1-minute load average after the row.
 
 Each history is simulated from measured data (Nikon D5100 sensitivities, Granada daylight in sequence, 16 Munsell
 reflectances, 10 % of patches missing) when ``../shared/data`` is present, from synthetic spectra otherwise. Frames
@@ -95,13 +98,20 @@ def _refit_child(url: str, data_dir: str, cid: int, conn) -> None:  # noqa: ANN0
     warnings.simplefilter("ignore")
     settings = Settings(data_dir=data_dir, admin_token="x")
     engine = make_engine(url)
+    peaks: dict[float, float] = {}
+
+    def progress(done: float) -> None:  # the peak so far at the end of each step (read 0.1, fit + check 0.8)
+        peaks[done] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+
+    progress(0.0)
     t = time.perf_counter()
     summary = refit_camera(make_session_factory(engine), cid, data_dir=Path(data_dir),
                            max_frames=settings.refit_max_frames, method=settings.refit_method,
-                           max_fit_frames=settings.refit_fit_frames)
+                           max_fit_frames=settings.refit_fit_frames, progress=progress)
     seconds = time.perf_counter() - t
     engine.dispose()
-    conn.send((seconds, summary, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))  # KiB on Linux
+    summary["peak_mib_steps"] = {"start": peaks.get(0.0), "read": peaks.get(0.1), "fit": peaks.get(0.8)}
+    conn.send((seconds, summary, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
     conn.close()
 
 
@@ -145,10 +155,13 @@ def one_camera(sizes: list[int], css, day, refl) -> list[dict]:
         row = {"frames": n, "patches": N_PATCHES, "seconds": seconds, "read_s": summary["read_s"],
                "fit_estimate_s": summary["fit_s"], "response_check_s": summary.get("response_check_s", float("nan")),
                "write_s": summary["write_s"], "estimated": summary["frames"], "peak_mib": peak_mib,
+               "peak_mib_start": summary["peak_mib_steps"]["start"], "peak_mib_read": summary["peak_mib_steps"]["read"],
+               "peak_mib_fit": summary["peak_mib_steps"]["fit"],
                "median_deg": float(np.median(err)), "p95_deg": float(np.percentile(err, 95))}
         out.append(row)
         print(f"{n:>7d} {seconds:8.2f} {row['read_s']:7.2f} {row['fit_estimate_s']:9.2f} {row['response_check_s']:8.2f} "
-              f"{row['write_s']:7.2f} {peak_mib:8.0f} {row['median_deg']:7.3f} {row['p95_deg']:7.3f}", flush=True)
+              f"{row['write_s']:7.2f} {row['peak_mib_start']:7.0f} {row['peak_mib_read']:7.0f} {row['peak_mib_fit']:7.0f} "
+              f"{peak_mib:8.0f} {row['median_deg']:7.3f} {row['p95_deg']:7.3f} {os.getloadavg()[0]:5.1f}", flush=True)
     return out
 
 
@@ -200,8 +213,8 @@ def main() -> None:
     css, day, refl, provenance = spectra()
     print(f"data: {provenance}; CPUs: {os.cpu_count()}")
     print("\none camera, 16 patches: refit (read + scene model fit + estimate every frame + write)")
-    print(f"{'frames':>7} {'total s':>8} {'read s':>7} {'fit+est s':>9} {'check s':>8} {'write s':>7} {'peak MiB':>8} "
-          f"{'med °':>7} {'p95 °':>7}")
+    print(f"{'frames':>7} {'total s':>8} {'read s':>7} {'fit+est s':>9} {'check s':>8} {'write s':>7} {'imports':>7} "
+          f"{'to read':>7} {'to fit':>7} {'peak MiB':>8} {'med °':>7} {'p95 °':>7} {'load':>5}")
     single = one_camera(sizes, css, day, refl)
     if args.no_fleet:
         RESULTS.mkdir(exist_ok=True)

@@ -92,9 +92,15 @@ def check_exposure(value: float, field: str = "exposure") -> float:
 
 
 def _values_problem(values: Mapping[str, object] | None, what: str) -> str | None:
+    top = MAX_VALUE
     for rid, v in (values or {}).items():
         if v is None:
             continue
+        if type(v) is list and len(v) == 3:  # the common case first (a refit checks every stored value)
+            r, g, b = v
+            if (type(r) is float and type(g) is float and type(b) is float
+                    and 0.0 <= r <= top and 0.0 <= g <= top and 0.0 <= b <= top):  # NaN and ±inf fail these
+                continue
         if not isinstance(v, (list, tuple)) or len(v) != 3:
             return f"{what} of region {rid!r} is not three numbers"
         for x in v:

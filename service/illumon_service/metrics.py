@@ -27,8 +27,9 @@ class Metrics:
         "illumon_frames_ingested_total": ("counter", "Frames stored (images and JSON observations)."),
         "illumon_estimate_seconds": ("summary", "Per-frame estimation latency at ingest."),
         "illumon_ingest_seconds": ("summary", "Whole ingest latency: decode, region statistics, estimate, commit."),
-        "illumon_ingest_stage_seconds": ("summary", "Ingest stages: receive (upload and multipart), decode, regions, "
-                                                    "estimate, commit."),
+        "illumon_ingest_stage_seconds": ("summary", "Ingest stages: receive (upload and multipart), decode, register "
+                                                    "(thumbnail and registration), regions (the wait for the region "
+                                                    "statistics after it), estimate, commit."),
         "illumon_ingest_commit_frames": ("summary", "Frames per ingest commit (group commit: one transaction, one fsync)."),
         "illumon_ingest_decodes_total": ("counter", "Decoded frames by scale (1/1 full size; 1/2, 1/4, 1/8 reduced JPEG)."),
         "illumon_refit_seconds": ("summary", "Refit job durations."),

@@ -11,18 +11,23 @@ from __future__ import annotations
 import logging
 import time
 import uuid
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from illumon.observations import Observations
+from numpy.typing import NDArray
 from sqlalchemy.engine import Row
 from sqlalchemy.orm import Session, sessionmaker
 
 from . import crud
 from .estimation import (
+    RefitEstimates,
     RefitInputError,
+    build_observations,
     calibration_frames,
     camera_primaries,
     check_response,
@@ -36,8 +41,8 @@ from .estimation import (
 )
 from .limits import frame_problem
 
-__all__ = ["refit_camera", "read_history", "fit_views", "check_refit", "write_refit", "History", "Refitted",
-           "MAX_DROPPED_LISTED"]
+__all__ = ["refit_camera", "read_history", "fit_views", "check_refit", "write_refit", "History", "ViewHistory",
+           "Refitted", "MAX_DROPPED_LISTED", "READ_CHUNK"]
 
 log = logging.getLogger("illumon_service.jobs")
 
@@ -122,14 +127,75 @@ def refit_camera(
     return summary
 
 
+READ_CHUNK = 2000
+"""Frames the read step converts at a time (their rows are then let go)."""
+
+
+@dataclass
+class ViewHistory:
+    """One view's usable frames, oldest first, as arrays: region means with the camera's applied gains and exposure
+    divided out (:func:`~.estimation.history_row`), as :func:`~.estimation.build_observations` lays them out."""
+
+    region_ids: list[str]
+    ids: NDArray[np.int64]
+    taken_at: list[datetime]
+    """As stored (the estimate rows' ``taken_at``)."""
+    times: list[str]
+    """ISO 8601, UTC."""
+    values: NDArray[np.float64]
+    sd: NDArray[np.float64] | None
+    used: NDArray[np.int64]
+    """Regions with a value, per frame."""
+
+    def __len__(self) -> int:
+        return int(self.ids.size)
+
+    def observations(self) -> Observations:
+        """The frames as estimation's input (what ``build_observations`` makes of their history rows)."""
+        return Observations([str(i) for i in self.ids], list(self.region_ids), self.values, list(self.times), self.sd)
+
+
+class _ViewRows:
+    """A view's usable rows gathered a chunk at a time (newest first) into arrays."""
+
+    def __init__(self, region_ids: list[str]) -> None:
+        self.region_ids = region_ids
+        self.ids: list[int] = []
+        self.taken_at: list[datetime] = []
+        self.times: list[str] = []
+        self.used: list[int] = []
+        self.values: list[NDArray[np.float64]] = []
+        self.sd: list[NDArray[np.float64]] = []
+
+    def add(self, rows: Sequence[Row], matrix: list | None) -> None:
+        hist = [history_row(r, matrix) for r in rows]
+        obs = build_observations(hist, self.region_ids)
+        self.ids += [r.id for r in rows]
+        self.taken_at += [r.taken_at for r in rows]
+        self.times += [h[1] for h in hist]
+        self.used += np.isfinite(obs.values).any(axis=2).sum(axis=1).tolist()  # stored values are finite (limits)
+        self.values.append(obs.values)
+        self.sd.append(obs.sd if obs.sd is not None else np.full_like(obs.values, np.nan))
+
+    def finish(self) -> ViewHistory:
+        """Oldest first."""
+        p = len(self.region_ids)
+        values = np.concatenate(self.values)[::-1] if self.values else np.empty((0, p, 3))
+        sd = np.concatenate(self.sd)[::-1] if self.sd else np.empty((0, p, 3))
+        return ViewHistory(self.region_ids, np.array(self.ids[::-1], dtype=np.int64), self.taken_at[::-1],
+                           self.times[::-1], np.ascontiguousarray(values),
+                           np.ascontiguousarray(sd) if np.isfinite(sd).any() else None,
+                           np.array(self.used[::-1], dtype=np.int64))
+
+
 @dataclass
 class History:
     """What the read step gives the others: the camera's usable stored frames and what it needs to fit them."""
 
     camera_id: int
-    rows: list[Row]
-    """Usable frames (the columns a refit reads), oldest first."""
-    read_ids: list[int]
+    by_view: dict[str | None, ViewHistory]
+    """Usable frames of each view that has regions (``None``: the default view, present even without)."""
+    read_ids: NDArray[np.int64]
     """Every frame read, usable or not (frames stored later are estimated at the write step)."""
     dropped: list[dict]
     """Frames left out for values outside the accepted ranges: ``{"frame_id", "reason"}``."""
@@ -146,8 +212,11 @@ class History:
     calibrations: list[tuple[str, str, dict]]
     known: dict[str, np.ndarray]
     cal_warnings: list[str]
-    frames: list[tuple] = field(default_factory=list)
-    """The default view's history rows (:func:`~.estimation.history_row`)."""
+
+    @property
+    def frames(self) -> ViewHistory:
+        """The default view's frames."""
+        return self.by_view[None]
 
 
 @dataclass
@@ -156,7 +225,7 @@ class Refitted:
 
     version: str
     models: dict[str | None, Path]
-    estimates: dict[str, dict]
+    estimates: RefitEstimates
     summary: dict
     view_warnings: list[str]
 
@@ -176,27 +245,39 @@ def _usable(rows: Sequence[Row]) -> tuple[list[Row], list[dict]]:
 
 
 def read_history(sessions: sessionmaker[Session], camera_id: int, max_frames: int) -> History:
-    """Read step: the camera's ``max_frames`` most recent frames, the regions of its views, its sensitivities,
-    output pipeline and calibration images. ``ValueError`` for an unknown camera."""
+    """Read step: the camera's ``max_frames`` most recent frames, streamed :data:`READ_CHUNK` rows at a time into
+    arrays (:class:`ViewHistory`), the regions of its views, its sensitivities, output pipeline and calibration
+    images. ``ValueError`` for an unknown camera."""
     with sessions() as s:
         cam = crud.get_camera(s, camera_id)
         if cam is None:
             raise ValueError(f"unknown camera {camera_id}")
-        rows = crud.history_rows(s, camera_id, max_frames)
-        usable, dropped = _usable(rows)
-        views = sorted({r.view for r in usable if r.view is not None})
-        view_ids = {v: [r["id"] for r in crud.view_regions(s, cam, v)] for v in views}
-        css = sensitivities_array(cam.sensitivities)
+        regions = {v: [r["id"] for r in rs] for v, rs in crud.camera_views(s, camera_id).items()}
         matrix = (cam.response or {}).get("matrix")
+        gathered: dict[str | None, _ViewRows] = {None: _ViewRows([r["id"] for r in cam.regions])}
+        read: list[NDArray[np.int64]] = []
+        dropped: list[dict] = []
+        views: set[str] = set()
+        for rows in crud.history_chunks(s, camera_id, max_frames, READ_CHUNK):
+            read.append(np.fromiter((r.id for r in rows), dtype=np.int64, count=len(rows)))
+            usable, left_out = _usable(rows)
+            dropped += left_out
+            for v in {r.view for r in usable}:
+                if v is not None:
+                    views.add(v)
+                if v is None or regions.get(v):
+                    gathered.setdefault(v, _ViewRows(regions.get(v, []))).add([r for r in usable if r.view == v],
+                                                                             matrix)
+        css = sensitivities_array(cam.sensitivities)
         calibrations, known, cal_warnings = calibration_frames(crud.calibrations(s, camera_id), matrix)
         history = History(
-            camera_id, [r for r in usable if r.view is None or view_ids.get(r.view)], [r.id for r in rows], dropped,
-            views, view_ids, [r["id"] for r in cam.regions], css, (cam.response or {}).get("encoding", "linear"),
-            matrix, camera_primaries(cam.response, css is not None), calibrations, known, cal_warnings)
+            camera_id, {v: g.finish() for v, g in gathered.items()},
+            np.concatenate(read) if read else np.empty(0, np.int64), dropped, sorted(views),
+            {v: regions.get(v, []) for v in views}, [r["id"] for r in cam.regions], css,
+            (cam.response or {}).get("encoding", "linear"), matrix, camera_primaries(cam.response, css is not None),
+            calibrations, known, cal_warnings)
     if dropped:
         log.warning("refit of camera %s: %d frame(s) left out (%s)", camera_id, len(dropped), dropped[0]["reason"])
-    history.rows.reverse()
-    history.frames = [history_row(r, matrix) for r in history.rows if r.view is None]
     return history
 
 
@@ -207,9 +288,9 @@ def fit_views(h: History, data_dir: Path, method: str, max_fit_frames: int) -> R
     version = uuid.uuid4().hex[:16]
     models: dict[str | None, Path] = {}
     view_warnings: list[str] = []
-    estimates: dict = {}
+    estimates = RefitEstimates()
     for v in h.views:  # each PTZ preset: its own regions and scene model (calibration images are of the default view)
-        vf = [history_row(r, h.matrix) for r in h.rows if r.view == v]
+        vf = h.by_view[v].observations() if v in h.by_view else []
         path = versioned_model_path(data_dir, h.camera_id, v, version)
         try:
             est_v, summary_v = refit_estimates(vf, h.view_ids[v], h.css, method=method, model_file=path,
@@ -219,13 +300,13 @@ def fit_views(h: History, data_dir: Path, method: str, max_fit_frames: int) -> R
             view_warnings += [f"view {v!r}: {w}" for w in summary_v.get("identifiability_warnings") or []]
         except RefitInputError as exc:
             view_warnings.append(f"view {v!r} not refitted: {exc}")
-    if not h.frames and estimates:
+    if not len(h.frames) and estimates:
         summary = {"frames": 0, "method": method, "views": len(h.views)}
     else:
         path = versioned_model_path(data_dir, h.camera_id, None, version)
         try:
             est_d, summary = refit_estimates(
-                h.frames, h.region_ids, h.css, method=method, model_file=path, max_fit_frames=max_fit_frames,
+                h.frames.observations(), h.region_ids, h.css, method=method, model_file=path, max_fit_frames=max_fit_frames,
                 calibrations=h.calibrations, known_reflectances=h.known, primaries=h.primaries,
             )
         except Exception:
@@ -244,7 +325,8 @@ def check_refit(h: History, fit: Refitted) -> dict:
     (:func:`~.estimation.check_response`), and every warning of the refit in one list; returns the summary."""
     t_check = time.perf_counter()
     summary = fit.summary
-    check = check_response(h.frames, h.region_ids, h.css, h.encoding) if h.frames else {"warnings": []}
+    check = (check_response(h.frames.observations(), h.region_ids, h.css, h.encoding) if len(h.frames)
+             else {"warnings": []})
     summary["response_check"] = {k: v for k, v in check.items() if k != "warnings"}
     summary["response_check_s"] = round(time.perf_counter() - t_check, 3)  # part of fit_s
     model_warnings = [str(w) for w in summary.get("identifiability_warnings") or []]
@@ -263,11 +345,12 @@ def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit
     estimate with the new models the frames stored since the read step, and record why the others have none.
     Returns the number of estimates written.
 
-    The camera row is updated first: on SQLite that takes the write lock before anything is read, on PostgreSQL it
-    locks the row that every ingest locks (:func:`.crud.models_for_update`) before storing an estimate, so no ingest
-    commits an estimate of the old model after this commit."""
+    The estimate rows are built :data:`~.crud.WRITE_CHUNK` at a time from the fit's arrays and written in bulk
+    (:func:`.crud.replace_estimates`: SQLAlchemy Core, one executemany INSERT per chunk). The camera row is updated
+    first: on SQLite that takes the write lock before anything is read, on PostgreSQL it locks the row that every
+    ingest locks (:func:`.crud.models_for_update`) before storing an estimate, so no ingest commits an estimate of
+    the old model after this commit."""
     ids_of = {v: (h.view_ids[v] if v is not None else h.region_ids) for v in fit.models}
-    used = {r.id: sum(r.patches.get(k) is not None for k in ids_of[r.view]) for r in h.rows if r.view in fit.models}
     with sessions() as s, s.begin():
         cam = crud.get_camera(s, h.camera_id, for_update=True)
         if cam is None:  # deleted while the refit ran
@@ -276,19 +359,32 @@ def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit
             return 0
         crud.use_models(s, cam, {view_model_key(v): {"file": p.name, "version": fit.version}
                                  for v, p in fit.models.items()})
-        times = {str(r.id): r.taken_at for r in h.rows}
-        rows = {fid: {"frame_id": int(fid), "camera_id": h.camera_id, "taken_at": times[fid], "model": fit.version,
-                      **est} for fid, est in fit.estimates.items()}
-        rows.update(_late_estimates(crud.frames_not_read(s, h.camera_id, set(h.read_ids)), data_dir, h, fit, ids_of))
-        crud.replace_estimates(s, rows)
+        late = _late_estimates(crud.frames_not_read(s, h.camera_id, set(h.read_ids.tolist())), data_dir, h, fit,
+                               ids_of)
+        written = crud.replace_estimates(s, _estimate_rows(h, fit, late))
         # frames the refit used but could not estimate (fewer than two regions seen, a non-finite white), and those
         # it left out: no estimate of the previous model stays behind
-        reasons = {i: "too_few_regions" if n < 2 else "estimate_failed" for i, n in used.items() if str(i) not in rows}
+        estimated = {int(fid) for fid in fit.estimates.frame_ids()} | {int(fid) for fid in late}
+        reasons = {int(i): "too_few_regions" if n < 2 else "estimate_failed"
+                   for v in fit.models if v in h.by_view
+                   for i, n in zip(h.by_view[v].ids, h.by_view[v].used, strict=True) if int(i) not in estimated}
         reasons.update({d["frame_id"]: "invalid_values" for d in h.dropped})
         crud.drop_estimates(s, reasons)
         if _commit_hook is not None:
             _commit_hook()
-    return len(rows)
+    return written
+
+
+def _estimate_rows(h: History, fit: Refitted, late: dict[str, dict]) -> Iterator[list[dict]]:
+    """The estimate rows to write, :data:`~.crud.WRITE_CHUNK` at a time: the fit's (their frames' stored times),
+    then those of the frames stored since the read step (``late``)."""
+    taken = {int(i): t for vh in h.by_view.values() for i, t in zip(vh.ids, vh.taken_at, strict=True)}
+    for part in fit.estimates.rows(crud.WRITE_CHUNK):
+        yield [{"frame_id": int(fid), "camera_id": h.camera_id, "taken_at": taken[int(fid)], "model": fit.version,
+                **est} for fid, est in part if fid not in late]
+    rows = list(late.values())
+    for start in range(0, len(rows), crud.WRITE_CHUNK):
+        yield rows[start : start + crud.WRITE_CHUNK]
 
 
 _commit_hook: Callable[[], None] | None = None

@@ -31,6 +31,7 @@ from .cameras import (
     view_regions,
 )
 from .estimates import (
+    WRITE_CHUNK,
     add_estimate,
     camera_history,
     drop_estimates,
@@ -52,7 +53,7 @@ from .frames import (
     frame_out,
     frames_between,
     frames_not_read,
-    history_rows,
+    history_chunks,
     last_thumbnail,
     latest_frame,
     mark_not_estimated,
@@ -82,9 +83,9 @@ __all__ = [
     "set_view_regions", "use_models", "view_regions",
     "add_estimate", "camera_history", "drop_estimates", "estimate_non_daylight", "estimate_out",
     "estimate_rows", "estimated_frame_ids", "estimates_between", "latest_estimate", "nearest_estimate",
-    "recent_estimate_ids", "replace_estimates",
+    "recent_estimate_ids", "replace_estimates", "WRITE_CHUNK",
     "add_frame", "delete_frame", "frame_count", "frame_of", "frame_out", "frames_between", "frames_not_read",
-    "history_rows", "last_thumbnail", "latest_frame", "mark_not_estimated", "not_estimated_counts", "recent_frames",
+    "history_chunks", "last_thumbnail", "latest_frame", "mark_not_estimated", "not_estimated_counts", "recent_frames",
     "thumbnail_frames",
     "view_frames", "view_size",
     "add_job", "beat_jobs", "claim_job", "get_job", "latest_job", "refit_warnings", "set_job", "unfinished_jobs",

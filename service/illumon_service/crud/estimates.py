@@ -3,7 +3,7 @@ the status page and the ingest answer all use, so they cannot disagree."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from datetime import datetime
 
 from sqlalchemy import delete, insert, select, update
@@ -127,17 +127,20 @@ def add_estimate(session: Session, **columns: object) -> Estimate:
     return row
 
 
-def replace_estimates(session: Session, rows: dict[str, dict]) -> None:
-    """Replace the estimates of the frames of ``rows`` (frame id → the estimate's columns) and clear those frames'
-    reason for having none, in statements of :data:`WRITE_CHUNK` rows (within the caller's transaction)."""
-    ids = [int(fid) for fid in rows]
-    for start in range(0, len(ids), WRITE_CHUNK):
-        session.execute(delete(Estimate).where(Estimate.frame_id.in_(ids[start : start + WRITE_CHUNK])))
-    items = list(rows.values())
-    for start in range(0, len(items), WRITE_CHUNK):
-        session.execute(insert(Estimate), items[start : start + WRITE_CHUNK])
-    for start in range(0, len(ids), WRITE_CHUNK):
-        session.execute(update(Frame).where(Frame.id.in_(ids[start : start + WRITE_CHUNK])).values(not_estimated=None))
+def replace_estimates(session: Session, rows: Iterable[Sequence[dict]]) -> int:
+    """Replace the estimates of the frames of ``rows`` (chunks of rows, each with the estimate's columns, at most
+    :data:`WRITE_CHUNK` a chunk) and clear those frames' reason for having none: per chunk one DELETE, one
+    executemany INSERT (SQLAlchemy Core) and one UPDATE, within the caller's transaction. Returns the rows written."""
+    written = 0
+    for part in rows:
+        ids = [int(r["frame_id"]) for r in part]
+        if not ids:
+            continue
+        session.execute(delete(Estimate).where(Estimate.frame_id.in_(ids)))
+        session.execute(insert(Estimate.__table__), list(part))  # Core: one executemany, no ORM bulk path
+        session.execute(update(Frame).where(Frame.id.in_(ids)).values(not_estimated=None))
+        written += len(ids)
+    return written
 
 
 def drop_estimates(session: Session, reasons: dict[int, str]) -> None:

@@ -3,7 +3,7 @@ the counts of frames without an estimate, and the public form of a stored frame 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from datetime import datetime
 
 from sqlalchemy import delete, func, select, true
@@ -15,7 +15,7 @@ from ..storage import Estimate, Frame, as_utc
 __all__ = [
     "add_frame", "mark_not_estimated", "frame_of", "delete_frame", "frames_between", "frame_out", "latest_frame",
     "recent_frames", "frame_count", "view_size", "last_thumbnail", "thumbnail_frames", "view_frames",
-    "history_rows", "frames_not_read", "not_estimated_counts",
+    "history_chunks", "frames_not_read", "not_estimated_counts",
 ]
 
 
@@ -131,10 +131,11 @@ _HISTORY = (Frame.id, Frame.taken_at, Frame.patches, Frame.applied_gains, Frame.
 """The columns of a frame a refit reads."""
 
 
-def history_rows(session: Session, camera_id: int, limit: int) -> Sequence[Row]:
-    """The camera's ``limit`` most recent frames (the columns a refit reads), newest first."""
-    return session.execute(select(*_HISTORY).where(Frame.camera_id == camera_id)
-                           .order_by(*_NEWEST_FIRST).limit(limit)).all()
+def history_chunks(session: Session, camera_id: int, limit: int, chunk: int) -> Iterator[Sequence[Row]]:
+    """The camera's ``limit`` most recent frames (the columns a refit reads), newest first, ``chunk`` rows at a time
+    (one query whose rows are fetched as they are used), so that a refit never holds the whole history as rows."""
+    q = select(*_HISTORY).where(Frame.camera_id == camera_id).order_by(*_NEWEST_FIRST).limit(limit)
+    yield from session.execute(q.execution_options(yield_per=chunk)).partitions()
 
 
 def frames_not_read(session: Session, camera_id: int, read_ids: set[int]) -> Sequence[Row]:

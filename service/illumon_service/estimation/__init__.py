@@ -23,6 +23,7 @@ conventions (:mod:`illumon.gains`, the gains route), the BLAS thread limit of th
 simulated day of :mod:`..demo`.
 """
 
+from .batch import RefitEstimates
 from .fit import RefitInputError, fit_model, refit_estimates, retrieve
 from .frame import GRID_WAVELENGTHS, estimate_frame, json_safe
 from .history import (
@@ -50,7 +51,7 @@ _seen_patches = seen_patches
 """The name ``benchmarks/response_check.py`` imports."""
 
 __all__ = [
-    "RefitInputError", "fit_model", "refit_estimates", "retrieve",
+    "RefitEstimates", "RefitInputError", "fit_model", "refit_estimates", "retrieve",
     "GRID_WAVELENGTHS", "estimate_frame", "json_safe",
     "CALIBRATION_PREFIX", "build_observations", "calibration_frames", "camera_primaries", "history_row",
     "seen_patches", "sensitivities_array", "undo_camera_gains", "undo_camera_gains_sd",

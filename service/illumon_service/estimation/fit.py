@@ -15,7 +15,7 @@ from illumon.observations import Observations
 from illumon.retrieval.common import RetrievalResult
 from numpy.typing import NDArray
 
-from .frame import estimate_row, frame_intervals
+from .batch import RefitEstimates
 from .history import CALIBRATION_PREFIX, build_observations, seen_patches
 from .models import forget_model, known_indices, save_model
 
@@ -78,7 +78,7 @@ def _history_estimates(fitted: scene_model.SceneModel, obs: Observations) -> Ite
 def _refit_with_model(
     obs: Observations, css: NDArray[np.float64] | None, model_file: Path | None, max_fit_frames: int,
     known: dict[str, NDArray[np.float64]] | None = None, primaries: str = "camera",
-) -> tuple[dict[str, dict], dict]:
+) -> tuple[RefitEstimates, dict]:
     """Fit the scene model on the history (reflectances on ≤ ``max_fit_frames`` frames spread over the illuminant
     range), save it, and estimate every frame with it: ``illumon fit`` then ``illumon estimate --model``."""
     seen = seen_patches(obs)
@@ -87,18 +87,12 @@ def _refit_with_model(
     if model_file is not None:
         save_model(fitted, model_file)
         forget_model(model_file)
-    out: dict[str, dict] = {}
-    ccts = []
+    out = RefitEstimates()
     for result, extra in _history_estimates(fitted, obs):
         ok = np.all(np.isfinite(result.white), axis=1)
-        conf = np.asarray(extra["confidence"], dtype=float)
         keep = ok & np.array([not str(fid).startswith(CALIBRATION_PREFIX) for fid in result.frames])
-        out.update({
-            fid: estimate_row(result, i, conf[i], "refit:model", frame_intervals(result, extra, i))
-            for i, fid in enumerate(result.frames) if keep[i]
-        })
-        ccts.append(result.cct[keep])
-    cct = np.concatenate(ccts) if ccts else np.array([])
+        out.add(result, extra["confidence"], keep, "refit:model", extra)
+    cct = out.cct()
     summary = {
         "frames": len(out),
         "method": "model",
@@ -112,7 +106,7 @@ def _refit_with_model(
 
 
 def refit_estimates(
-    frames: Sequence[tuple[str, str, dict[str, Any]]],
+    frames: Sequence[tuple[str, str, dict[str, Any]]] | Observations,
     region_ids: Sequence[str],
     sensitivities: NDArray[np.float64] | None,
     *,
@@ -122,8 +116,9 @@ def refit_estimates(
     calibrations: Sequence[tuple[str, str, dict[str, Any]]] = (),
     known_reflectances: dict[str, NDArray[np.float64]] | None = None,
     primaries: str = "camera",
-) -> tuple[dict[str, dict], dict]:
-    """Estimates of the given frames: ``({frame id: estimate}, summary)``.
+) -> tuple[RefitEstimates, dict]:
+    """Estimates of the given frames: ``(estimates by frame id, summary)``; ``frames``: history rows
+    (:func:`~.history.history_row`) or their observations (:func:`~.history.build_observations`).
 
     ``method="model"`` (default) fits the learned scene model (:func:`illumon.model.fit_scene_model`, reflectances
     on at most ``max_fit_frames`` frames spread over the illuminant range), saves it to ``model_file`` and estimates
@@ -141,29 +136,29 @@ def refit_estimates(
     if sensitivities is None and method != "model":
         raise RefitInputError(f"refit method {method!r} needs measured sensitivities; this camera has none (use the "
                               "default method 'model', which calibrates from the prior and calibration images)")
-    if len(frames) < 2:
-        raise RefitInputError(f"refit needs at least two frames with two regions seen; {len(frames)} stored: post "
+    n = len(frames.frames) if isinstance(frames, Observations) else len(frames)
+    if n < 2:
+        raise RefitInputError(f"refit needs at least two frames with two regions seen; {n} stored: post "
                               "frames (POST /v1/cameras/{id}/frames), then refit")
-    obs = build_observations(frames, region_ids)
+    obs = frames if isinstance(frames, Observations) else build_observations(frames, region_ids)
     usable = np.flatnonzero(obs.present.sum(axis=1) >= 2)
     if usable.size < 2:
         raise RefitInputError(f"refit needs at least two frames with two regions seen; {usable.size} available "
-                              f"(of {len(frames)} stored): post more frames, then refit")
-    if usable.size < len(frames):
+                              f"(of {n} stored): post more frames, then refit")
+    if usable.size < n:
         obs = obs.subset(usable)
-    skipped = len(frames) - int(usable.size)
+    skipped = n - int(usable.size)
     if method == "model":
         if calibrations:
-            ids = list(region_ids) + sorted({k for _, _, p in calibrations for k in p} - set(region_ids))
-            obs = build_observations([frames[i] for i in usable] + list(calibrations), ids)
+            obs = _with_calibrations(obs, calibrations)
         out, summary = _refit_with_model(obs, sensitivities, model_file, max_fit_frames, known_reflectances, primaries)
         summary["calibration_frames"] = len(calibrations)
-        summary["skipped_frames"] = len(frames) - len(out)
+        summary["skipped_frames"] = n - len(out)
         return out, summary
     kwargs = {"daylight": "cie"} if method == "joint" else {}
     result = retrieve(obs, sensitivities, method, kwargs)
-    frac = obs.present.mean(axis=1)
-    out = {fid: estimate_row(result, i, frac[i], f"refit:{method}") for i, fid in enumerate(result.frames)}
+    out = RefitEstimates()
+    out.add(result, obs.present.mean(axis=1), np.ones(len(result.frames), bool), f"refit:{method}")
     summary = {
         "frames": len(result.frames),
         "skipped_frames": skipped,
@@ -175,6 +170,21 @@ def refit_estimates(
         summary["model"] = fit_model(obs, sensitivities, model_file, max_fit_frames, primaries=primaries)
     return out, summary
 
+
+
+def _with_calibrations(obs: Observations, calibrations: Sequence[tuple[str, str, dict[str, Any]]]) -> Observations:
+    """``obs`` followed by the calibration images as frames (their reference patches after the regions): what
+    :func:`~.history.build_observations` makes of the usable history rows and the calibrations together."""
+    ids = list(obs.patches) + sorted({k for _, _, p in calibrations for k in p} - set(obs.patches))
+    cal = build_observations(list(calibrations), ids)
+    values = np.full((len(obs.frames), len(ids), 3), np.nan)
+    values[:, : len(obs.patches)] = obs.values
+    sd = np.full_like(values, np.nan)
+    if obs.sd is not None:
+        sd[:, : len(obs.patches)] = obs.sd
+    sd = np.concatenate([sd, np.full_like(cal.values, np.nan) if cal.sd is None else cal.sd])
+    return Observations(list(obs.frames) + list(cal.frames), ids, np.concatenate([values, cal.values]),
+                        list(obs.times) + list(cal.times), sd if np.isfinite(sd).any() else None)
 
 
 def retrieve(obs: Observations, css: NDArray[np.float64], method: str, kwargs: dict) -> RetrievalResult:

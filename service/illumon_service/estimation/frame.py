@@ -20,15 +20,21 @@ __all__ = ["estimate_row", "json_safe", "frame_intervals", "estimate_frame", "GR
 log = logging.getLogger("illumon_service.estimation")
 
 
+def _floats(row: Any) -> list[float]:
+    return np.asarray(row, dtype=float).tolist()
+
+
 def estimate_row(result: RetrievalResult, i: int, confidence: float, source: str, intervals: dict | None = None) -> dict:
+    """The stored form of estimate ``i`` of ``result`` (a refit writes 100k of these: no per-value numpy scalars)."""
+    c = float(confidence)
     return {
         "cct_k": float(result.cct[i]),
         "duv": float(result.duv[i]),
-        "xy": [float(v) for v in result.xy[i]],
-        "white_rgb": [float(v) for v in result.white[i]],
-        "gains_rgb": [float(v) for v in result.gains[i]],
-        "confidence": float(np.clip(confidence, 0.0, 1.0)),
-        "spectrum": [float(v) for v in result.spectra[i]],
+        "xy": _floats(result.xy[i]),
+        "white_rgb": _floats(result.white[i]),
+        "gains_rgb": _floats(result.gains[i]),
+        "confidence": min(max(c, 0.0), 1.0),  # np.clip's answer (NaN stays NaN)
+        "spectrum": _floats(result.spectra[i]),
         "intervals": intervals,
         "source": source,
     }

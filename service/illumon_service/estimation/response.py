@@ -7,6 +7,7 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from illumon.observations import Observations
 from numpy.typing import NDArray
 
 from .history import build_observations, seen_patches
@@ -21,7 +22,7 @@ RESPONSE_CHECK_FRAMES = 48
 
 
 def check_response(
-    frames: Sequence[tuple[str, str, dict[str, Any]]],
+    frames: Sequence[tuple[str, str, dict[str, Any]]] | Observations,
     region_ids: Sequence[str],
     sensitivities: NDArray[np.float64] | None,
     encoding: str,
@@ -40,7 +41,8 @@ def check_response(
     Only the tone-curve test runs, not the whole diagnosis: its candidate is the one the whole diagnosis computes, so
     the verdict is the same, at a fifth of the cost (the other extensions and the spectral stage took ~60 % of a
     2k-frame refit).
-    The test is camera-agnostic: ``sensitivities`` are not used.
+    The test is camera-agnostic: ``sensitivities`` are not used. ``frames``: history rows
+    (:func:`~.history.history_row`) or their observations (:func:`~.history.build_observations`).
 
     Returns
     -------
@@ -55,7 +57,7 @@ def check_response(
     from illumon.diagnosis.fit import NONE_MARGIN, RANK
     from illumon.diagnosis.stages import tone_stage
 
-    obs = build_observations(frames, region_ids)
+    obs = frames if isinstance(frames, Observations) else build_observations(frames, region_ids)
     keep = np.flatnonzero(obs.present.sum(axis=1) >= 3)
     if keep.size > max_frames:
         keep = keep[np.round(np.linspace(0, keep.size - 1, max_frames)).astype(int)]

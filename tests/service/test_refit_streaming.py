@@ -9,7 +9,7 @@ from datetime import datetime, timedelta, timezone
 
 import illumon_service.refit as refit
 import numpy as np
-from illumon.simulate import simulate_history
+from illumon.simulation import simulate_history
 from illumon_service import crud
 from illumon_service.storage import Camera, CameraView, Estimate, Frame, make_engine, make_session_factory
 from sqlalchemy import insert, select

@@ -33,10 +33,12 @@ References
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.interpolate import RegularGridInterpolator
 from scipy.special import logsumexp
 
 from ..daylight import CIEDaylight
@@ -156,23 +158,39 @@ def _mixture_loglik(u: NDArray[np.float64], centres: NDArray[np.float64], logw: 
     span would hold (a long history judged over the offset grid: frames × grid points), interpolated (bilinear) from
     the exact values on a regular grid of step :data:`TABLE_STEP` · ``sd`` — the cost then no longer grows with the
     number of centres times frames (a 2 000-frame refit spent 324 of 338 s here)."""
-    shape = u.shape[:-1]
     uu = u.reshape(-1, 2)
-    lo, hi = uu.min(axis=0), uu.max(axis=0)
-    side = np.minimum(np.ceil((hi - lo) / (TABLE_STEP * sd)).astype(int) + 2, TABLE_MAX_SIDE)
-    if len(uu) > 4 * int(np.prod(side)):
-        from scipy.interpolate import RegularGridInterpolator
+    return _mixture_density(uu.min(axis=0), uu.max(axis=0), len(uu), centres, logw, sd)(u)
 
+
+def _mixture_density(lo: NDArray[np.float64], hi: NDArray[np.float64], n_points: int, centres: NDArray[np.float64],
+                     logw: NDArray[np.float64], sd: float) -> Callable[[NDArray[np.float64]], NDArray[np.float64]]:
+    """:func:`_mixture_loglik` as a function of ``u`` (… × 2) for ``n_points`` points spanning ``lo`` … ``hi``: the
+    table (when it pays) is built once, so the points can be evaluated a chunk at a time."""
+    side = np.minimum(np.ceil((hi - lo) / (TABLE_STEP * sd)).astype(int) + 2, TABLE_MAX_SIDE)
+    if n_points > 4 * int(np.prod(side)):
         axes = [np.linspace(lo[i], hi[i], int(side[i])) for i in range(2)]
         nodes = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
         table = _mixture_loglik(nodes, centres, logw, sd)
-        return RegularGridInterpolator(axes, table)(uu).reshape(shape)
-    out = np.empty(len(uu))
+        interp = RegularGridInterpolator(axes, table)
+        return lambda u: interp(u.reshape(-1, 2)).reshape(u.shape[:-1])
     norm = -math.log(2 * math.pi * sd**2)
-    for i in range(0, len(uu), 4096):
-        d2 = ((uu[i:i + 4096, None, :] - centres[None]) ** 2).sum(-1)
-        out[i:i + 4096] = logsumexp(logw[None] - 0.5 * d2 / sd**2, axis=1) + norm
-    return out.reshape(shape)
+
+    def exact(u: NDArray[np.float64]) -> NDArray[np.float64]:
+        uu = u.reshape(-1, 2)
+        out = np.empty(len(uu))
+        for i in range(0, len(uu), 4096):
+            d2 = ((uu[i:i + 4096, None, :] - centres[None]) ** 2).sum(-1)
+            out[i:i + 4096] = logsumexp(logw[None] - 0.5 * d2 / sd**2, axis=1) + norm
+        return out.reshape(u.shape[:-1])
+
+    return exact
+
+
+CHUNK_POINTS = 1 << 22
+"""Frames × offset-grid points judged at once by :func:`lamp_posterior` (a 100k-frame history held all of them:
+~10 GB); the per-frame ratios are kept between the two passes up to :data:`KEEP_POINTS`, recomputed beyond."""
+
+KEEP_POINTS = 1 << 25
 
 
 def lamp_posterior(
@@ -225,14 +243,30 @@ def lamp_posterior(
     white = np.full((f, 3), np.nan)
     if not ok.any():
         return LampPosterior(nd, white, mu, sd)
-    u = g[ok][:, None, :] - aa[None, :, :]  # F' × A × 2
-    ld = _mixture_loglik(u, u_d, logw_d, FRAME_SD) + math.log(1 - prior)
-    ll = _mixture_loglik(u, u_l, logw_l, math.hypot(FRAME_SD, _LAMP_SD)) + math.log(prior)
-    both = np.logaddexp(ld, ll)  # F' × A
-    log_post = log_prior_a + both.sum(0)
+    gk = g[ok]
+    lo, hi, n = gk.min(axis=0) - aa.max(axis=0), gk.max(axis=0) - aa.min(axis=0), len(gk) * len(aa)
+    day = _mixture_density(lo, hi, n, u_d, logw_d, FRAME_SD)
+    lamp = _mixture_density(lo, hi, n, u_l, logw_l, math.hypot(FRAME_SD, _LAMP_SD))
+    step = max(1, CHUNK_POINTS // len(aa))
+
+    def lamp_share(rows: slice) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        u = gk[rows, None, :] - aa[None, :, :]  # frames × A × 2
+        ld, ll = day(u) + math.log(1 - prior), lamp(u) + math.log(prior)
+        both = np.logaddexp(ld, ll)
+        return both.sum(0), np.exp(ll - both)
+
+    total, kept = np.zeros(len(aa)), []
+    for i in range(0, len(gk), step):  # pass 1: the offset's posterior (every frame's evidence summed)
+        part, share = lamp_share(slice(i, i + step))
+        total += part
+        if n <= KEEP_POINTS:
+            kept.append(share)
+    log_post = log_prior_a + total
     post = np.exp(log_post - log_post.max())
     post /= post.sum()
-    nd[ok] = (post[None, :] * np.exp(ll - both)).sum(1)
+    # pass 2: each frame's lamp share averaged over that posterior
+    shares = kept or (lamp_share(slice(i, i + step))[1] for i in range(0, len(gk), step))
+    nd[ok] = np.concatenate([sh @ post for sh in shares])
     a_hat = post @ aa
     a_sd = np.sqrt(np.clip(post @ (aa - a_hat) ** 2, 0, None))
     ug = g[ok] - a_hat

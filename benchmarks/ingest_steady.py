@@ -1,11 +1,11 @@
 """Steady ingest (issue 29): one ``illumon serve`` taking JPEG frames for a fixed time from ``--clients`` keep-alive
 connections; prints frames/s, p50 / p99 latency, the server's CPU ms per frame and the load.
 
-Run: ``python benchmarks/ingest_steady.py [--seconds 8] [--clients 1]``. Short and self-contained, for A/B rounds of
-two versions of the service on a shared machine: run it alternately with ``PYTHONPATH=<other tree>/service:<other
-tree>/core`` (the server process inherits it) and without. The frames, the camera, the warm-up (12 frames, a refit,
-4 untimed frames) and the poster are those of ``benchmarks/ingest.py``; 40 frames are posted round-robin, each with a
-new time.
+Run: ``python benchmarks/ingest_steady.py [--seconds 8] [--clients 1] [--server-workers 1]``. Short and
+self-contained, for A/B rounds of two versions of the service on a shared machine: run it alternately with
+``PYTHONPATH=<other tree>/service:<other tree>/core`` (the server process inherits it) and without. The frames, the
+camera, the warm-up (12 frames, a refit, 8 untimed frames over as many connections) and the poster are those of
+``benchmarks/ingest.py``; 40 frames are posted round-robin, each with a new time.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=8.0)
     parser.add_argument("--clients", type=int, default=1)
+    parser.add_argument("--server-workers", type=int, default=1, help="illumon serve --workers (1)")
     args = parser.parse_args()
     frames, css, _ = render_frames(40, "jpeg")
     clock, lock = [T0], threading.Lock()
@@ -39,7 +40,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         port = free_port()
-        proc = start_server(tmp, port)
+        proc = start_server(tmp, port, args.server_workers)
         try:
             with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=120, trust_env=False) as http:
                 cam, auth = register(http, css, "srgb")
@@ -49,8 +50,11 @@ def main() -> None:
                 while http.get(f"/v1/jobs/{job}", headers=auth).json()["state"] not in ("done", "failed"):
                     time.sleep(0.2)
             poster = FramePoster(port, cam, auth)
-            for f in frames[:4]:
-                poster(f, "image/jpeg", next_time())
+            warm = [threading.Thread(target=lambda f=f: poster(f, "image/jpeg", next_time())) for f in frames[:8]]
+            for t in warm:  # over several connections: every server worker loads the model
+                t.start()
+            for t in warm:
+                t.join()
             lat: list[float] = []
             stop = time.perf_counter() + args.seconds
 
@@ -70,7 +74,8 @@ def main() -> None:
             poster.close()
         finally:
             stop_process(proc)
-    print(f"{args.clients} clients: {len(lat) / wall:.1f} f/s, p50 {1e3 * np.percentile(lat, 50):.1f} ms, "
+    print(f"{args.clients} clients, {args.server_workers} server worker(s): {len(lat) / wall:.1f} f/s, "
+          f"p50 {1e3 * np.percentile(lat, 50):.1f} ms, "
           f"p99 {1e3 * np.percentile(lat, 99):.1f} ms, server CPU {1e3 * cpu / len(lat):.1f} ms/frame, "
           f"load {os.getloadavg()[0]:.1f}")
 

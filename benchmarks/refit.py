@@ -43,7 +43,8 @@ from illumon.simulation import (
     datasets,  # noqa: E402
     simulate_history,  # noqa: E402
 )
-from illumon_service.jobs import refit_camera, run_batch, usable_cpus  # noqa: E402
+from illumon_service.jobs import run_batch, usable_cpus  # noqa: E402
+from illumon_service.refit import refit_camera  # noqa: E402
 from illumon_service.settings import Settings  # noqa: E402
 from illumon_service.storage import Camera, Frame, make_engine, make_session_factory  # noqa: E402
 from sqlalchemy import insert  # noqa: E402

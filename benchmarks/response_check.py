@@ -22,7 +22,7 @@ import numpy as np
 from illumon.diagnosis import bilinear as bl
 from illumon.diagnosis.fit import NONE_MARGIN, diagnose
 from illumon.simulation import simulate_history
-from illumon_service.estimation import RESPONSE_CHECK_FRAMES, _seen_patches, build_observations, check_response
+from illumon_service.estimation import RESPONSE_CHECK_FRAMES, build_observations, check_response, seen_patches
 from refit import N_PATCHES, spectra
 
 RESULTS = Path(__file__).with_name("results")
@@ -44,7 +44,7 @@ def before(frames: list, ids: list[str], css: np.ndarray) -> tuple[bool, float]:
         obs = build_observations(frames, ids)
         keep = np.flatnonzero(obs.present.sum(axis=1) >= 3)
         keep = keep[np.round(np.linspace(0, keep.size - 1, min(RESPONSE_CHECK_FRAMES, keep.size))).astype(int)]
-        d = diagnose(_seen_patches(obs.subset(keep)), css, reestimate=False)
+        d = diagnose(seen_patches(obs.subset(keep)), css, reestimate=False)
     finally:
         bl._gram_cols, bl._gram_rows = new_cols, new_rows
     tone = next(c for c in d.candidates if c.effect == "nonlinear_response")

@@ -47,9 +47,6 @@ from .models import (
 )
 from .response import RESPONSE_CHECK_FRAMES, check_response
 
-_seen_patches = seen_patches
-"""The name ``benchmarks/response_check.py`` imports."""
-
 __all__ = [
     "RefitEstimates", "RefitInputError", "fit_model", "refit_estimates", "retrieve",
     "GRID_WAVELENGTHS", "estimate_frame", "json_safe",

@@ -37,6 +37,7 @@ from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
 from .intervals import MODEL_ERROR
 from .lamps import LAMP_PRIOR, apply_lamps, history_lamps
+from .level import CommonLevel, common_level_posterior, scene_average_evidence
 from .scene import SceneModel
 from .solver import FrameSolver
 
@@ -298,26 +299,30 @@ def _mean_log_chroma(dm: CIEDaylight, css: NDArray[np.float64], theta: NDArray[n
 
 def _anchor_common_level(
     objective: _JointObjective, theta: NDArray[np.float64], css: NDArray[np.float64], balance_sd: float,
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    scene: tuple[NDArray[np.float64], float],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], CommonLevel]:
     """Set the level common to every frame from two pieces of evidence, for output the camera white-balanced itself.
 
     Static patches cannot see a shift common to every frame's light (a tilt of every reflectance undoes it), so the
     fit's common level is what the reflectance prior makes of the scene's average colour — reliable to
     :data:`~illumon.camera.calibration.SCENE_AVERAGE_SD` (log r/g, b/g) at best, and far worse on a scene unlike
     the measured surfaces (a chart's colour patches: gray-world 13° off). A camera that balanced its output says
-    where that level is too: its history's mean white is grey within ``balance_sd``
-    (:data:`~illumon.camera.primaries.SRGB_BALANCE_SD`). The two Gaussian pieces are combined (the mean white's
-    posterior is the fit's times ``balance_sd² / (balance_sd² + SCENE_AVERAGE_SD²)``), every frame's ``(mired, δ)``
+    where that level is too — for daylight: its history's mean white is grey within ``balance_sd``
+    (:data:`~illumon.camera.primaries.SRGB_BALANCE_SD`); a history lit only by lamps is not (``scene``, the
+    gray-world evidence, decides between the two, :func:`.level.common_level_posterior`). The Gaussian pieces are
+    combined (balanced: the mean white's posterior is the fit's times
+    ``balance_sd² / (balance_sd² + SCENE_AVERAGE_SD²)``), every frame's ``(mired, δ)``
     is moved by the one common shift that puts the mean white there, and the reflectances are re-solved at the
     shifted light (the data fit is unchanged to first order: that is the direction they cannot see).
 
-    Returns the shifted ``θ``, the re-solved coefficients, and the posterior standard deviation of the common shift
-    ``(mired, δ)``.
+    Returns the shifted ``θ``, the re-solved coefficients, the posterior standard deviation of the common shift
+    ``(mired, δ)`` and the level's posterior (with the probability that the history's light is not what the camera
+    is balanced for).
     """
     dm = objective.dm
-    gain = balance_sd**2 / (balance_sd**2 + SCENE_AVERAGE_SD**2)
+    level = common_level_posterior(_mean_log_chroma(dm, css, theta), SCENE_AVERAGE_SD, balance_sd, *scene)
     lo_b, hi_b = dm.bounds()
-    target = gain * _mean_log_chroma(dm, css, theta)
+    target = level.mean
     shift = np.zeros(2)
     steps = np.array([1.0, 1e-4])
 
@@ -341,12 +346,12 @@ def _anchor_common_level(
     theta = shifted(shift)
     coef, _ = objective.reflectances(theta)
     # Posterior sd of the mean white (log units) → of the common (mired, δ) through the same Jacobian.
-    post = math.sqrt(1.0 / (1.0 / balance_sd**2 + 1.0 / SCENE_AVERAGE_SD**2))
+    post = level.sd
     try:
         sd = np.sqrt(np.clip(np.diag(post**2 * np.linalg.inv(jac.T @ jac)), 0, None))
     except np.linalg.LinAlgError:
         sd = np.array([dm.mired_sigma, dm.duv_sigma])
-    return theta, coef, sd
+    return theta, coef, sd, level
 
 
 def _training_summary(obs: Observations, present_all: NDArray[np.bool_], n_sub: int, res: RetrievalResult,
@@ -414,9 +419,10 @@ def _fit_fixed_camera(
     theta = objective.start(gw_mired[sub], y, present)
     theta, coef, n_iter = _alternate(objective, theta, (css, dm, rb, relative_error, absolute_error), y, present,
                                      iterations, tol)
-    anchored_sd = None
+    anchored_sd, level = None, None
     if balance_sd is not None:
-        theta, coef, anchored_sd = _anchor_common_level(objective, theta, css, balance_sd)
+        theta, coef, anchored_sd, level = _anchor_common_level(
+            objective, theta, css, balance_sd, scene_average_evidence(y, present))
     am = objective.operators(theta)
     resid2 = objective.w2 * (objective.yz - np.einsum("fcj,pj->fpc", am, coef)) ** 2
     dof = max(int(present.sum()) * 3 - 3 * len(sub) - rb.size * len(obs.patches), 1)
@@ -437,6 +443,8 @@ def _fit_fixed_camera(
                "model_error": dict(MODEL_ERROR, common_mired=float(math.hypot(common[0], MODEL_ERROR["common_mired"])),
                                    common_duv=float(max(common[1], MODEL_ERROR["common_duv"])))},
     )
+    if level is not None and level.unbalanced > 0.5:  # lamps only: the level the scene average gave, for the verdicts
+        model.noise.update(unbalanced=level.unbalanced, level=level.mean.tolist(), level_sd=level.sd)
     # Illuminants of every frame with the learned reflectances (the fast solver), for the training summary.
     res, extra = model.estimate(obs)
     model.history_estimate = (res, extra)

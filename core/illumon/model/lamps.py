@@ -337,12 +337,49 @@ def history_lamps(model, obs) -> NDArray[np.float64]:
     posterior of the scene-average offset in ``model.lamps`` and return each frame's ``non_daylight``."""
     res = model.history_estimate[0] if model.history_estimate is not None else model.estimate(obs)[0]
     means = _frame_means(model, obs, np.asarray(res.info["theta"], dtype=float))
+    unbalanced = _unbalanced_offset(model, means)
     lp = lamp_posterior(means, model.sensitivities, model.daylight_model(),
-                        camera_sd=float(model.camera.get("white_sd_log", 0.0) or 0.0))
+                        camera_sd=float(model.camera.get("white_sd_log", 0.0) or 0.0), offset_prior=unbalanced)
     nd = lp.non_daylight
-    model.lamps = {"offset": lp.offset.tolist(), "offset_sd": lp.offset_sd.tolist(), "prior": LAMP_PRIOR,
+    # lamps only: no daylight frame pins the offset, the lamps' own colours are not the CIE populations' (filtered
+    # lamps on the development scenes moved it 1.5 sd from the scene average's reading): the level's offset is kept
+    offset, offset_sd = unbalanced if unbalanced is not None else (lp.offset, lp.offset_sd)
+    model.lamps = {"offset": offset.tolist(), "offset_sd": offset_sd.tolist(), "prior": LAMP_PRIOR,
                    "daylight_frames": int(np.sum(np.isfinite(nd) & (nd < 0.5))), "frames": int(len(nd))}
     return nd
+
+
+def _unbalanced_offset(model, means: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+    """For a history lit only by light its camera was not balanced for (:mod:`.level`; ``model.noise["level"]``), the
+    scene-average offset ``a`` that level implies — the frames' mean scene-average chroma minus the level, with the
+    level's spread — else ``None`` (the default prior)."""
+    if float(model.noise.get("unbalanced", 0.0) or 0.0) <= 0.5 or "level" not in model.noise:
+        return None
+    ok = np.all(np.isfinite(means), axis=1) & np.all(means > 0, axis=1)
+    if not ok.any():
+        return None
+    a = _log_chroma(means[ok]).mean(axis=0) - np.asarray(model.noise["level"], dtype=float)
+    sd = math.hypot(float(model.noise["level_sd"]), FRAME_SD / math.sqrt(int(ok.sum())))
+    return a, np.array([sd, sd])
+
+
+def _unbalanced_whites(model, lp: LampPosterior, result, extra: dict) -> bool:
+    """A history lit only by lamps (:mod:`.level`): every frame's white is its scene average less the history's
+    offset (the daylight fit cannot follow lights off its locus, and no daylight frame pins the scene), its
+    ``non_daylight`` at least the history's probability of being lamp-lit. In place; ``True`` if it applied."""
+    unbalanced = float(model.noise.get("unbalanced", 0.0) or 0.0)
+    if unbalanced <= 0.5 or "level" not in model.noise:
+        return False
+    extra["non_daylight"] = np.maximum(extra["non_daylight"], unbalanced)
+    ok = np.all(np.isfinite(lp.white), axis=1)
+    result.white[ok] = lp.white[ok]
+    result.gains[ok] = 1.0 / lp.white[ok]
+    var = float(np.sum(np.asarray(model.lamps["offset_sd"]) ** 2)) + 2 * FRAME_SD**2
+    extra["confidence"][ok] = 1.0 - math.exp(-(math.radians(1.0) ** 2) / var)
+    half = 1.959963984540054 * math.sqrt(var / 2) * result.gains[ok]
+    result.info["gain_lo"][ok] = result.gains[ok] - half
+    result.info["gain_hi"][ok] = result.gains[ok] + half
+    return True
 
 
 def apply_lamps(model, obs, result, extra: dict) -> None:
@@ -359,6 +396,8 @@ def apply_lamps(model, obs, result, extra: dict) -> None:
                               np.maximum(np.asarray(lamps["offset_sd"]), 0.01), prior=float(lamps.get("prior", LAMP_PRIOR)))
     nd = np.where(np.isfinite(lp.non_daylight), lp.non_daylight, float(lamps.get("prior", LAMP_PRIOR)))
     extra["non_daylight"] = nd
+    if _unbalanced_whites(model, lp, result, extra):
+        return
     lamp = (nd > 0.5) & np.all(np.isfinite(lp.white), axis=1)
     if not lamp.any() or (getattr(model, "camera", None) or {}).get("calibration") != "measured":
         # A camera nobody measured: its daylight whites are the prior's, so a lamp verdict is reported but not acted

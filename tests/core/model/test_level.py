@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from illumon.camera.calibration import SCENE_AVERAGE_SD
 from illumon.camera.primaries import SRGB_BALANCE_SD
 from illumon.model.level import SCENE_GREY_SD, common_level_posterior, scene_average_evidence

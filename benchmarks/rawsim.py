@@ -54,6 +54,8 @@ __all__ = [
     "reflectance_pool",
     "daylight_pool",
     "daylight_run",
+    "lamp_run",
+    "pale",
     "camera_profile",
     "RawHistory",
     "simulate_raw_history",
@@ -150,6 +152,33 @@ def daylight_run(split: str, frames: int, rng: np.random.Generator) -> NDArray[n
     run = pool[start : start + stride * frames : stride].copy()
     level = np.exp(np.cumsum(0.15 * rng.standard_normal(frames)))
     return run * np.clip(level, 0.5, 2.0)[:, None]
+
+
+def lamp_run(frames: int, rng: np.random.Generator) -> NDArray[np.float64]:
+    """A history lit only by lamps (the real lamp-lit scenes of ``benchmarks/lamps.py``): each frame one or two lamps
+    of the CIE tables (A, the LED and fluorescent series, high-pressure lamps; :func:`illumon.model.general.
+    cie_lamp_spectra`) at random shares, at a level that wanders by ±½ stop. The simulators' histories had all been
+    daylight, so a camera balanced for daylight was assumed to see a history whose mean white is near grey — the
+    assumption that hid the real lamp-lit scenes' 10–16° errors (issue 28)."""
+    from illumon.model.general import cie_lamp_spectra
+
+    lamps = cie_lamp_spectra()
+    out = np.empty((frames, lamps.shape[1]))
+    for f in range(frames):
+        i, j = rng.integers(0, len(lamps), 2)
+        w = float(rng.uniform(0.0, 1.0))
+        out[f] = w * lamps[i] + (1 - w) * lamps[j]
+    level = np.exp(np.clip(0.1 * np.cumsum(rng.standard_normal(frames)), -0.35, 0.35))
+    return out * level[:, None]
+
+
+def pale(reflectances: ArrayLike, chroma: float = 0.15) -> NDArray[np.float64]:
+    """Surfaces of a man-made interior or street (walls, floors, asphalt, tables): the measured ``reflectances`` with
+    their spectral variation around their own mean scaled by ``chroma`` — their colours kept, their saturation cut
+    (the real table-top scenes' regions spread 0.004–0.09 in log chromaticity, the measured sets' 0.53)."""
+    r = np.asarray(reflectances, dtype=float)
+    m = r.mean(axis=1, keepdims=True)
+    return np.clip(m + chroma * (r - m), 0.0, 1.0)
 
 
 def camera_profile(camera: str, *, iso: float | None = None, rng: np.random.Generator | None = None) -> dict:

@@ -13,7 +13,10 @@ sensitivities are never given to illumon: its prior is the mean of the measured 
   26): a daylight-preset white balance and a white-preserving colour matrix to sRGB primaries
   (:func:`illumon.camera.primaries.srgb_matrix_for`), fitted with ``primaries="srgb"``;
 * ``none+awb``, ``grey+awb`` — rendered output whose camera rebalances every frame (gray-world gains on the raw
-  values before the matrix, as an auto white balance does); the truth is the output white *with* those gains.
+  values before the matrix, as an auto white balance does); the truth is the output white *with* those gains;
+* ``none+lamps``   — rendered output (daylight preset) of a history lit only by lamps (:func:`rawsim.lamp_run`) over a
+  man-made scene of pale surfaces (:func:`rawsim.pale`), as the real lamp-lit scenes of ``benchmarks/lamps.py``:
+  goal within 1.5 × gray-world (issue 28).
 
 The matrix cases model a fixed colour matrix *without* the camera's own white balance; the real photographs showed
 that a processed camera's output is balanced too (``benchmarks/real.py``), which the rendered cases add.
@@ -56,8 +59,10 @@ from illumon.simulation import (
     simulate_history,  # noqa: E402
 )
 
-CASES = ("grey", "chart+matrix", "none", "none+matrix", "none+rendered", "grey+rendered", "none+awb", "grey+awb")
+CASES = ("grey", "chart+matrix", "none", "none+matrix", "none+rendered", "grey+rendered", "none+awb", "grey+awb",
+         "none+lamps")
 GOALS = {"grey": (1.0, 3.0), "chart+matrix": (1.0, 3.0), "none": (2.5, None)}
+RENDERED = ("rendered", "awb", "lamps")
 FRAMES, PATCHES = 30, 10
 
 
@@ -73,12 +78,14 @@ def render(sim: str, camera: str, case: str, seed: int) -> tuple[Observations, n
     split = "score" if camera in rawsim.SCORE_CAMERAS else "dev"
     rng = np.random.default_rng(seed)
     css = datasets.load_camera(camera)
-    e = rawsim.daylight_run(split, FRAMES, rng)
+    e = rawsim.lamp_run(FRAMES, rng) if case.endswith("lamps") else rawsim.daylight_run(split, FRAMES, rng)
     scene = rawsim.draw_reflectances(split, PATCHES, rng)
+    if case.endswith("lamps"):
+        scene = rawsim.pale(scene)
     known = grey_card_reference() if case.startswith("grey") else colourchecker_references() if case.startswith("chart") else {}
     refl = np.concatenate([scene, np.stack(list(known.values()))]) if known else scene
     matrix = srgb_matrix(css) if case.endswith("matrix") else None
-    rendered = case.endswith(("rendered", "awb"))
+    rendered = case.endswith(RENDERED)
     gains = None
     if rendered:
         matrix, gains = rawsim.rendering(css, e, scene, "auto" if case.endswith("awb") else "preset")
@@ -111,7 +118,7 @@ def run_case(sim: str, camera: str, case: str, seed: int) -> dict:
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        if case.endswith(("rendered", "awb")):  # the sRGB prior holds no measured camera
+        if case.endswith(RENDERED):  # the sRGB prior holds no measured camera
             model = fit_scene_model(obs, None, known_reflectances=known or None, primaries="srgb")
         else:
             model = fit_scene_model(obs, None, known_reflectances=known or None,
@@ -124,6 +131,7 @@ def run_case(sim: str, camera: str, case: str, seed: int) -> dict:
     return {"sim": sim, "camera": camera, "case": case, "seed": seed, "err": err.tolist(), "gray_world": gw.tolist(),
             "nothing": nothing.tolist(),
             "confidence": np.asarray(extra["confidence"]).tolist(), "seconds": seconds,
+            "non_daylight": np.asarray(extra.get("non_daylight", np.zeros(len(err)))).tolist(),
             "calibration": model.camera["calibration"]}
 
 
@@ -142,6 +150,7 @@ def summarise(rows: list[dict]) -> list[dict]:
                 "p95": float(np.percentile(e, 95)), "max": float(e.max()), "gw_median": float(np.median(g)),
                 "gw_max": float(g.max()), "nothing_median": float(np.median(np.concatenate([r["nothing"] for r in sel]))),
                 "within_1deg": float(np.mean(e < 1.0)), "mean_confidence": float(c.mean()),
+                "non_daylight_flagged": float(np.mean(np.concatenate([r["non_daylight"] for r in sel]) >= 0.5)),
                 "seconds": float(np.median([r["seconds"] for r in sel])),
             })
     return out
@@ -169,13 +178,15 @@ def main() -> int:
     print(f"split {args.split} (cameras {', '.join(cams)}; rawsim's {args.split} surfaces and Granada daylight): "
           f"{len(cams)} cameras × {len(list(seeds))} seeds, {FRAMES} frames × {PATCHES} patches")
     print(f"{'simulator':9} {'case':13} {'median':>7} {'p95':>6} {'max':>6} {'gw med':>7} {'gw max':>7} "
-          f"{'nothing':>7} {'<1°':>5} {'conf':>5} {'s/fit':>6}  goal")
+          f"{'nothing':>7} {'<1°':>5} {'conf':>5} {'s/fit':>6} {'lamp':>5}  goal")
     for t in table:
         goal = GOALS.get(t["case"])
         gtxt = "" if goal is None else f"med ≤ {goal[0]}" + (f", max ≤ {goal[1]}" if goal[1] else ", < gray-world")
+        if t["case"].endswith("lamps"):
+            gtxt = "med ≤ 1.5 × gray-world, lamp ≥ 0.5"
         print(f"{t['sim']:9} {t['case']:13} {t['median']:7.2f} {t['p95']:6.2f} {t['max']:6.2f} {t['gw_median']:7.2f} "
               f"{t['gw_max']:7.2f} {t['nothing_median']:7.2f} {t['within_1deg']:5.2f} "
-              f"{t['mean_confidence']:5.2f} {t['seconds']:6.2f}  {gtxt}")
+              f"{t['mean_confidence']:5.2f} {t['seconds']:6.2f} {t['non_daylight_flagged']:5.2f}  {gtxt}")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps({"split": args.split, "table": table, "rows": rows}, indent=1))
     return 0

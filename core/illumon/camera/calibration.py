@@ -41,6 +41,7 @@ from ..bayes import GaussianPrior, gaussian_posterior
 from ..daylight import CIEDaylight
 from ..observations import Observations
 from ..priors import default_camera_prior
+from ..priors.scene_average import grey_share, scene_average_evidence
 from .formation import angular_error_deg
 from .references import neutral_references, references_kind
 
@@ -77,7 +78,7 @@ camera's white, carried to sRGB primaries by its
 white-preserving matrix (:func:`illumon.camera.primaries.to_srgb_primaries`), departs from the sRGB colour-matching
 functions' under daylight away from D65 — 0.0074–0.044 for the 24 measured cameras, pooled RMS 0.018 (log r/g, b/g;
 every 7th Granada spectrum). The history's common level adds its own, larger uncertainty
-(:func:`illumon.model.fit._anchor_common_level`)."""
+(:func:`illumon.model.level.anchor_common_level`)."""
 
 
 CLIPPED = 0.995
@@ -281,19 +282,28 @@ development reflectance sets (the five measured sets) under development Granada 
 
 def _scene_average_transform(scene: Observations, base: NDArray[np.float64], model, theta) -> NDArray[np.float64]:
     """Channel scales for a camera with no reference: the Gaussian posterior combining the camera prior (the mean
-    camera, spread :func:`prior_white_spread`) with the scene's average colour, expected to be that of the mean
-    measured reflectance under each frame's estimated daylight (gray-world made Bayesian; Buchsbaum 1980)."""
+    camera, spread :func:`prior_white_spread`) with the scene's average colour (gray-world made Bayesian; Buchsbaum
+    1980). That average is expected where :mod:`illumon.priors.scene_average` puts it under each frame's estimated
+    daylight: the mean measured reflectance's for a scene as varied as the measured surfaces (spread
+    :data:`SCENE_AVERAGE_SD`), moving towards grey (spread down to ``SCENE_GREY_SD``) as the patches' colours
+    converge — the development lamp-lit scenes average within 0.02–0.09 of grey and 0.2 from the mean measured
+    surface, which sent their whites 9–19° off."""
     rb = model.reflectance_basis()
     mean_reflectance = np.clip(rb.functions @ rb.prior_mean, 0.0, 1.0)
     v = np.asarray(scene.values, dtype=float)
-    ok = np.all(np.isfinite(v), axis=-1).sum(axis=1) >= 2
+    present = np.all(np.isfinite(v), axis=-1)
+    ok = present.sum(axis=1) >= 2
     if not ok.any():
         return np.eye(3)
     observed = _log_chroma(np.nanmean(np.where(np.isfinite(v[ok]), v[ok], np.nan), axis=1))
-    expected = _log_chroma(model.daylight_model().spectra(theta[ok, :2]) * mean_reflectance @ base)
+    light = model.daylight_model().spectra(theta[ok, :2])
+    average = scene_average_evidence(v, present)
+    expected = _log_chroma(light * mean_reflectance @ base)
+    expected = expected + grey_share(average) * (_log_chroma(light @ base) - expected)
     shift = np.mean(observed - expected, axis=0)
     s_cam = prior_white_spread()
-    gain = s_cam**2 / (s_cam**2 + SCENE_AVERAGE_SD**2)
+    s_scene = min(SCENE_AVERAGE_SD, average.sd)
+    gain = s_cam**2 / (s_cam**2 + s_scene**2)
     log_t = gain * shift
     return np.diag([math.exp(log_t[0]), 1.0, math.exp(log_t[1])])
 
@@ -395,7 +405,7 @@ def _reporting_offset(theta_first: NDArray[np.float64], theta: NDArray[np.float6
     """The reciprocal-temperature offset (MK⁻¹) a rendered camera with references reports its light with.
 
     Rendered output: the history's common level is anchored to the camera's own balance as the effective
-    sensitivities see it (:func:`illumon.model.fit._anchor_common_level`), which moves with T, so the iterations let
+    sensitivities see it (:func:`illumon.model.level.anchor_common_level`), which moves with T, so the iterations let
     T and the common temperature chase each other along the direction a reference cannot see (on development cameras
     the CCT ends 34–38 MK⁻¹ RMS off, though the whites gain from the iterations). The temperature is read as the sRGB
     functions saw it before the reference moved the camera: the shift common to every frame between the first fit

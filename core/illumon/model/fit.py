@@ -32,12 +32,13 @@ from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
 from ..observations import Observations
 from ..priors import ReflectanceBasis, reflectance_basis
+from ..priors.scene_average import scene_average_evidence
 from ..retrieval.common import RetrievalResult, censored, grey_world_mired, imaging_operators, white_level
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
 from .intervals import MODEL_ERROR
-from .lamps import LAMP_PRIOR, apply_lamps, history_lamps
-from .level import CommonLevel, common_level_posterior, scene_average_evidence
+from .lamps import LAMP_PRIOR, apply_lamps, history_lamps, lamp_population
+from .level import anchor_common_level, common_level_posterior, mean_log_chroma, scene_reading
 from .scene import SceneModel
 from .solver import FrameSolver
 
@@ -292,68 +293,6 @@ def _alternate(
     return theta, coef, n_iter
 
 
-def _mean_log_chroma(dm: CIEDaylight, css: NDArray[np.float64], theta: NDArray[np.float64]) -> NDArray[np.float64]:
-    white = dm.spectra(theta[:, :2]) @ css
-    return np.mean(np.log(np.clip(white[:, [0, 2]], 1e-12, None) / np.clip(white[:, 1:2], 1e-12, None)), axis=0)
-
-
-def _anchor_common_level(
-    objective: _JointObjective, theta: NDArray[np.float64], css: NDArray[np.float64], balance_sd: float,
-    scene: tuple[NDArray[np.float64], float],
-) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], CommonLevel]:
-    """Set the level common to every frame from two pieces of evidence, for output the camera white-balanced itself.
-
-    Static patches cannot see a shift common to every frame's light (a tilt of every reflectance undoes it), so the
-    fit's common level is what the reflectance prior makes of the scene's average colour — reliable to
-    :data:`~illumon.camera.calibration.SCENE_AVERAGE_SD` (log r/g, b/g) at best, and far worse on a scene unlike
-    the measured surfaces (a chart's colour patches: gray-world 13° off). A camera that balanced its output says
-    where that level is too — for daylight: its history's mean white is grey within ``balance_sd``
-    (:data:`~illumon.camera.primaries.SRGB_BALANCE_SD`); a history lit only by lamps is not (``scene``, the
-    gray-world evidence, decides between the two, :func:`.level.common_level_posterior`). The Gaussian pieces are
-    combined (balanced: the mean white's posterior is the fit's times
-    ``balance_sd² / (balance_sd² + SCENE_AVERAGE_SD²)``), every frame's ``(mired, δ)``
-    is moved by the one common shift that puts the mean white there, and the reflectances are re-solved at the
-    shifted light (the data fit is unchanged to first order: that is the direction they cannot see).
-
-    Returns the shifted ``θ``, the re-solved coefficients, the posterior standard deviation of the common shift
-    ``(mired, δ)`` and the level's posterior (with the probability that the history's light is not what the camera
-    is balanced for).
-    """
-    dm = objective.dm
-    level = common_level_posterior(_mean_log_chroma(dm, css, theta), SCENE_AVERAGE_SD, balance_sd, *scene)
-    lo_b, hi_b = dm.bounds()
-    target = level.mean
-    shift = np.zeros(2)
-    steps = np.array([1.0, 1e-4])
-
-    def shifted(d: NDArray[np.float64]) -> NDArray[np.float64]:
-        th = theta.copy()
-        th[:, 0] = np.clip(th[:, 0] + d[0], lo_b[0], hi_b[0])
-        th[:, 1] = np.clip(th[:, 1] + d[1], lo_b[1], hi_b[1])
-        return th
-
-    jac = np.eye(2)
-    for _ in range(8):  # Gauss–Newton on two unknowns
-        f0 = _mean_log_chroma(dm, css, shifted(shift)) - target
-        if np.max(np.abs(f0)) < 1e-5:
-            break
-        jac = np.stack([(_mean_log_chroma(dm, css, shifted(shift + steps * e)) - target - f0) / steps[i]
-                        for i, e in enumerate(np.eye(2))], axis=1)
-        try:
-            shift = shift - np.linalg.solve(jac, f0)
-        except np.linalg.LinAlgError:
-            break
-    theta = shifted(shift)
-    coef, _ = objective.reflectances(theta)
-    # Posterior sd of the mean white (log units) → of the common (mired, δ) through the same Jacobian.
-    post = level.sd
-    try:
-        sd = np.sqrt(np.clip(np.diag(post**2 * np.linalg.inv(jac.T @ jac)), 0, None))
-    except np.linalg.LinAlgError:
-        sd = np.array([dm.mired_sigma, dm.duv_sigma])
-    return theta, coef, sd, level
-
-
 def _training_summary(obs: Observations, present_all: NDArray[np.bool_], n_sub: int, res: RetrievalResult,
                       n_iter: int, seconds: float) -> dict:
     mired_all = 1e6 / res.cct
@@ -391,7 +330,8 @@ def _fit_fixed_camera(
 ) -> tuple[SceneModel, NDArray[np.float64]]:
     """:func:`fit_scene_model` for given (effective) sensitivities. Returns the model and every frame's
     ``(mired, δ, log k)`` (F × 3) from the learned reflectances. ``balance_sd``: the output is white-balanced by the
-    camera, the history's mean white lies within that spread (log r/g, b/g) of grey (:func:`_anchor_common_level`)."""
+    camera, the history's mean white lies within that spread (log r/g, b/g) of grey — for daylight; a history lit
+    only by lamps is told apart by its scene average (:mod:`.level`)."""
     t0 = time.perf_counter()
     dm = daylight or CIEDaylight()
     rb = reflectance_basis()
@@ -421,8 +361,12 @@ def _fit_fixed_camera(
                                      iterations, tol)
     anchored_sd, level = None, None
     if balance_sd is not None:
-        theta, coef, anchored_sd, level = _anchor_common_level(
-            objective, theta, css, balance_sd, scene_average_evidence(y, present))
+        # the level static patches cannot see (:mod:`.level`): a rendered camera's balance against the scene average
+        average = scene_average_evidence(y, present)
+        fit_level = mean_log_chroma(dm, css, theta)
+        level = common_level_posterior(fit_level, SCENE_AVERAGE_SD, balance_sd, average,
+                                       scene_reading(dm, css, theta, average, rb), lamp_population(css, dm)[2])
+        theta, coef, anchored_sd = anchor_common_level(objective, theta, css, level)
     am = objective.operators(theta)
     resid2 = objective.w2 * (objective.yz - np.einsum("fcj,pj->fpc", am, coef)) ** 2
     dof = max(int(present.sum()) * 3 - 3 * len(sub) - rb.size * len(obs.patches), 1)

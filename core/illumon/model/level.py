@@ -9,14 +9,15 @@ lamp-lit scenes' 10–16° errors (every simulator's history was daylight). So t
 components:
 
 - **balanced** — the history's mean white is grey within ``balance_sd`` (log r/g, b/g);
-- **unbalanced** — anywhere within :data:`UNBALANCED_SD` of grey (lamps from sodium to cold LED).
+- **lamp-lit** — near the white of one of the lamps of the CIE tables through the camera, alone or half and half with
+  daylight (:func:`illumon.model.lamps.lamp_population`), within :data:`LAMP_LEVEL_SD`.
 
 The scene average (gray-world over the static patches) is the evidence between them. Its uncertainty is the
-assumption's own (:data:`SCENE_GREY_SD`, the spread of a scene's average around grey where its regions are nearly
+assumption's own (``SCENE_GREY_SD``, the spread of a scene's average around grey where its regions are nearly
 achromatic) plus the sampling error of the patches' chromaticities (their spread over √N): a ColorChecker's
 saturated patches say little (gray-world 6–14° off on the development charts), a scene of grey and pale surfaces a
 lot. The component with the larger posterior is taken (a mixture mean would land between the two, wrong for both),
-and its Gaussian posterior gives the level and its spread; the unbalanced component's probability is reported as the
+and its Gaussian posterior gives the level and its spread; the lamp-lit component's probability is reported as the
 history's ``non_daylight`` evidence.
 
 Parameters chosen on development data only (``benchmarks/lamps.py``: MIMO ``bmug``, ``diff``; ``benchmarks/real.py``:
@@ -31,24 +32,18 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["SCENE_GREY_SD", "UNBALANCED_SD", "UNBALANCED_PRIOR", "CommonLevel", "scene_average_evidence",
-           "common_level_posterior"]
+from ..priors.scene_average import SceneAverage, grey_share
 
-SCENE_GREY_SD = 0.05
-"""Spread (log r/g, b/g) of a nearly achromatic scene's average colour around grey: the gray-world errors of the
-development lamp-lit scenes (``bmug`` 0.02–0.03, ``diff`` 0.02–0.05 in log units, regions of chromaticity spread
-0.004–0.07)."""
+__all__ = ["LAMP_LEVEL_SD", "UNBALANCED_PRIOR", "CommonLevel", "common_level_posterior", "anchor_common_level",
+           "mean_log_chroma", "scene_reading"]
 
-UNBALANCED_SD = 0.3
-"""Prior spread (log r/g, b/g) of the mean white of a history lit by light the camera was not balanced for, centred
-on grey: ±0.3 spans 2700 K incandescent to 10 000 K shade seen through a D65 preset."""
+LAMP_LEVEL_SD = 0.15
+"""Spread (log r/g, b/g) of a lamp-lit history's mean white around one of the CIE lamps' whites (alone or half and half
+with daylight, :func:`illumon.model.lamps.lamp_population`): lamps of one type differ, a history's frames mix lamps,
+and the tables are a sample of the lamps in use."""
 
 UNBALANCED_PRIOR = 0.2
 """Prior probability that a history is lit by light its camera was not balanced for (lamps only)."""
-
-_CHROMA_FLOOR = 0.01
-"""Added to each channel (× the frame's mean level) before the log-chromaticities of dark or clipped patches."""
-
 
 @dataclass(frozen=True)
 class CommonLevel:
@@ -60,59 +55,107 @@ class CommonLevel:
     """Posterior probability of the unbalanced component."""
 
 
-def scene_average_evidence(y: NDArray[np.float64], present: NDArray[np.bool_]) -> tuple[NDArray[np.float64], float]:
-    """Gray-world over a history's patches, in log r/g, b/g, and its standard deviation.
-
-    ``y`` (F × P × 3) are the observations, ``present`` (F × P) where all three channels were seen. The mean over
-    frames of each frame's gray-world white, and ``sqrt(SCENE_GREY_SD² + spread² / N)`` with the patches' chromaticity
-    spread (median over frames, pooled over r/g and b/g) and the mean number of patches per frame.
-    """
-    logs, spreads, counts = [], [], []
-    for yf, pf in zip(y, present, strict=True):
-        v = yf[pf]
-        if len(v) < 2:
-            continue
-        m = v.mean(axis=0)
-        if not np.all(m > 0):
-            continue
-        logs.append(np.log(m[[0, 2]] / m[1]))
-        eps = _CHROMA_FLOOR * float(m.mean())
-        lc = np.log((np.clip(v[:, [0, 2]], 0, None) + eps) / (np.clip(v[:, 1:2], 0, None) + eps))
-        spreads.append(float(np.sqrt(np.mean(np.var(lc, axis=0)))))
-        counts.append(len(v))
-    if not logs:
-        return np.zeros(2), math.inf
-    spread = float(np.median(spreads))
-    return np.mean(logs, axis=0), math.sqrt(SCENE_GREY_SD**2 + spread**2 / float(np.mean(counts)))
-
-
 def _gauss(x: NDArray[np.float64], var: float) -> float:
     return float(np.exp(-0.5 * np.sum(x**2) / var) / (2 * math.pi * var))
 
 
+def _log_mixture(x: NDArray[np.float64], centres: NDArray[np.float64], var: float) -> float:
+    """log of the equal-weight Gaussian mixture density (isotropic variance ``var``) over ``centres`` at ``x``."""
+    d2 = np.sum((centres - x) ** 2, axis=1)
+    return float(np.logaddexp.reduce(-0.5 * d2 / var) - math.log(len(centres)) - math.log(2 * math.pi * var))
+
+
 def common_level_posterior(
-    fit_level: NDArray[np.float64], fit_sd: float, balance_sd: float, scene: NDArray[np.float64], scene_sd: float,
+    fit_level: NDArray[np.float64], fit_sd: float, balance_sd: float, scene: SceneAverage,
+    reading: NDArray[np.float64], lamps: NDArray[np.float64],
 ) -> CommonLevel:
     """The mean white's posterior under the two-component prior of the module's docstring.
 
-    The scene average (``scene`` ± ``scene_sd``, :func:`scene_average_evidence`) weighs the components (balanced: grey
-    ± ``balance_sd``; unbalanced: grey ± :data:`UNBALANCED_SD`); the more probable one gives the level — balanced:
-    with the fit's own level (``fit_level`` ± ``fit_sd``, what the reflectance prior makes of the scene), unbalanced:
-    with the scene average instead (the two read the same evidence)."""
+    ``reading`` (± ``scene.sd``) is the mean white the scene average implies (:func:`scene_reading`); it weighs the
+    components — balanced: grey ± ``balance_sd``; lamp-lit: a mixture over the lamps' whites through the camera
+    ``lamps`` (M × 2, log r/g, b/g), each ± :data:`LAMP_LEVEL_SD`. The more probable one gives the level — balanced:
+    with the fit's own level (``fit_level`` ± ``fit_sd``, what the reflectance prior makes of the scene), lamp-lit:
+    with the reading instead (the two read the same evidence), under the lamp mixture.
+    """
     fit_level = np.asarray(fit_level, dtype=float)
-    scene = np.asarray(scene, dtype=float)
-    finite = math.isfinite(scene_sd)
-    # Evidence for each component: the scene average under its prior (the fit's level is common to both).
-    weights = []
-    for prior_sd, prior_p in ((balance_sd, 1.0 - UNBALANCED_PRIOR), (UNBALANCED_SD, UNBALANCED_PRIOR)):
-        weights.append(prior_p * (_gauss(scene, prior_sd**2 + scene_sd**2) if finite else 1.0))
-    p_unbalanced = weights[1] / sum(weights) if sum(weights) > 0 else 0.0
-    if finite and p_unbalanced > 0.5:
-        # the fit's level is the reflectance prior's reading of the same scene average (a scene of measured surfaces,
-        # its mean 14° yellow of grey under D65): the scene's own spread replaces it
-        precision = 1.0 / UNBALANCED_SD**2 + 1.0 / scene_sd**2
-        info = scene / scene_sd**2
-    else:  # balanced: the balance and the fit's level, as before lamp-lit histories were told apart
-        precision = 1.0 / balance_sd**2 + 1.0 / fit_sd**2
-        info = fit_level / fit_sd**2
-    return CommonLevel(mean=info / precision, sd=math.sqrt(1.0 / precision), unbalanced=float(p_unbalanced))
+    reading = np.asarray(reading, dtype=float)
+    lamps = np.asarray(lamps, dtype=float)
+    r2 = scene.sd**2
+    if not (math.isfinite(r2) and np.all(np.isfinite(reading)) and len(lamps)):
+        p_lamp = 0.0
+    else:
+        log_a = math.log(1.0 - UNBALANCED_PRIOR) - math.log(2 * math.pi * (balance_sd**2 + r2)) \
+            - 0.5 * float(np.sum(reading**2)) / (balance_sd**2 + r2)
+        log_b = math.log(UNBALANCED_PRIOR) + _log_mixture(reading, lamps, LAMP_LEVEL_SD**2 + r2)
+        p_lamp = float(1.0 / (1.0 + math.exp(min(log_a - log_b, 700.0))))
+    if p_lamp > 0.5:
+        # each lamp's component: the Gaussian product of its prior and the reading, weighted by its evidence
+        v = LAMP_LEVEL_SD**2
+        d2 = np.sum((lamps - reading) ** 2, axis=1)
+        w = np.exp(-0.5 * (d2 - d2.min()) / (v + r2))
+        w /= w.sum()
+        means = (lamps * r2 + reading * v) / (v + r2)
+        mean = w @ means
+        var = v * r2 / (v + r2) + float(w @ np.sum((means - mean) ** 2, axis=1)) / 2
+        return CommonLevel(mean=mean, sd=math.sqrt(var), unbalanced=p_lamp)
+    # balanced: the balance and the fit's level, as before lamp-lit histories were told apart
+    precision = 1.0 / balance_sd**2 + 1.0 / fit_sd**2
+    return CommonLevel(mean=fit_level / fit_sd**2 / precision, sd=math.sqrt(1.0 / precision), unbalanced=p_lamp)
+
+
+def mean_log_chroma(dm, css: NDArray[np.float64], theta: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Mean over frames of the log r/g, b/g of each frame's daylight white through ``css`` (``theta``: F × ≥2)."""
+    white = dm.spectra(theta[:, :2]) @ css
+    return np.mean(np.log(np.clip(white[:, [0, 2]], 1e-12, None) / np.clip(white[:, 1:2], 1e-12, None)), axis=0)
+
+
+def scene_reading(dm, css: NDArray[np.float64], theta: NDArray[np.float64], scene: SceneAverage, rb
+                  ) -> NDArray[np.float64]:
+    """The history's mean white (log r/g, b/g) the scene average implies: its gray-world reading less the colour the
+    scene is expected to average to — the mean measured surface's under the frames' light (``theta`` through
+    ``css``; ``rb`` the reflectance prior) for a scene as varied as the measured surfaces, grey for one whose patches
+    barely differ (:func:`~illumon.priors.scene_average.grey_share`)."""
+    mean_surface = np.clip(rb.functions @ rb.prior_mean, 0.0, 1.0)
+    light = dm.spectra(theta[:, :2])
+    white = np.log(np.clip(light @ css, 1e-12, None))
+    surface = np.log(np.clip((light * mean_surface) @ css, 1e-12, None))
+    offset = np.mean((surface[:, [0, 2]] - surface[:, 1:2]) - (white[:, [0, 2]] - white[:, 1:2]), axis=0)
+    return scene.mean - (1.0 - grey_share(scene)) * offset
+
+
+def anchor_common_level(objective, theta: NDArray[np.float64], css: NDArray[np.float64], level: CommonLevel
+                        ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Move every frame's ``(mired, δ)`` by the one common shift that puts the history's mean white at
+    ``level.mean`` and re-solve the reflectances at the shifted light (the data fit is unchanged to first order: that
+    is the direction static patches cannot see). ``objective``: the scene fit's joint objective (its daylight model
+    ``dm`` and ``reflectances(theta)``). Returns the shifted ``θ``, the coefficients and the posterior standard
+    deviation of the common ``(mired, δ)`` shift (``level.sd`` through the same Jacobian)."""
+    dm = objective.dm
+    lo_b, hi_b = dm.bounds()
+    shift = np.zeros(2)
+    steps = np.array([1.0, 1e-4])
+
+    def shifted(d: NDArray[np.float64]) -> NDArray[np.float64]:
+        th = theta.copy()
+        th[:, 0] = np.clip(th[:, 0] + d[0], lo_b[0], hi_b[0])
+        th[:, 1] = np.clip(th[:, 1] + d[1], lo_b[1], hi_b[1])
+        return th
+
+    jac = np.eye(2)
+    for _ in range(8):  # Gauss–Newton on two unknowns
+        f0 = mean_log_chroma(dm, css, shifted(shift)) - level.mean
+        if np.max(np.abs(f0)) < 1e-5:
+            break
+        jac = np.stack([(mean_log_chroma(dm, css, shifted(shift + steps * e)) - level.mean - f0) / steps[i]
+                        for i, e in enumerate(np.eye(2))], axis=1)
+        try:
+            shift = shift - np.linalg.solve(jac, f0)
+        except np.linalg.LinAlgError:
+            break
+    theta = shifted(shift)
+    coef, _ = objective.reflectances(theta)
+    try:
+        sd = np.sqrt(np.clip(np.diag(level.sd**2 * np.linalg.inv(jac.T @ jac)), 0, None))
+    except np.linalg.LinAlgError:
+        sd = np.array([dm.mired_sigma, dm.duv_sigma])
+    return theta, coef, sd

@@ -185,6 +185,7 @@ class FrameSolver:
             grad[:, 0] += pp[0] * (theta[:, 0] - pm[0])
             grad[:, 1] += pp[1] * (theta[:, 1] - pm[1])
             hess[:, _DIAG, _DIAG] *= 1.0 + lam
+            hess += _EPS3  # a frame whose light gives no signal (a channel at 0) has a zero exposure row
             step = np.linalg.solve(hess, -grad[..., None])[..., 0]
             step = np.minimum(np.maximum(step, -_MAX_STEP), _MAX_STEP)
             theta = np.minimum(np.maximum(theta + step, self.lo), self.hi)

@@ -1,0 +1,87 @@
+"""The prior on a static scene's average colour, and gray-world over a history read as evidence of the light.
+
+A scene's average colour under a light is the light's white times the scene's average reflectance. Where the scene
+spreads like the measured surfaces (:data:`MEASURED_SURFACE_SPREAD`), that average is the mean measured surface's
+within :data:`illumon.camera.calibration.SCENE_AVERAGE_SD`; where its patches barely differ in colour (walls, road,
+table tops, the development lamp-lit scenes), it sits near grey within :data:`SCENE_GREY_SD`. The patches' own
+chromaticity spread says which, and how many independent colours the average is taken over — the sampling error of
+gray-world (Buchsbaum 1980) over the scene.
+
+References
+----------
+.. [Buchsbaum1980] Buchsbaum, 1980: grey world.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["SCENE_GREY_SD", "MEASURED_SURFACE_SPREAD", "SceneAverage", "scene_average_evidence", "grey_share"]
+
+SCENE_GREY_SD = 0.033
+"""Spread (log r/g, b/g) of a nearly achromatic scene's average colour around grey: the RMS of the gray-world errors
+of the development lamp-lit scenes' histories (``bmug`` −0.023 / +0.024, ``diff`` +0.024 / −0.051 in log r/g, b/g;
+their regions spread 0.004–0.07 in log chromaticity; ``benchmarks/lamps.py``)."""
+
+MEASURED_SURFACE_SPREAD = 0.53
+"""Chromaticity spread (as :attr:`SceneAverage.spread`) of a scene of ten surfaces drawn from the development
+measured reflectance sets under development Granada runs, 14 development cameras: median 0.53 (10–90 %: 0.38–0.71).
+The development lamp-lit scenes' regions spread 0.004–0.09, a ColorChecker's colour patches 0.49 (sensor RGB) to 1.8
+(rendered, clipped). A scene that spreads like the measured surfaces averages like them (SCENE_AVERAGE_SD around the
+mean measured surface); one whose patches barely differ averages near grey (:data:`SCENE_GREY_SD`)."""
+
+_CHROMA_FLOOR = 0.01
+"""Added to each channel (× the frame's mean level) before the log-chromaticities of dark or clipped patches."""
+
+
+@dataclass(frozen=True)
+class SceneAverage:
+    """Gray-world over a history's static patches (:func:`scene_average_evidence`)."""
+
+    mean: NDArray[np.float64]
+    """Mean over frames of each frame's gray-world white, log r/g and b/g."""
+    sd: float
+    """Its standard deviation as evidence of the light: ``sqrt(SCENE_GREY_SD² + spread² / patches)``."""
+    spread: float
+    """The patches' chromaticity spread (log units, pooled over r/g and b/g; median over frames)."""
+    patches: float
+    """Mean number of patches per frame."""
+
+
+def scene_average_evidence(y: NDArray[np.float64], present: NDArray[np.bool_]) -> SceneAverage:
+    """Gray-world over a history's patches (log r/g, b/g), its standard deviation and the patches' spread.
+
+    ``y`` (F × P × 3) are the observations, ``present`` (F × P) where all three channels were seen. The mean over
+    frames of each frame's gray-world white, and ``sqrt(SCENE_GREY_SD² + spread² / N)`` with the patches' chromaticity
+    spread (median over frames, pooled over r/g and b/g) and the mean number of patches per frame.
+    """
+    logs, spreads, counts = [], [], []
+    for yf, pf in zip(y, present, strict=True):
+        v = yf[pf]
+        if len(v) < 2:
+            continue
+        m = v.mean(axis=0)
+        if not np.all(m > 0):
+            continue
+        logs.append(np.log(m[[0, 2]] / m[1]))
+        eps = _CHROMA_FLOOR * float(m.mean())
+        lc = np.log((np.clip(v[:, [0, 2]], 0, None) + eps) / (np.clip(v[:, 1:2], 0, None) + eps))
+        spreads.append(float(np.sqrt(np.mean(np.var(lc, axis=0)))))
+        counts.append(len(v))
+    if not logs:
+        return SceneAverage(np.zeros(2), math.inf, math.inf, 0.0)
+    spread, n = float(np.median(spreads)), float(np.mean(counts))
+    return SceneAverage(np.mean(logs, axis=0), math.sqrt(SCENE_GREY_SD**2 + spread**2 / n), spread, n)
+
+
+def grey_share(average: SceneAverage) -> float:
+    """How far a scene's expected average moves from the mean measured surface's towards grey: 1 for a scene whose
+    patches do not differ in colour, 0 for one that spreads like the measured surfaces
+    (``1 − min(1, spread / MEASURED_SURFACE_SPREAD)``)."""
+    if not math.isfinite(average.spread):
+        return 0.0
+    return 1.0 - min(1.0, average.spread / MEASURED_SURFACE_SPREAD)

@@ -60,6 +60,10 @@ def test_diagnose_white_level_and_estimate_model_effects(shared_data, tmp_path):
         ("frame,time,patch,r,g,b\na,,p,1,2,x\n", "row 2"),
         ("frame,time,patch,r,g,b\n" + "".join(f"f{i},,p{j},1,2,3\n" for i in range(3) for j in range(4)), "at least 6"),
         ("frame,time,patch,r,g,b\n" + "".join(f"f{i},,p{j},1,2,3\n" for i in range(8) for j in range(2)), "at least 3"),
+        # every value near black for the white level given (a real 16-bit lamp-lit scene read with the wrong one
+        # ended in a ZeroDivisionError traceback)
+        ("frame,time,patch,r,g,b\n" + "".join(f"f{i},,p{j},1,2,{3 + j}\n" for i in range(8) for j in range(4)),
+         "--white-level"),
     ],
 )
 def test_diagnose_bad_input_one_line_exit_2(tmp_path, capsys, obs_body, message):
@@ -70,6 +74,18 @@ def test_diagnose_bad_input_one_line_exit_2(tmp_path, capsys, obs_body, message)
     err = capsys.readouterr().err.strip()
     assert code == 2
     assert message in err and str(obs) in err and "\n" not in err
+
+
+def test_a_degenerate_fit_is_one_line_naming_cause_and_fix(tmp_path, capsys):
+    # four identical patches in eight frames, a few values above black: the fit's systems are singular; the user gets
+    # the cause and what to do, not "Singular matrix" (issue 26) nor a traceback
+    obs, css = tmp_path / "o.csv", tmp_path / "c.csv"
+    obs.write_text("frame,time,patch,r,g,b\n" + "".join(f"f{i},,p{j},1,2,{3 + i}\n" for i in range(8) for j in range(4)))
+    _write_css(css, np.ones((61, 3)))
+    code = main(["diagnose", str(obs), "--sensitivities", str(css), "--out", str(tmp_path / "r.json")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err
+    assert err.startswith("illumon: error: the fit is degenerate") and "add patches of different colours" in err
 
 
 def test_diagnose_rejects_short_sensitivities(tmp_path, capsys):

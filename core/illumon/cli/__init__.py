@@ -67,6 +67,12 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+DEGENERATE = ("the fit is degenerate on these data: the patches, frames or values do not differ enough to separate its "
+              "unknowns (patches of one colour, frames under one light, values near black) — add patches of different "
+              "colours or frames under different light, or check --white-level")
+"""The one line a numerical dead end inside a fit is reported with (exit 2)."""
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``illumon`` console script."""
     warnings.filterwarnings("ignore")
@@ -76,7 +82,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"unrecognized arguments: {' '.join(unknown)}")
     try:
         return int(args.func(args) or 0)
-    except (UsageError, ValueError, KeyError, FileNotFoundError, np.linalg.LinAlgError) as exc:
+    except (np.linalg.LinAlgError, ZeroDivisionError, FloatingPointError) as exc:
+        # a numerical dead end inside a fit: the data do not separate its unknowns
+        print(f"illumon: error: {DEGENERATE} ({exc})", file=sys.stderr)
+        return 2
+    except (UsageError, ValueError, KeyError, FileNotFoundError) as exc:
         msg = str(exc.args[0]) if isinstance(exc, KeyError) and exc.args else str(exc)
         print(f"illumon: error: {msg}", file=sys.stderr)
         return 2

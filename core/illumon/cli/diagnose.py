@@ -6,6 +6,8 @@ import argparse
 import json
 from typing import Any
 
+import numpy as np
+
 from .common import add_white_level
 
 __all__ = ["add_diagnose_command", "run_diagnosis"]
@@ -25,6 +27,14 @@ def run_diagnosis(observations_path: str, obs, sensitivities, *, reestimate: boo
     if (obs.present.sum(axis=1) < 2).any():
         bad = obs.frames[int((obs.present.sum(axis=1) < 2).argmax())]
         raise ValueError(f"{observations_path}: frame {bad!r} has fewer than two patches")
+    from ..diagnosis.noise import DARK_LEVEL
+
+    values = np.asarray(obs.values, dtype=float)
+    lit = int(np.sum(np.nan_to_num(values) > DARK_LEVEL))
+    if lit < 2 * (RANK + 2):
+        raise ValueError(f"{observations_path}: only {lit} value(s) above {DARK_LEVEL:g} of the white level (the "
+                         f"brightest is {np.nanmax(values):.3g}); diagnosis reads the values above it — is "
+                         "--white-level the camera's white?")
     return diagnose(obs, sensitivities, reestimate=reestimate)
 
 

@@ -145,7 +145,10 @@ def _daylight_frames(base: SpectralBase, sigma: NDArray[np.float64]) -> tuple[ND
             lam[1:, 1:] = cov_inv[q] / k0**2
             rhs = np.zeros(j + 1)
             rhs[1:] = lam[1:, 1:] @ (k0 * means[q])
-            x = np.linalg.solve(ata + lam, atb + rhs)
+            try:
+                x = np.linalg.solve(ata + lam, atb + rhs)
+            except np.linalg.LinAlgError:  # a frame the patches cannot light-read (a dark or clipped channel)
+                x = np.linalg.lstsq(ata + lam, atb + rhs, rcond=None)[0]
             d = x[1:] - k0 * means[q]
             dat = float(((b - ad @ x) ** 2).sum())
             c = dat / base.phi + float(d @ lam[1:, 1:] @ d) + float(const[q])

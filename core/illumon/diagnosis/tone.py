@@ -144,6 +144,9 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
             break
         dark *= DARK_STEP
     fits["dark_level"] = dark
+    if int(lit.sum()) <= rank + 1:  # (almost) every value censored as dark: no curve can be read from them
+        fits["nonlinear_response"] = {"curve": "gamma", "gamma": 1.0}
+        return Candidate("nonlinear_response", float("inf"), {"curve": "gamma", "gamma": 1.0})
 
     def curve_nll(x: NDArray[np.float64], slope: NDArray[np.float64]) -> tuple[float, bl.LowRankFit]:
         fit, _, _, nll = nz.fit_learned_noise(x, lit, rank, base.U, updates=3, iters=30, huber=TONE_HUBER,

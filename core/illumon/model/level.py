@@ -45,6 +45,7 @@ and the tables are a sample of the lamps in use."""
 UNBALANCED_PRIOR = 0.2
 """Prior probability that a history is lit by light its camera was not balanced for (lamps only)."""
 
+
 @dataclass(frozen=True)
 class CommonLevel:
     """The posterior of a history's mean white (log r/g, b/g) and which component it came from."""
@@ -52,7 +53,7 @@ class CommonLevel:
     mean: NDArray[np.float64]
     sd: float
     unbalanced: float
-    """Posterior probability of the unbalanced component."""
+    """Posterior probability of the lamp-lit component (light the camera was not balanced for)."""
 
 
 def _gauss(x: NDArray[np.float64], var: float) -> float:

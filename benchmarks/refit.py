@@ -10,6 +10,13 @@ engine), by the end of the read step (``to read``) and by the end of the fit and
 write step adds shows only in ``peak MiB``. ``check s`` is the tone-response check's part of ``fit+est s`` (issue 29);
 ``load`` the 1-minute load average after the row.
 
+``floor s`` is what issue 29 holds a refit against, a numpy batched solve of the same size: the camera's rows read
+with ``sqlite3`` and decoded into an F × 16 × 3 array, then one weighted linear least-squares solve per frame (three
+unknowns, every patch's 3 × 3 map, missing patches without weight) as batched matrix products and
+``numpy.linalg.solve``; ``÷ floor`` is ``total s`` over it. ``est ms`` is the per-frame estimate after the refit with
+its scene model (:func:`illumon_service.estimation.estimate_frame`, the service's cached model and solver; median
+over 200 frames of the history after one warm-up), the ingest path's estimate step.
+
 Each history is simulated from measured data (Nikon D5100 sensitivities, Granada daylight in sequence, 16 Munsell
 reflectances, 10 % of patches missing) when ``../shared/data`` is present, from synthetic spectra otherwise. Frames
 are stored straight into the service's SQLite database (not timed); the timed part is
@@ -92,8 +99,56 @@ def store_camera(sessions, css: np.ndarray, day: np.ndarray, refl: np.ndarray, n
     return cid, hist.true_white
 
 
+def _history_rows(url: str, cid: int, limit: int | None = None) -> list[tuple[int, str, str]]:
+    """(id, taken_at, patches JSON) of a camera's frames in time order, read with ``sqlite3`` alone."""
+    import sqlite3
+
+    from sqlalchemy.engine import make_url
+
+    con = sqlite3.connect(make_url(url).database)
+    try:
+        sql = "SELECT id, taken_at, patches FROM frames WHERE camera_id = ? ORDER BY taken_at"
+        return con.execute(sql + (f" LIMIT {int(limit)}" if limit else ""), (cid,)).fetchall()
+    finally:
+        con.close()
+
+
+def numpy_floor(url: str, cid: int) -> float:
+    """Seconds of the floor a refit is held against (module docstring): read and decode the camera's rows, then one
+    batched per-frame weighted least-squares solve."""
+    t = time.perf_counter()
+    rows = _history_rows(url, cid)
+    ids = [f"p{j:02d}" for j in range(N_PATCHES)]
+    y = np.full((len(rows), N_PATCHES, 3), np.nan)
+    for f, (_, _, patches) in enumerate(rows):
+        for j, v in enumerate(json.loads(patches)[p] for p in ids):
+            if v is not None:
+                y[f, j] = v
+    g = np.random.default_rng(0).uniform(0.1, 1.0, (N_PATCHES * 3, 3))  # every patch channel's row of its 3 × 3 map
+    w = np.isfinite(y).reshape(len(rows), -1).astype(float)
+    a = (w @ (g[:, :, None] * g[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3) + 1e-9 * np.eye(3)
+    b = np.linalg.solve(a, ((w * np.nan_to_num(y.reshape(len(rows), -1))) @ g)[..., None])[..., 0]
+    assert b.shape == (len(rows), 3)
+    return time.perf_counter() - t
+
+
+def _estimate_ms(url: str, data_dir: str, cid: int, n: int = 200) -> float:
+    """Median milliseconds of one frame's estimate with the camera's new scene model (module docstring)."""
+    from illumon_service.estimation import estimate_frame
+
+    model = max((Path(data_dir) / "models").glob(f"camera-{cid}.*.json"), key=lambda q: q.stat().st_mtime_ns)
+    ids = [f"p{j:02d}" for j in range(N_PATCHES)]
+    times = []
+    for fid, taken, patches in _history_rows(url, cid, n + 1):
+        t = time.perf_counter()
+        estimate_frame(data_dir, cid, str(fid), str(taken), json.loads(patches), ids, model_file=model)
+        times.append(time.perf_counter() - t)
+    return 1e3 * float(np.median(times[1:]))
+
+
 def _refit_child(url: str, data_dir: str, cid: int, conn) -> None:  # noqa: ANN001 - a multiprocessing Connection
-    """Child process: refit one camera; send (seconds, summary, peak RSS in MiB) back."""
+    """Child process: refit one camera; send (seconds, summary, peak RSS in MiB) back, the summary with the
+    per-frame estimate's milliseconds after the refit (``estimate_ms``)."""
     import resource
 
     warnings.simplefilter("ignore")
@@ -112,6 +167,7 @@ def _refit_child(url: str, data_dir: str, cid: int, conn) -> None:  # noqa: ANN0
     seconds = time.perf_counter() - t
     engine.dispose()
     summary["peak_mib_steps"] = {"start": peaks.get(0.0), "read": peaks.get(0.1), "fit": peaks.get(0.8)}
+    summary["estimate_ms"] = _estimate_ms(url, data_dir, cid)
     conn.send((seconds, summary, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
     conn.close()
 
@@ -142,6 +198,7 @@ def one_camera(sizes: list[int], css, day, refl) -> list[dict]:
             cid, truth = store_camera(sessions, css, day, refl, n, seed=1)
             engine.dispose()
             seconds, summary, peak_mib = refit_in_child(settings, cid, Path(tmp))
+            floor = min(numpy_floor(settings.resolved_database_url, cid) for _ in range(2))  # the second warm
             engine = make_engine(settings.resolved_database_url)
             sessions = make_session_factory(engine)
             with sessions() as s:
@@ -158,10 +215,12 @@ def one_camera(sizes: list[int], css, day, refl) -> list[dict]:
                "write_s": summary["write_s"], "estimated": summary["frames"], "peak_mib": peak_mib,
                "peak_mib_start": summary["peak_mib_steps"]["start"], "peak_mib_read": summary["peak_mib_steps"]["read"],
                "peak_mib_fit": summary["peak_mib_steps"]["fit"],
-               "median_deg": float(np.median(err)), "p95_deg": float(np.percentile(err, 95))}
+               "median_deg": float(np.median(err)), "p95_deg": float(np.percentile(err, 95)),
+               "floor_s": floor, "floor_ratio": seconds / floor, "estimate_ms": summary["estimate_ms"]}
         out.append(row)
         print(f"{n:>7d} {seconds:8.2f} {row['read_s']:7.2f} {row['fit_estimate_s']:9.2f} {row['response_check_s']:8.2f} "
-              f"{row['write_s']:7.2f} {row['peak_mib_start']:7.0f} {row['peak_mib_read']:7.0f} {row['peak_mib_fit']:7.0f} "
+              f"{row['write_s']:7.2f} {floor:7.3f} {row['floor_ratio']:7.1f} {row['estimate_ms']:6.2f} "
+              f"{row['peak_mib_start']:7.0f} {row['peak_mib_read']:7.0f} {row['peak_mib_fit']:7.0f} "
               f"{peak_mib:8.0f} {row['median_deg']:7.3f} {row['p95_deg']:7.3f} {os.getloadavg()[0]:5.1f}", flush=True)
     return out
 
@@ -214,8 +273,9 @@ def main() -> None:
     css, day, refl, provenance = spectra()
     print(f"data: {provenance}; CPUs: {os.cpu_count()}")
     print("\none camera, 16 patches: refit (read + scene model fit + estimate every frame + write)")
-    print(f"{'frames':>7} {'total s':>8} {'read s':>7} {'fit+est s':>9} {'check s':>8} {'write s':>7} {'imports':>7} "
-          f"{'to read':>7} {'to fit':>7} {'peak MiB':>8} {'med °':>7} {'p95 °':>7} {'load':>5}")
+    print(f"{'frames':>7} {'total s':>8} {'read s':>7} {'fit+est s':>9} {'check s':>8} {'write s':>7} {'floor s':>7} "
+          f"{'÷ floor':>7} {'est ms':>6} {'imports':>7} {'to read':>7} {'to fit':>7} {'peak MiB':>8} {'med °':>7} "
+          f"{'p95 °':>7} {'load':>5}")
     single = one_camera(sizes, css, day, refl)
     if args.no_fleet:
         RESULTS.mkdir(exist_ok=True)

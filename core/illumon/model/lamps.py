@@ -88,18 +88,19 @@ _MIX = (1.0, 0.5)  # lamp share of the light: the lamp alone, or half and half w
 _LAMP_SD = 0.03  # spread of a lamp type's white (manufacturing, ageing; log units)
 
 
-_CACHE_SIZE = 8  # cameras × priors (and lattices) whose populations (and tables) are remembered
+_POPULATIONS_KEPT = 8  # cameras × daylight priors whose populations are remembered
+_TABLES_KEPT = 8  # lattice tables remembered (a few MiB at most)
 _cache_lock = threading.Lock()
 _populations: OrderedDict[tuple, tuple[NDArray[np.float64], ...]] = OrderedDict()
-_tables: OrderedDict[tuple, tuple[NDArray[np.int64], NDArray[np.float64]]] = OrderedDict()
+_tables: OrderedDict[tuple, NDArray[np.float64]] = OrderedDict()
 
 
-def _remember(cache: OrderedDict, key: tuple, value: object) -> None:
-    """Keep ``value`` under ``key``, forgetting the least recently used entry beyond :data:`_CACHE_SIZE`."""
+def _remember(cache: OrderedDict, key: tuple, value: object, size: int = _POPULATIONS_KEPT) -> None:
+    """Keep ``value`` under ``key``, forgetting the least recently used entries beyond ``size``."""
     with _cache_lock:
         cache[key] = value
         cache.move_to_end(key)
-        while len(cache) > _CACHE_SIZE:
+        while len(cache) > size:
             cache.popitem(last=False)
 
 
@@ -208,6 +209,10 @@ BLOCK_EXPONENT = 300.0
 """Largest exponent of the separable factors :func:`_lattice_logdensity` multiplies (per axis): their products stay
 within e^±600, inside double precision, so nothing overflows and no centre's leading term underflows."""
 
+TILE = 32
+"""Lattice nodes per axis a table's range is rounded out to (:func:`_lattice_table`): rounds of a refit whose frames
+moved a little get the same table."""
+
 CHUNK_POINTS = 1 << 20
 """Frame × offset pairs evaluated at once where :func:`lamp_posterior` visits pairs one by one (each frame's lamp
 share over the offset posterior's support, frames outside the lattice)."""
@@ -295,22 +300,17 @@ def _lattice_logdensity(axes: list[NDArray[np.float64]], centres: NDArray[np.flo
 
 def _lattice_table(centres: NDArray[np.float64], logw: NDArray[np.float64], sd: float, step: NDArray[np.float64],
                    start: NDArray[np.int64], count: NDArray[np.int64]) -> NDArray[np.float64]:
-    """:func:`_lattice_logdensity` on the nodes ``(start + i) · step``, ``i < count`` (per axis), from a small cache:
-    a refit judges its history several times with the same camera, prior and lattice step, and the frames' spread
-    hardly moves between rounds, so one table (built with a margin) serves them all."""
-    key = (centres.tobytes(), logw.tobytes(), float(sd), step.tobytes())
-    lo, hi = start - 16, start + count + 16  # a margin for the next round's frames
-    hit = _recall(_tables, key)
-    if hit is not None:
-        first, table = hit
-        offset = start - first
-        if np.all(offset >= 0) and np.all(offset + count <= table.shape):
-            return table[offset[0]:offset[0] + count[0], offset[1]:offset[1] + count[1]]
-        lo, hi = np.minimum(lo, first), np.maximum(hi, first + table.shape)
-    axes = [np.arange(lo[i], hi[i]) * step[i] for i in range(2)]
-    table = _lattice_logdensity(axes, centres, logw, sd)
-    table.flags.writeable = False
-    _remember(_tables, key, (lo, table))
+    """:func:`_lattice_logdensity` on the nodes ``(start + i) · step``, ``i < count`` (per axis), computed on the
+    range widened to whole multiples of :data:`TILE` nodes and remembered (the last :data:`_TABLES_KEPT`): a refit
+    judges its history several times with the same camera, prior and lattice step over almost the same nodes. The
+    range computed depends on the request alone, so an answer never depends on what was computed before."""
+    lo, hi = start // TILE * TILE, ((start + count - 1) // TILE + 1) * TILE
+    key = (centres.tobytes(), logw.tobytes(), float(sd), step.tobytes(), lo.tobytes(), hi.tobytes())
+    table = _recall(_tables, key)
+    if table is None:
+        table = _lattice_logdensity([np.arange(lo[i], hi[i]) * step[i] for i in range(2)], centres, logw, sd)
+        table.flags.writeable = False
+        _remember(_tables, key, table, _TABLES_KEPT)
     offset = start - lo
     return table[offset[0]:offset[0] + count[0], offset[1]:offset[1] + count[1]]
 

@@ -44,7 +44,6 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import RegularGridInterpolator
 from scipy.signal import correlate
-from scipy.special import logsumexp
 
 from .._blas import single_blas_thread
 from ..daylight import CIEDaylight
@@ -220,13 +219,15 @@ share over the offset posterior's support, frames outside the lattice)."""
 
 def _exact_loglik(u: NDArray[np.float64], centres: NDArray[np.float64], logw: NDArray[np.float64],
                   sd: float) -> NDArray[np.float64]:
-    """log Σ_j w_j N(u; c_j, sd² I) at every point of ``u`` (… × 2), centre by centre."""
+    """log Σ_j w_j N(u; c_j, sd² I) at every point of ``u`` (… × 2), centre by centre (the log-sum-exp in numpy:
+    scipy's costs 0.5 ms a call, a new frame's estimate makes two)."""
     norm = -math.log(2 * math.pi * sd**2)
     uu = u.reshape(-1, 2)
     out = np.empty(len(uu))
     for i in range(0, len(uu), 4096):
-        d2 = ((uu[i:i + 4096, None, :] - centres[None]) ** 2).sum(-1)
-        out[i:i + 4096] = logsumexp(logw[None] - 0.5 * d2 / sd**2, axis=1) + norm
+        x = logw[None] - (0.5 / sd**2) * ((uu[i:i + 4096, None, :] - centres[None]) ** 2).sum(-1)
+        top = x.max(axis=1)
+        out[i:i + 4096] = np.log(np.exp(x - top[:, None]).sum(axis=1)) + top + norm
     return out.reshape(u.shape[:-1])
 
 

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import tempfile
 import time
@@ -119,11 +120,13 @@ def numpy_floor(url: str, cid: int) -> float:
     t = time.perf_counter()
     rows = _history_rows(url, cid)
     ids = [f"p{j:02d}" for j in range(N_PATCHES)]
-    y = np.full((len(rows), N_PATCHES, 3), np.nan)
-    for f, (_, _, patches) in enumerate(rows):
-        for j, v in enumerate(json.loads(patches)[p] for p in ids):
-            if v is not None:
-                y[f, j] = v
+    missing = [math.nan] * 3
+    flat: list[float] = []
+    for _, _, patches in rows:
+        d = json.loads(patches)
+        for p in ids:
+            flat += d[p] or missing
+    y = np.array(flat).reshape(len(rows), N_PATCHES, 3)
     g = np.random.default_rng(0).uniform(0.1, 1.0, (N_PATCHES * 3, 3))  # every patch channel's row of its 3 × 3 map
     w = np.isfinite(y).reshape(len(rows), -1).astype(float)
     a = (w @ (g[:, :, None] * g[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3) + 1e-9 * np.eye(3)

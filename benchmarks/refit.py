@@ -2,7 +2,7 @@
 refitted through a Dask ``LocalCluster`` versus serially.
 
 Run: ``python benchmarks/refit.py [--quick] [--sizes 1000,10000,100000] [--cameras 200] [--fleet-frames 200]
-[--no-fleet]``. Prints a table and writes ``benchmarks/results/refit.json``.
+[--no-fleet] [--profile]``. Prints a table and writes ``benchmarks/results/refit.json``.
 
 Each one-camera refit runs in a fresh (spawned) process whose peak resident set (``ru_maxrss``, imports included) is
 reported as ``peak MiB``, with the peak reached before the refit (``imports``: the process, its imports and the
@@ -15,7 +15,8 @@ with ``sqlite3`` and decoded into an F × 16 × 3 array, then one weighted linea
 unknowns, every patch's 3 × 3 map, missing patches without weight) as batched matrix products and
 ``numpy.linalg.solve``; ``÷ floor`` is ``total s`` over it. ``est ms`` is the per-frame estimate after the refit with
 its scene model (:func:`illumon_service.estimation.estimate_frame`, the service's cached model and solver; median
-over 200 frames of the history after one warm-up), the ingest path's estimate step.
+over 200 frames of the history after one warm-up), the ingest path's estimate step. ``--profile`` runs each size's
+refit in this process under cProfile instead and prints its 15 functions of largest cumulative time.
 
 Each history is simulated from measured data (Nikon D5100 sensitivities, Granada daylight in sequence, 16 Munsell
 reflectances, 10 % of patches missing) when ``../shared/data`` is present, from synthetic spectra otherwise. Frames
@@ -228,6 +229,29 @@ def one_camera(sizes: list[int], css, day, refl) -> list[dict]:
     return out
 
 
+def profile_refit(n: int, css, day, refl, top: int = 15) -> None:
+    """``refit_camera`` of an ``n``-frame history in this process under cProfile: the ``top`` functions by cumulative
+    time (``--profile``; imports and the process start excluded)."""
+    import cProfile
+    import pstats
+
+    with tempfile.TemporaryDirectory() as tmp:
+        settings = Settings(data_dir=tmp, admin_token="x")
+        engine = make_engine(settings.resolved_database_url)
+        sessions = make_session_factory(engine)
+        cid, _ = store_camera(sessions, css, day, refl, n, seed=1)
+        prof = cProfile.Profile()
+        t = time.perf_counter()
+        prof.enable()
+        summary = refit_camera(sessions, cid, data_dir=Path(tmp), max_frames=settings.refit_max_frames,
+                               method=settings.refit_method, max_fit_frames=settings.refit_fit_frames)
+        prof.disable()
+        print(f"{n} frames: refit_camera {time.perf_counter() - t:.2f} s under cProfile (read {summary['read_s']} s, "
+              f"fit {summary['fit_s']} s, write {summary['write_s']} s; load {os.getloadavg()[0]:.1f})")
+        pstats.Stats(prof).sort_stats("cumulative").print_stats(top)
+        engine.dispose()
+
+
 def fleet(cameras: int, frames: int, workers: int, css, day, refl) -> dict:
     """Refit ``cameras`` cameras of ``frames`` frames each serially, then through a Dask LocalCluster."""
     out: dict = {"cameras": cameras, "frames_per_camera": frames, "dask_workers": workers}
@@ -268,12 +292,18 @@ def main() -> None:
     parser.add_argument("--fleet-frames", type=int, help="frames per fleet camera (200)")
     parser.add_argument("--workers", type=int, default=usable_cpus(), help="Dask worker processes (usable CPUs)")
     parser.add_argument("--no-fleet", action="store_true", help="one camera only")
+    parser.add_argument("--profile", action="store_true",
+                        help="cProfile each size's refit in this process and print its top functions instead")
     args = parser.parse_args()
     warnings.simplefilter("ignore")
     sizes = [int(v) for v in args.sizes.split(",")] if args.sizes else ([1000, 10000] if args.quick else [1000, 10000, 100000])
     cameras = args.cameras or (20 if args.quick else 200)
     fleet_frames = args.fleet_frames or (100 if args.quick else 200)
     css, day, refl, provenance = spectra()
+    if args.profile:
+        for n in sizes:
+            profile_refit(n, css, day, refl)
+        return
     print(f"data: {provenance}; CPUs: {os.cpu_count()}")
     print("\none camera, 16 patches: refit (read + scene model fit + estimate every frame + write)")
     print(f"{'frames':>7} {'total s':>8} {'read s':>7} {'fit+est s':>9} {'check s':>8} {'write s':>7} {'floor s':>7} "

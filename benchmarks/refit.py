@@ -4,11 +4,12 @@ refitted through a Dask ``LocalCluster`` versus serially.
 Run: ``python benchmarks/refit.py [--quick] [--sizes 1000,10000,100000] [--cameras 200] [--fleet-frames 200]
 [--no-fleet] [--profile]``. Prints a table and writes ``benchmarks/results/refit.json``.
 
-Each one-camera refit runs in a fresh (spawned) process whose peak resident set (``ru_maxrss``, imports included) is
-reported as ``peak MiB``, with the peak reached before the refit (``imports``: the process, its imports and the
-engine), by the end of the read step (``to read``) and by the end of the fit and check (``to fit``): whatever the
-write step adds shows only in ``peak MiB``. ``check s`` is the tone-response check's part of ``fit+est s`` (issue 29);
-``load`` the 1-minute load average after the row.
+Each one-camera refit runs in a fresh (spawned) process whose peak resident set (``VmHWM`` of ``/proc/self/status``,
+imports included; ``ru_maxrss`` where there is no ``/proc``, which on Linux carries the parent's peak over the spawn:
+the parent that stored a 100k-frame history reached ~650 MiB) is reported as ``peak MiB``, with the peak reached
+before the refit (``imports``: the process, its imports and the engine), by the end of the read step (``to read``)
+and by the end of the fit and check (``to fit``): whatever the write step adds shows only in ``peak MiB``.
+``check s`` is the tone-response check's part of ``fit+est s`` (issue 29); ``load`` the 1-minute load average after the row.
 
 ``floor s`` is what issue 29 holds a refit against, a numpy batched solve of the same size: the camera's rows read
 with ``sqlite3`` and decoded into an F × 16 × 3 array, then one weighted linear least-squares solve per frame (three
@@ -150,18 +151,27 @@ def _estimate_ms(url: str, data_dir: str, cid: int, n: int = 200) -> float:
     return 1e3 * float(np.median(times[1:]))
 
 
+def _peak_mib() -> float:
+    """This process's peak resident set so far, MiB (module docstring)."""
+    try:
+        with open("/proc/self/status") as status:
+            return next(int(line.split()[1]) for line in status if line.startswith("VmHWM:")) / 1024  # kB
+    except (OSError, StopIteration):
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+
+
 def _refit_child(url: str, data_dir: str, cid: int, conn) -> None:  # noqa: ANN001 - a multiprocessing Connection
     """Child process: refit one camera; send (seconds, summary, peak RSS in MiB) back, the summary with the
     per-frame estimate's milliseconds after the refit (``estimate_ms``)."""
-    import resource
-
     warnings.simplefilter("ignore")
     settings = Settings(data_dir=data_dir, admin_token="x")
     engine = make_engine(url)
     peaks: dict[float, float] = {}
 
     def progress(done: float) -> None:  # the peak so far at the end of each step (read 0.1, fit + check 0.8)
-        peaks[done] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+        peaks[done] = _peak_mib()
 
     progress(0.0)
     t = time.perf_counter()
@@ -171,14 +181,15 @@ def _refit_child(url: str, data_dir: str, cid: int, conn) -> None:  # noqa: ANN0
     seconds = time.perf_counter() - t
     engine.dispose()
     summary["peak_mib_steps"] = {"start": peaks.get(0.0), "read": peaks.get(0.1), "fit": peaks.get(0.8)}
+    peak = _peak_mib()
     summary["estimate_ms"] = _estimate_ms(url, data_dir, cid)
-    conn.send((seconds, summary, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
+    conn.send((seconds, summary, peak))
     conn.close()
 
 
 def refit_in_child(settings: Settings, cid: int, data_dir: Path) -> tuple[float, dict, float]:
     """``refit_camera`` in a fresh (spawned) process, so that its peak memory is the refit's own (plus the imports):
-    returns (seconds, summary, peak resident set in MiB, ``ru_maxrss``)."""
+    returns (seconds, summary, peak resident set in MiB)."""
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")

@@ -190,6 +190,7 @@ def _refit_without_lamp_frames(model: SceneModel, obs: Observations,
             break  # nothing (new) to leave out, or a history judged mostly lamp-lit: no daylight to learn from
         lamp = new
         model = fit_once(day)
+        model.history_estimate = None  # the daylight frames' (its training summary's): freed before every frame's
         model.history_estimate = model.estimate(obs)
     return model
 

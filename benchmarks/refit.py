@@ -2,13 +2,22 @@
 refitted through a Dask ``LocalCluster`` versus serially.
 
 Run: ``python benchmarks/refit.py [--quick] [--sizes 1000,10000,100000] [--cameras 200] [--fleet-frames 200]
-[--no-fleet]``. Prints a table and writes ``benchmarks/results/refit.json``.
+[--no-fleet] [--profile]``. Prints a table and writes ``benchmarks/results/refit.json``.
 
-Each one-camera refit runs in a fresh (spawned) process whose peak resident set (``ru_maxrss``, imports included) is
-reported as ``peak MiB``, with the peak reached before the refit (``imports``: the process, its imports and the
-engine), by the end of the read step (``to read``) and by the end of the fit and check (``to fit``): whatever the
-write step adds shows only in ``peak MiB``. ``check s`` is the tone-response check's part of ``fit+est s`` (issue 29);
-``load`` the 1-minute load average after the row.
+Each one-camera refit runs in a fresh (spawned) process whose peak resident set (``VmHWM`` of ``/proc/self/status``,
+imports included; ``ru_maxrss`` where there is no ``/proc``, which on Linux carries the parent's peak over the spawn:
+the parent that stored a 100k-frame history reached ~650 MiB) is reported as ``peak MiB``, with the peak reached
+before the refit (``imports``: the process, its imports and the engine), by the end of the read step (``to read``)
+and by the end of the fit and check (``to fit``): whatever the write step adds shows only in ``peak MiB``.
+``check s`` is the tone-response check's part of ``fit+est s`` (issue 29); ``load`` the 1-minute load average after the row.
+
+``floor s`` is what issue 29 holds a refit against, a numpy batched solve of the same size: the camera's rows read
+with ``sqlite3`` and decoded into an F × 16 × 3 array, then one weighted linear least-squares solve per frame (three
+unknowns, every patch's 3 × 3 map, missing patches without weight) as batched matrix products and
+``numpy.linalg.solve``; ``÷ floor`` is ``total s`` over it. ``est ms`` is the per-frame estimate after the refit with
+its scene model (:func:`illumon_service.estimation.estimate_frame`, the service's cached model and solver; median
+over 200 frames of the history after one warm-up), the ingest path's estimate step. ``--profile`` runs each size's
+refit in this process under cProfile instead and prints its 15 functions of largest cumulative time.
 
 Each history is simulated from measured data (Nikon D5100 sensitivities, Granada daylight in sequence, 16 Munsell
 reflectances, 10 % of patches missing) when ``../shared/data`` is present, from synthetic spectra otherwise. Frames
@@ -27,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import tempfile
 import time
@@ -92,17 +102,76 @@ def store_camera(sessions, css: np.ndarray, day: np.ndarray, refl: np.ndarray, n
     return cid, hist.true_white
 
 
-def _refit_child(url: str, data_dir: str, cid: int, conn) -> None:  # noqa: ANN001 - a multiprocessing Connection
-    """Child process: refit one camera; send (seconds, summary, peak RSS in MiB) back."""
-    import resource
+def _history_rows(url: str, cid: int, limit: int | None = None) -> list[tuple[int, str, str]]:
+    """(id, taken_at, patches JSON) of a camera's frames in time order, read with ``sqlite3`` alone."""
+    import sqlite3
 
+    from sqlalchemy.engine import make_url
+
+    con = sqlite3.connect(make_url(url).database)
+    try:
+        sql = "SELECT id, taken_at, patches FROM frames WHERE camera_id = ? ORDER BY taken_at"
+        return con.execute(sql + (f" LIMIT {int(limit)}" if limit else ""), (cid,)).fetchall()
+    finally:
+        con.close()
+
+
+def numpy_floor(url: str, cid: int) -> float:
+    """Seconds of the floor a refit is held against (module docstring): read and decode the camera's rows, then one
+    batched per-frame weighted least-squares solve."""
+    t = time.perf_counter()
+    rows = _history_rows(url, cid)
+    ids = [f"p{j:02d}" for j in range(N_PATCHES)]
+    missing = [math.nan] * 3
+    flat: list[float] = []
+    for _, _, patches in rows:
+        d = json.loads(patches)
+        for p in ids:
+            flat += d[p] or missing
+    y = np.array(flat).reshape(len(rows), N_PATCHES, 3)
+    g = np.random.default_rng(0).uniform(0.1, 1.0, (N_PATCHES * 3, 3))  # every patch channel's row of its 3 × 3 map
+    w = np.isfinite(y).reshape(len(rows), -1).astype(float)
+    a = (w @ (g[:, :, None] * g[:, None, :]).reshape(-1, 9)).reshape(-1, 3, 3) + 1e-9 * np.eye(3)
+    b = np.linalg.solve(a, ((w * np.nan_to_num(y.reshape(len(rows), -1))) @ g)[..., None])[..., 0]
+    assert b.shape == (len(rows), 3)
+    return time.perf_counter() - t
+
+
+def _estimate_ms(url: str, data_dir: str, cid: int, n: int = 200) -> float:
+    """Median milliseconds of one frame's estimate with the camera's new scene model (module docstring)."""
+    from illumon_service.estimation import estimate_frame
+
+    model = max((Path(data_dir) / "models").glob(f"camera-{cid}.*.json"), key=lambda q: q.stat().st_mtime_ns)
+    ids = [f"p{j:02d}" for j in range(N_PATCHES)]
+    times = []
+    for fid, taken, patches in _history_rows(url, cid, n + 1):
+        t = time.perf_counter()
+        estimate_frame(data_dir, cid, str(fid), str(taken), json.loads(patches), ids, model_file=model)
+        times.append(time.perf_counter() - t)
+    return 1e3 * float(np.median(times[1:]))
+
+
+def _peak_mib() -> float:
+    """This process's peak resident set so far, MiB (module docstring)."""
+    try:
+        with open("/proc/self/status") as status:
+            return next(int(line.split()[1]) for line in status if line.startswith("VmHWM:")) / 1024  # kB
+    except (OSError, StopIteration):
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+
+
+def _refit_child(url: str, data_dir: str, cid: int, conn) -> None:  # noqa: ANN001 - a multiprocessing Connection
+    """Child process: refit one camera; send (seconds, summary, peak RSS in MiB) back, the summary with the
+    per-frame estimate's milliseconds after the refit (``estimate_ms``)."""
     warnings.simplefilter("ignore")
     settings = Settings(data_dir=data_dir, admin_token="x")
     engine = make_engine(url)
     peaks: dict[float, float] = {}
 
     def progress(done: float) -> None:  # the peak so far at the end of each step (read 0.1, fit + check 0.8)
-        peaks[done] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # KiB on Linux
+        peaks[done] = _peak_mib()
 
     progress(0.0)
     t = time.perf_counter()
@@ -112,13 +181,15 @@ def _refit_child(url: str, data_dir: str, cid: int, conn) -> None:  # noqa: ANN0
     seconds = time.perf_counter() - t
     engine.dispose()
     summary["peak_mib_steps"] = {"start": peaks.get(0.0), "read": peaks.get(0.1), "fit": peaks.get(0.8)}
-    conn.send((seconds, summary, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024))
+    peak = _peak_mib()
+    summary["estimate_ms"] = _estimate_ms(url, data_dir, cid)
+    conn.send((seconds, summary, peak))
     conn.close()
 
 
 def refit_in_child(settings: Settings, cid: int, data_dir: Path) -> tuple[float, dict, float]:
     """``refit_camera`` in a fresh (spawned) process, so that its peak memory is the refit's own (plus the imports):
-    returns (seconds, summary, peak resident set in MiB, ``ru_maxrss``)."""
+    returns (seconds, summary, peak resident set in MiB)."""
     import multiprocessing as mp
 
     ctx = mp.get_context("spawn")
@@ -142,6 +213,7 @@ def one_camera(sizes: list[int], css, day, refl) -> list[dict]:
             cid, truth = store_camera(sessions, css, day, refl, n, seed=1)
             engine.dispose()
             seconds, summary, peak_mib = refit_in_child(settings, cid, Path(tmp))
+            floor = min(numpy_floor(settings.resolved_database_url, cid) for _ in range(2))  # the second warm
             engine = make_engine(settings.resolved_database_url)
             sessions = make_session_factory(engine)
             with sessions() as s:
@@ -158,12 +230,37 @@ def one_camera(sizes: list[int], css, day, refl) -> list[dict]:
                "write_s": summary["write_s"], "estimated": summary["frames"], "peak_mib": peak_mib,
                "peak_mib_start": summary["peak_mib_steps"]["start"], "peak_mib_read": summary["peak_mib_steps"]["read"],
                "peak_mib_fit": summary["peak_mib_steps"]["fit"],
-               "median_deg": float(np.median(err)), "p95_deg": float(np.percentile(err, 95))}
+               "median_deg": float(np.median(err)), "p95_deg": float(np.percentile(err, 95)),
+               "floor_s": floor, "floor_ratio": seconds / floor, "estimate_ms": summary["estimate_ms"]}
         out.append(row)
         print(f"{n:>7d} {seconds:8.2f} {row['read_s']:7.2f} {row['fit_estimate_s']:9.2f} {row['response_check_s']:8.2f} "
-              f"{row['write_s']:7.2f} {row['peak_mib_start']:7.0f} {row['peak_mib_read']:7.0f} {row['peak_mib_fit']:7.0f} "
+              f"{row['write_s']:7.2f} {floor:7.3f} {row['floor_ratio']:7.1f} {row['estimate_ms']:6.2f} "
+              f"{row['peak_mib_start']:7.0f} {row['peak_mib_read']:7.0f} {row['peak_mib_fit']:7.0f} "
               f"{peak_mib:8.0f} {row['median_deg']:7.3f} {row['p95_deg']:7.3f} {os.getloadavg()[0]:5.1f}", flush=True)
     return out
+
+
+def profile_refit(n: int, css, day, refl, top: int = 15) -> None:
+    """``refit_camera`` of an ``n``-frame history in this process under cProfile: the ``top`` functions by cumulative
+    time (``--profile``; imports and the process start excluded)."""
+    import cProfile
+    import pstats
+
+    with tempfile.TemporaryDirectory() as tmp:
+        settings = Settings(data_dir=tmp, admin_token="x")
+        engine = make_engine(settings.resolved_database_url)
+        sessions = make_session_factory(engine)
+        cid, _ = store_camera(sessions, css, day, refl, n, seed=1)
+        prof = cProfile.Profile()
+        t = time.perf_counter()
+        prof.enable()
+        summary = refit_camera(sessions, cid, data_dir=Path(tmp), max_frames=settings.refit_max_frames,
+                               method=settings.refit_method, max_fit_frames=settings.refit_fit_frames)
+        prof.disable()
+        print(f"{n} frames: refit_camera {time.perf_counter() - t:.2f} s under cProfile (read {summary['read_s']} s, "
+              f"fit {summary['fit_s']} s, write {summary['write_s']} s; load {os.getloadavg()[0]:.1f})")
+        pstats.Stats(prof).sort_stats("cumulative").print_stats(top)
+        engine.dispose()
 
 
 def fleet(cameras: int, frames: int, workers: int, css, day, refl) -> dict:
@@ -206,16 +303,23 @@ def main() -> None:
     parser.add_argument("--fleet-frames", type=int, help="frames per fleet camera (200)")
     parser.add_argument("--workers", type=int, default=usable_cpus(), help="Dask worker processes (usable CPUs)")
     parser.add_argument("--no-fleet", action="store_true", help="one camera only")
+    parser.add_argument("--profile", action="store_true",
+                        help="cProfile each size's refit in this process and print its top functions instead")
     args = parser.parse_args()
     warnings.simplefilter("ignore")
     sizes = [int(v) for v in args.sizes.split(",")] if args.sizes else ([1000, 10000] if args.quick else [1000, 10000, 100000])
     cameras = args.cameras or (20 if args.quick else 200)
     fleet_frames = args.fleet_frames or (100 if args.quick else 200)
     css, day, refl, provenance = spectra()
+    if args.profile:
+        for n in sizes:
+            profile_refit(n, css, day, refl)
+        return
     print(f"data: {provenance}; CPUs: {os.cpu_count()}")
     print("\none camera, 16 patches: refit (read + scene model fit + estimate every frame + write)")
-    print(f"{'frames':>7} {'total s':>8} {'read s':>7} {'fit+est s':>9} {'check s':>8} {'write s':>7} {'imports':>7} "
-          f"{'to read':>7} {'to fit':>7} {'peak MiB':>8} {'med °':>7} {'p95 °':>7} {'load':>5}")
+    print(f"{'frames':>7} {'total s':>8} {'read s':>7} {'fit+est s':>9} {'check s':>8} {'write s':>7} {'floor s':>7} "
+          f"{'÷ floor':>7} {'est ms':>6} {'imports':>7} {'to read':>7} {'to fit':>7} {'peak MiB':>8} {'med °':>7} "
+          f"{'p95 °':>7} {'load':>5}")
     single = one_camera(sizes, css, day, refl)
     if args.no_fleet:
         RESULTS.mkdir(exist_ok=True)

@@ -81,3 +81,46 @@ def test_chunked_refit_equals_one_chunk(tmp_path, monkeypatch) -> None:
     reasons = dict(whole[2])
     assert reasons[81] == "invalid_values" and whole[0]["dropped_frames"] == 1
     assert any("'west' not refitted" in w for w in whole[0]["warnings"])
+
+
+def test_estimate_rows_built_column_by_column_equal_the_per_frame_rows():
+    """``RefitEstimates.rows`` converts each column of a chunk at once; its rows equal :func:`estimate_row` with
+    :func:`frame_intervals` frame by frame, non-finite intervals (``None``), NaN and out-of-range confidences, frames
+    left out and chunk boundaries inside and across parts included."""
+    from illumon.retrieval.common import RetrievalResult
+    from illumon_service.estimation.batch import RefitEstimates
+    from illumon_service.estimation.frame import estimate_row, frame_intervals
+
+    rng = np.random.default_rng(0)
+
+    def part(n: int, tag: str) -> tuple[RetrievalResult, dict, np.ndarray]:
+        res = RetrievalResult(frames=[f"{tag}{i}" for i in range(n)], patches=IDS, spectra=rng.random((n, 61)),
+                              xy=rng.random((n, 2)), cct=rng.uniform(3000, 9000, n), duv=rng.normal(0, 0.003, n),
+                              white=rng.random((n, 3)), gains=rng.random((n, 3)), exposures=np.ones(n),
+                              reflectances=np.full((8, 61), np.nan), method="model",
+                              info={"gain_lo": rng.random((n, 3)), "gain_hi": rng.random((n, 3))})
+        res.info["gain_hi"][1, 2] = np.inf
+        extra = {"cct_lo": rng.uniform(2000, 3000, n), "cct_hi": rng.uniform(9000, 20000, n),
+                 "non_daylight": rng.random(n), "confidence": rng.normal(0.5, 0.7, n)}
+        extra["cct_hi"][::3] = np.inf
+        extra["non_daylight"][2] = np.nan
+        extra["confidence"][4] = np.nan
+        return res, extra, rng.random(n) < 0.8
+
+    est = RefitEstimates()
+    parts = [part(23, "a"), part(9, "b")]
+    for res, extra, keep in parts:
+        est.add(res, extra["confidence"], keep, "refit:model", extra)
+    est.add(parts[0][0], parts[0][1]["confidence"], parts[0][2], "refit:plain")  # no intervals
+    expected = [(str(res.frames[i]), estimate_row(res, i, extra["confidence"][i], source,
+                                                  frame_intervals(res, extra, i) if with_iv else None))
+                for (res, extra, keep), source, with_iv in [(parts[0], "refit:model", True), (parts[1], "refit:model", True),
+                                                           (parts[0], "refit:plain", False)]
+                for i in np.flatnonzero(keep)]
+    chunks = list(est.rows(7))
+    assert [len(c) for c in chunks[:-1]] == [7] * (len(chunks) - 1) and 0 < len(chunks[-1]) <= 7
+    got = [r for c in chunks for r in c]
+    assert [fid for fid, _ in got] == [fid for fid, _ in expected]
+    for (_, a), (_, b) in zip(got, expected, strict=True):
+        assert list(a) == list(b)
+        np.testing.assert_equal(a, b)  # NaN equal NaN; None where the per-frame rows have None

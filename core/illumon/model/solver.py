@@ -25,6 +25,9 @@ _MAX_STEP = np.array([40.0, 0.01, np.inf])
 _EPS3 = 1e-12 * np.eye(3)
 _H = np.array([1e-3, 1e-6])  # finite-difference steps in (mired, δ)
 
+SOLVE_CHUNK = 8192
+"""Frames :meth:`FrameSolver.solve` solves at once (a 100k-frame history at once held ~550 MB of temporaries)."""
+
 
 class FrameSolver:
     """Per-frame daylight, exposure and Laplace covariance for fixed (learned) patch reflectances.
@@ -168,9 +171,21 @@ class FrameSolver:
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Per-frame MAP ``θ = (mired, δ, log k)`` (F × 3), Laplace covariance (F × 3 × 3) and normalised cost (F,).
 
-        Gauss–Newton with Levenberg damping on ``‖U(b(θ) − b̂)‖² + prior``, ``UᵀU = A``; all frames at once.
-        ``extra_var``: see :meth:`linear`.
+        Gauss–Newton with Levenberg damping on ``‖U(b(θ) − b̂)‖² + prior``, ``UᵀU = A``; all frames at once, at
+        most :data:`SOLVE_CHUNK` at a time (every frame is solved on its own; the temporaries hold F × patches × 9
+        values each). ``extra_var``: see :meth:`linear`.
         """
+        if len(y) <= SOLVE_CHUNK:
+            return self._solve(y, present, extra_var)
+        parts = [self._solve(y[i:i + SOLVE_CHUNK], present[i:i + SOLVE_CHUNK],
+                             None if extra_var is None else extra_var[i:i + SOLVE_CHUNK])
+                 for i in range(0, len(y), SOLVE_CHUNK)]
+        return tuple(np.concatenate(v) for v in zip(*parts, strict=True))  # type: ignore[return-value]
+
+    def _solve(
+        self, y: NDArray[np.float64], present: NDArray[np.bool_], extra_var: NDArray[np.float64] | None = None
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+        """:meth:`solve` of frames at once."""
         bhat, a = self.linear(y, present, extra_var)
         theta = self.start(bhat, a)
         pm, pp = self.prior_mean, self.prior_prec

@@ -154,5 +154,8 @@ def grey_world_mired(obs: Observations, sensitivities: NDArray[np.float64]) -> N
     chrom = np.log(whites[:, [0, 2]] / whites[:, 1:2])
     gw = grey_world(obs)
     gchrom = np.log(np.clip(gw[:, [0, 2]], 1e-9, None))
-    d = ((gchrom[:, None, :] - chrom[None, :, :]) ** 2).sum(-1)
-    return grid[np.argmin(d, axis=1)]
+    out = np.empty(len(gchrom))
+    for i in range(0, len(gchrom), 8192):  # frames × grid distances a chunk at a time (100k frames: 480 MB at once)
+        d = ((gchrom[i:i + 8192, None, :] - chrom[None, :, :]) ** 2).sum(-1)
+        out[i:i + 8192] = grid[np.argmin(d, axis=1)]
+    return out

@@ -11,7 +11,7 @@ import numpy as np
 from illumon.retrieval.common import RetrievalResult
 from numpy.typing import NDArray
 
-from .frame import estimate_row, frame_intervals
+from .frame import json_safe
 
 __all__ = ["RefitEstimates"]
 
@@ -25,6 +25,35 @@ class _Part:
     index: NDArray[np.intp]
     """The frames of ``result`` that have an estimate."""
     source: str
+
+
+def _part_rows(p: _Part, index: NDArray[np.intp]) -> list[tuple[str, dict]]:
+    """``(frame id, estimate row)`` of the frames ``index`` of ``p``, as :func:`~.frame.estimate_row` with
+    :func:`~.frame.frame_intervals` builds them one by one."""
+    r = p.result
+    conf = p.confidence[index]
+    conf = np.where(np.isnan(conf), conf, np.clip(conf, 0.0, 1.0)).tolist()
+    columns = {"cct_k": r.cct[index].tolist(), "duv": r.duv[index].tolist(), "xy": r.xy[index].tolist(),
+               "white_rgb": r.white[index].tolist(), "gains_rgb": r.gains[index].tolist(), "confidence": conf,
+               "spectrum": r.spectra[index].tolist()}
+    intervals: dict[str, list] = {}
+    if p.extra is not None:
+        for k, v in p.extra.items():
+            if k != "confidence":
+                intervals[k] = np.asarray(v, dtype=float)[index]
+        for k in ("gain_lo", "gain_hi"):
+            if k in r.info:
+                intervals[k] = np.asarray(r.info[k], dtype=float)[index]
+        intervals = {k: (v.tolist() if np.isfinite(v).all() else json_safe(v.tolist())) for k, v in intervals.items()}
+    frames = r.frames
+    keys = list(columns)
+    rows = []
+    for n, i in enumerate(index.tolist()):
+        row = {k: columns[k][n] for k in keys}
+        row["intervals"] = {k: v[n] for k, v in intervals.items()} or None if p.extra is not None else None
+        row["source"] = p.source
+        rows.append((str(frames[i]), row))
+    return rows
 
 
 @dataclass
@@ -59,15 +88,16 @@ class RefitEstimates:
         return np.concatenate([p.result.cct[p.index] for p in self._parts]) if self._parts else np.array([])
 
     def rows(self, chunk: int) -> Iterator[list[tuple[str, dict]]]:
-        """``(frame id, estimate row)`` pairs, at most ``chunk`` at a time."""
+        """``(frame id, estimate row)`` pairs, at most ``chunk`` at a time: the rows :func:`~.frame.estimate_row`
+        and :func:`~.frame.frame_intervals` give, each column converted from its array at once (frame by frame, the
+        conversions were half a 2 000-frame refit's write step)."""
         out: list[tuple[str, dict]] = []
         for p in self._parts:
-            for i in p.index:
-                intervals = None if p.extra is None else frame_intervals(p.result, p.extra, i)
-                out.append((str(p.result.frames[i]), estimate_row(p.result, i, p.confidence[i], p.source, intervals)))
-                if len(out) >= chunk:
-                    yield out
-                    out = []
+            for start in range(0, p.index.size, chunk):
+                out += _part_rows(p, p.index[start:start + chunk])
+                while len(out) >= chunk:
+                    yield out[:chunk]
+                    out = out[chunk:]
         if out:
             yield out
 

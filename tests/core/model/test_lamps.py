@@ -97,3 +97,109 @@ def test_an_unmeasured_camera_reports_lamps_but_keeps_its_daylight_whites(shared
     plain = SceneModel.from_dict(model.to_dict())
     plain.lamps = None
     np.testing.assert_allclose(res.white, plain.estimate(h.observations)[0].white, atol=1e-9)
+
+
+# The lamp posterior's fast path (lattice tables, cubic convolution, FFT over the offset grid) against a slow
+# reference: every frame × offset pair evaluated against every centre of both populations. Synthetic camera and
+# frames, so these run without the measured data.
+
+def _synthetic_camera() -> np.ndarray:
+    from illumon.spectra import WAVELENGTHS
+
+    return np.column_stack([np.exp(-0.5 * ((WAVELENGTHS - c) / w) ** 2) for c, w in ((600, 35), (540, 40), (455, 30))])
+
+
+def _reference_posterior(means, css, *, camera_sd=0.0, prior=0.25, offset_prior=None, grid=41):
+    """:func:`lamp_posterior` as its definition reads, pair by pair (slow)."""
+    from illumon.model import lamps
+    from scipy.special import logsumexp
+
+    def loglik(u, centres, logw, sd):
+        d2 = ((u[..., None, :] - centres) ** 2).sum(-1)
+        return logsumexp(logw - 0.5 * d2 / sd**2, axis=-1) - np.log(2 * np.pi * sd**2)
+
+    ok = np.all(np.isfinite(means), axis=1) & np.all(means > 0, axis=1)
+    g = np.log(means[ok][:, [0, 2]] / means[ok][:, 1:2])
+    if offset_prior is None:
+        mu, sd = np.zeros(2), np.full(2, np.hypot(lamps.SCENE_OFFSET_SD, camera_sd))
+    else:
+        mu, sd = offset_prior
+    u_d, logw_d, u_l, logw_l = lamps.lamp_population(css)
+    ax = [np.linspace(mu[i] - 4 * sd[i], mu[i] + 4 * sd[i], grid) for i in range(2)]
+    aa = np.stack(np.meshgrid(*ax, indexing="ij"), axis=-1).reshape(-1, 2)
+    u = g[:, None, :] - aa[None]
+    ld = loglik(u, u_d, logw_d, lamps.FRAME_SD) + np.log(1 - prior)
+    ll = loglik(u, u_l, logw_l, np.hypot(lamps.FRAME_SD, 0.03)) + np.log(prior)
+    both = np.logaddexp(ld, ll)
+    log_post = -0.5 * (((aa - mu) / sd) ** 2).sum(1) + both.sum(0)
+    post = np.exp(log_post - log_post.max())
+    post /= post.sum()
+    nd = np.full(len(means), np.nan)
+    nd[ok] = np.exp(ll - both) @ post
+    a = post @ aa
+    return nd, a, np.sqrt(post @ (aa - a) ** 2)
+
+
+def _frames(css, n, lamp_share, seed, spread=0.02):
+    """Scene averages of ``n`` frames: daylight or lamp whites of the two populations, a common scene offset, noise."""
+    from illumon.model import lamps
+
+    rng = np.random.default_rng(seed)
+    u_d, logw_d, u_l, _ = lamps.lamp_population(css)
+    n_lamp = int(round(lamp_share * n))
+    u = np.concatenate([u_d[rng.choice(len(u_d), n - n_lamp, p=np.exp(logw_d) / np.exp(logw_d).sum())],
+                        u_l[rng.choice(len(u_l), n_lamp)]])
+    g = u + rng.normal(0, 0.155, 2) + rng.normal(0, spread, u.shape)
+    return np.column_stack([np.exp(g[:, 0]), np.ones(n), np.exp(g[:, 1])]) * rng.uniform(0.1, 1.0, (n, 1))
+
+
+@pytest.mark.parametrize(("n", "lamp_share", "kwargs"), [
+    (60, 0.3, {"grid": 21}),                                              # a history: the posterior on a few points
+    (5, 0.4, {"camera_sd": 0.11}),                                        # a broad posterior over the whole grid
+    (40, 0.2, {"grid": 21, "offset_prior": (np.array([0.05, -0.1]), np.array([0.02, 0.03]))}),  # finer than needed
+    (30, 0.5, {"grid": 21, "prior": 0.1, "outliers": True}),              # frames beyond the lattice, a missing one
+])
+def test_lamp_posterior_fast_path_equals_the_pair_by_pair_reference(n, lamp_share, kwargs):
+    from illumon.model import lamps
+
+    kwargs = dict(kwargs)
+    css = _synthetic_camera()
+    means = _frames(css, n, lamp_share, seed=n)
+    if kwargs.pop("outliers", False):  # a channel near zero puts a frame log-units away from the others
+        means[:3, 2] *= 1e-4
+        means[3, 1] = np.nan
+    nd, a, a_sd = _reference_posterior(means, css, **kwargs)
+    lp = lamps.lamp_posterior(means, css, **kwargs)
+    assert np.array_equal(np.isnan(lp.non_daylight), np.isnan(nd))
+    np.testing.assert_allclose(lp.non_daylight, nd, atol=1e-3)
+    np.testing.assert_allclose(lp.offset, a, atol=1e-4)
+    np.testing.assert_allclose(lp.offset_sd, a_sd, atol=1e-4, rtol=0.02)
+    assert 0.05 < np.nanmean(nd > 0.5) < 0.95  # both verdicts occur: the comparison is not of constants
+
+
+def test_lamp_posterior_tables_are_exact_far_from_the_centres_and_reused_to_the_bit():
+    """The lattice table equals the direct log-sum-exp also log units away from every centre (no overflow or
+    underflow), and remembered tables never change an answer: a history judged after another (with a table of the
+    same step) gets bit for bit what it gets alone."""
+    from illumon.model import lamps
+    from scipy.special import logsumexp
+
+    css = _synthetic_camera()
+    u_d, logw_d, _, _ = lamps.lamp_population(css)
+    axes = [np.linspace(-4.0, 3.0, 37), np.linspace(-3.0, 4.0, 41)]
+    nodes = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1)
+    d2 = ((nodes[..., None, :] - u_d) ** 2).sum(-1)
+    exact = logsumexp(logw_d - 0.5 * d2 / 0.02**2, axis=-1) - np.log(2 * np.pi * 0.02**2)
+    table = lamps._lattice_logdensity(axes, u_d, logw_d, 0.02)
+    assert exact.min() < -10_000  # far indeed
+    np.testing.assert_allclose(table, exact, rtol=1e-12, atol=1e-9)
+
+    first, wider = _frames(css, 50, 0.3, seed=1), _frames(css, 50, 0.3, seed=2, spread=0.2)
+    lamps._tables.clear()
+    alone = lamps.lamp_posterior(wider, css)
+    lamps._tables.clear()
+    lamps.lamp_posterior(first, css)
+    after = lamps.lamp_posterior(wider, css)
+    for got, want in ((after.non_daylight, alone.non_daylight), (after.offset, alone.offset),
+                      (after.offset_sd, alone.offset_sd)):
+        assert np.array_equal(got, want)

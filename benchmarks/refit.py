@@ -17,7 +17,7 @@ unknowns, every patch's 3 × 3 map, missing patches without weight) as batched m
 ``numpy.linalg.solve``; ``÷ floor`` is ``total s`` over it. ``est ms`` is the per-frame estimate after the refit with
 its scene model (:func:`illumon_service.estimation.estimate_frame`, the service's cached model and solver; median
 over 200 frames of the history after one warm-up), the ingest path's estimate step. ``--profile`` runs each size's
-refit in this process under cProfile instead and prints illumon's 25 functions of largest cumulative time.
+refit in this process under cProfile instead and prints illumon's 60 functions of largest cumulative time.
 
 Each history is simulated from measured data (Nikon D5100 sensitivities, Granada daylight in sequence, 16 Munsell
 reflectances, 10 % of patches missing) when ``../shared/data`` is present, from synthetic spectra otherwise. Frames
@@ -240,7 +240,7 @@ def one_camera(sizes: list[int], css, day, refl) -> list[dict]:
     return out
 
 
-def profile_refit(n: int, css, day, refl, top: int = 25) -> None:
+def profile_refit(n: int, css, day, refl, top: int = 60) -> None:
     """``refit_camera`` of an ``n``-frame history in this process under cProfile: illumon's ``top`` functions by
     cumulative time (``--profile``; imports and the process start excluded)."""
     import cProfile

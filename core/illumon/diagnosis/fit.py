@@ -61,6 +61,7 @@ from ..observations import Observations
 from ..retrieval import retrieve_illuminants
 from .candidate import Candidate
 from .correction import Diagnosis, corrected_observations, estimate_with_effect
+from .noise import CODEC_NOISE
 from .stages import MIN_OFF_LOCUS_FRAMES, bilinear_stage, spectral_stage
 
 __all__ = ["RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "Candidate", "diagnose"]
@@ -99,8 +100,9 @@ and so can be mimicked by lamp-lit frames or a fluorescent patch the bilinear mo
 
 
 def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank: int, chosen: Candidate,
-                    spectral: list[Candidate], margins: dict[str, float], learn_noise: bool) -> Candidate | None:
-    """The spectral effect that explains a global bilinear one, or None.
+                    spectral: list[Candidate], margins: dict[str, float], learn_noise: bool,
+                    from_images: bool = False) -> Candidate | None:
+    """The spectral effect that explains a bilinear one, or None.
 
     Lamp-lit frames break the daylight's rank-4 structure and a fluorescent patch adds light the reflectances do not
     (Han et al. 2012): the bilinear stage may then read a tone curve, a pedestal or clipped values into them (a sodium
@@ -114,10 +116,10 @@ def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank:
     The converse is checked too: when the spectral effect no longer passes its margin once the global effect is
     modelled (values linearised, offsets subtracted, clipped values dropped), the global effect explains it and
     stays (a tone curve on values rounded to codes: its misfit of the spectral model read as lamp light, −57, which
-    linearising removes).
+    linearising removes). A patch change or a shadow is put down to lamp light the same way (lamp-lit frames late in
+    an image-based history read as a patch changing at their onset, ΔBIC −42 against the lamp's −67), never to
+    fluorescence (a changed or shaded patch misfits the spectral model by that alone).
     """
-    if chosen.effect not in GLOBAL_EFFECTS:
-        return None
     y = obs.values.reshape(obs.values.shape[0], -1)
     modelled: list[Candidate] | None = None
     for cand in spectral:  # off-locus light first, as in the selection
@@ -125,6 +127,8 @@ def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank:
             continue
         if cand.effect == "fluorescence" and chosen.effect == "clipping":
             continue  # the clipped patch misfits the spectral model too: no independent evidence of emission
+        if chosen.effect not in GLOBAL_EFFECTS and cand.effect != "off_locus_illuminant":
+            continue  # a changed or shaded patch misfits the spectral model too
         masked = y.copy()
         if cand.effect == "off_locus_illuminant":
             keep = np.setdiff1d(np.arange(y.shape[0]), cand.parameters["frame_indices"])
@@ -133,12 +137,13 @@ def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank:
             masked = masked[keep]
         else:
             masked[:, 3 * cand.patch : 3 * cand.patch + 3] = np.nan
-        _, again, _ = bilinear_stage(masked, rank, margins["clipping"], learn_noise)
+        _, again, _ = bilinear_stage(masked, rank, margins["clipping"], learn_noise, *_image_noise(from_images))
         score = next(c.score for c in again if c.effect == chosen.effect)
         if score < 0.0:
             continue
         if modelled is None:
-            as_chosen = Diagnosis(chosen.effect, None, None, dict(chosen.parameters), [], 0.0, 0.0, None)
+            as_chosen = Diagnosis(chosen.effect, None, None, dict(chosen.parameters), [], 0.0, 0.0, None,
+                                  patch_index=chosen.patch, frame_index=chosen.frame)
             modelled, _ = spectral_stage(corrected_observations(obs, as_chosen), sensitivities,
                                          margins["fluorescence"])
         if next(c.score for c in modelled if c.effect == cand.effect) < -margins[cand.effect]:
@@ -155,6 +160,7 @@ def diagnose(
     reestimate: bool = True,
     margins: dict[str, float] | None = None,
     learn_noise: bool = True,
+    from_images: bool | None = None,
 ) -> Diagnosis:
     """Name the effect that breaks the linear model in a history, where it is, and what modelling it changes.
 
@@ -173,6 +179,11 @@ def diagnose(
     learn_noise
         Learn the noise from the history's residuals (:func:`.bilinear.estimate_noise`); ``False`` assumes the
         noise of :data:`illumon.camera.DEFAULT_NOISE` (the former method, kept for comparison).
+    from_images
+        Whether the values were measured from images by the service's robust region means; default: when ``obs.sd``
+        (the standard errors it measures) is present. Such values may carry output-domain noise (a codec's:
+        :data:`.noise.CODEC_NOISE`) beside the noise of linear light, and a region they leave out was more than half
+        clipped (:func:`.stages._censored_at_ingest`).
 
     Returns
     -------
@@ -185,19 +196,29 @@ def diagnose(
     if p < 3:
         raise ValueError(f"diagnosis needs at least 3 patches, got {p}")
     css = np.asarray(sensitivities, dtype=float)
-    chosen, cands, info = _choose(obs, css, rank, margins, learn_noise)
+    images = obs.sd is not None if from_images is None else bool(from_images)
+    chosen, cands, info = _choose(obs, css, rank, margins, learn_noise, from_images=images)
     diag = _as_diagnosis(obs, chosen, cands, info)
-    found = _further_effects(obs, css, rank, margins, learn_noise, [diag] if chosen is not None else [])
+    found = _further_effects(obs, css, rank, margins, learn_noise, [diag] if chosen is not None else [], images)
     if reestimate:
         if not found:
             diag.illuminant_change_deg = 0.0
         else:
             _illuminant_changes(obs, sensitivities, found)
+    else:  # a few values at the white level are a note or an effect by what modelling them changes, re-estimated or not
+        minor = [d for d in found if _few_clipped(obs, d)]
+        if minor:
+            _illuminant_changes(obs, sensitivities, minor)
     return _ranked(obs, diag, found, reestimate)
 
 
+def _few_clipped(obs: Observations, d: Diagnosis) -> bool:
+    """Clipping of at most :data:`MINOR_CLIPPING_FRACTION` of the history's values (a note if it changes little)."""
+    return d.effect == "clipping" and d.parameters.get("clipped_values", 0) <= MINOR_CLIPPING_FRACTION * obs.values.size
+
+
 def _further_effects(obs: Observations, css: NDArray[np.float64], rank: int, margins: dict[str, float],
-                     learn_noise: bool, found: list[Diagnosis]) -> list[Diagnosis]:
+                     learn_noise: bool, found: list[Diagnosis], from_images: bool = False) -> list[Diagnosis]:
     """Several effects at once (a history may carry more than one): model the one found, look again in what is left, until nothing
     passes its margin (at most :data:`MAX_EFFECTS`); every effect in the original history's indices."""
     current = obs
@@ -206,7 +227,7 @@ def _further_effects(obs: Observations, css: NDArray[np.float64], rank: int, mar
         if current is None or current.values.shape[0] < rank + 2 or current.values.shape[1] < 3:
             break
         nxt, ncands, ninfo = _choose(current, css, rank, margins, learn_noise,
-                                     exclude={d.effect for d in found})
+                                     exclude={d.effect for d in found}, from_images=from_images)
         if nxt is None:
             break
         found.append(_as_diagnosis(current, nxt, ncands, ninfo))
@@ -236,9 +257,8 @@ def _ranked(obs: Observations, diag: Diagnosis, found: list[Diagnosis], reestima
         entry = {"effect": d.effect, "patch": d.patch, "frame": d.frame, "parameters": d.parameters,
                  "score": round(score, 3) if np.isfinite(score) else None,
                  "illuminant_change_deg": d.illuminant_change_deg}
-        if (d.effect == "clipping" and d.illuminant_change_deg is not None
-                and d.illuminant_change_deg <= MINOR_CLIPPING_DEG
-                and d.parameters.get("clipped_values", 0) <= MINOR_CLIPPING_FRACTION * obs.values.size):
+        if (_few_clipped(obs, d) and d.illuminant_change_deg is not None
+                and d.illuminant_change_deg <= MINOR_CLIPPING_DEG):
             notes.append(f"{d.parameters.get('clipped_values')} values at the white level "
                          f"({d.parameters.get('clip_level')}), censored anyway; modelling them moves the "
                          f"illuminants by {d.illuminant_change_deg}° (a note, not an effect)")
@@ -273,11 +293,12 @@ MINOR_CLIPPING_FRACTION = 0.01
 
 
 def _choose(obs: Observations, css: NDArray[np.float64], rank: int, margins: dict[str, float], learn_noise: bool,
-            exclude: set[str] | frozenset = frozenset()) -> tuple[Candidate | None, list[Candidate], dict]:
+            exclude: set[str] | frozenset = frozenset(),
+            from_images: bool = False) -> tuple[Candidate | None, list[Candidate], dict]:
     """One round of selection (module docstring): the bilinear stage, the spectral stage, the converse checks."""
     f, p, _ = obs.values.shape
     y = obs.values.reshape(f, 3 * p)
-    _, cands, info = bilinear_stage(y, rank, margins["clipping"], learn_noise)
+    _, cands, info = bilinear_stage(y, rank, margins["clipping"], learn_noise, *_image_noise(from_images))
     spectral, sinfo = spectral_stage(obs, css, margins["fluorescence"])
     info.update(sinfo)
     cands += spectral
@@ -292,13 +313,18 @@ def _choose(obs: Observations, css: NDArray[np.float64], rank: int, margins: dic
     spectral_ok = [c for c in spectral if c.effect not in exclude]
     if ok:
         chosen = min(ok, key=lambda c: c.score)
-        chosen = _spectral_cause(obs, css, rank, chosen, spectral_ok, margins, learn_noise) or chosen
+        chosen = _spectral_cause(obs, css, rank, chosen, spectral_ok, margins, learn_noise, from_images) or chosen
     else:
         # off-locus frames first: their misfit can make a patch look fluorescent, not the reverse
         ok = [c for c in spectral_ok if c.score < -margins[c.effect]]
         if ok:
             chosen = ok[0]
     return chosen, cands, info
+
+
+def _image_noise(from_images: bool) -> tuple[float, bool]:
+    """The bilinear stage's ``codec_cap`` and ``unseen_clipped`` for values measured from images or not."""
+    return (CODEC_NOISE, True) if from_images else (0.0, False)
 
 
 def _as_diagnosis(obs: Observations, chosen: Candidate | None, cands: list[Candidate], info: dict) -> Diagnosis:

@@ -3,21 +3,24 @@
 A patch mean's variance is ``σ² = shot · y + read²`` (Foi, Trimeche, Katkovnik & Egiazarian, "Practical
 Poissonian-Gaussian noise modeling and fitting for single-image raw-data", IEEE TIP 17(10), 2008), with ``shot`` and
 ``read`` fitted to the residuals of the history's low-rank factorisation (:func:`.bilinear.wals`), at least the
-quantisation noise of values on a grid, and values within a few codes of black censored.
+quantisation noise of values on a grid, and values within a few codes of black censored. Values measured from images
+(:data:`CODEC_NOISE`) may also carry noise of the output domain, ``σ² += c·(dy/dx)²`` with ``0 ≤ c ≤`` the cap.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.optimize import nnls
 
 from ..camera.noise import DEFAULT_NOISE
 from .bilinear import LowRankFit, wals
 
 __all__ = ["noise_weights", "NoiseLevel", "quantisation_step", "estimate_noise", "DARK_LEVEL", "SHOT_SHARE",
-           "fit_learned_noise"]
+           "CODEC_NOISE", "LearnedNoise", "fit_learned_noise"]
 
 
 def noise_weights(
@@ -32,17 +35,21 @@ def noise_weights(
 
 @dataclass(frozen=True)
 class NoiseLevel:
-    """Noise of a value learned from a history: ``σ² = shot · y + read²`` (Poissonian-Gaussian, Foi et al. 2008),
-    ``step`` the quantisation step of the values (0 when they are not on a grid), ``censored`` the values at 0."""
+    """Noise of a value learned from a history: ``σ² = shot · y + read² + codec`` (Poissonian-Gaussian, Foi et al.
+    2008, plus the output domain's), ``step`` the quantisation step of the values (0 when they are not on a grid),
+    ``censored`` the values at 0, ``codec`` the output-domain variance learned (at most ``codec_cap``, the cap every
+    extension's own noise may use: :data:`CODEC_NOISE` for values measured from images, else 0)."""
 
     shot: float
     read: float
     step: float
     censored: NDArray[np.bool_]
+    codec: float = 0.0
+    codec_cap: float = 0.0
 
     def weights(self, y: NDArray[np.float64]) -> NDArray[np.float64]:
         """Inverse variances of ``y`` under this noise; 0 where missing or censored at 0."""
-        return np.where(self.censored, 0.0, noise_weights(y, self.shot, self.read))
+        return np.where(self.censored, 0.0, noise_weights(y, self.shot, self.read, self.codec))
 
 
 def quantisation_step(y: NDArray[np.float64],
@@ -96,21 +103,78 @@ def _noise_step(x: NDArray[np.float64], pred: NDArray[np.float64], present: NDAr
     return shot, max(float(coef[1]), floor, 1e-6 * shot)
 
 
+def _joint_step(x: NDArray[np.float64], pred: NDArray[np.float64], present: NDArray[np.bool_], k: int, shot: float,
+                read2: float, floor: float, extra: NDArray[np.float64] | float, slope2: NDArray[np.float64] | float,
+                cap: float, current: float) -> tuple[float, float, float]:
+    """:func:`_noise_step` with an output-domain variance: one reweighted non-negative least-squares update of
+    ``σ² = a·x + b + extra + c·slope²`` (``slope`` the derivative of ``x`` by the output value), the shot-share
+    constraint on ``a`` and ``b`` (linear light) and ``0 ≤ c ≤ cap`` (the output domain: :data:`CODEC_NOISE`);
+    ``a``, ``b`` and ``c`` jointly (alternating them let ``a`` take the output noise first and keep it)."""
+
+    n = int(present.sum())
+    if n - k < 10:
+        return shot, read2, current
+    xp = np.clip(pred[present], 0.0, None)
+    ex = np.broadcast_to(np.asarray(extra, dtype=float), x.shape)[present]
+    s2 = np.broadcast_to(np.asarray(slope2, dtype=float), x.shape)[present]
+    res2 = (np.nan_to_num(x)[present] - pred[present]) ** 2 * n / (n - k)
+    var = shot * xp + read2 + ex + current * s2
+    res2 = np.minimum(res2, 9.0 * var) - ex
+    x_med = float(np.median(xp)) * (1.0 - SHOT_SHARE) / SHOT_SHARE
+    best = None
+    for free, cols, unpack in (
+        (True, np.column_stack([xp, np.ones_like(xp), s2]), lambda v: (v[0], v[1], v[2])),
+        (False, np.column_stack([xp + x_med, s2]), lambda v: (v[0], v[0] * x_med, v[1])),
+    ):
+        coef, _ = nnls(cols / var[:, None], res2 / var)
+        a, b, c = unpack(coef)
+        if c > cap:  # c at its cap, a and b refitted
+            r = res2 - cap * s2
+            coef2, _ = nnls(cols[:, :-1] / var[:, None], r / var)
+            a, b, c = unpack(np.append(coef2, cap))
+        if free and b > a * x_med * (1 + 1e-9):
+            continue
+        cost = float(np.sum(((res2 - a * xp - b - c * s2) / var) ** 2))
+        if best is None or cost < best[0]:
+            best = (cost, a, b, c)
+    if best is None:
+        return shot, read2, current
+    _, a, b, c = best
+    shot = max(float(a), 1e-14)
+    return shot, max(float(b), floor, 1e-6 * shot), float(c)
+
+
+class LearnedNoise(NamedTuple):
+    """What :func:`fit_learned_noise` returns: the fit, the noise ``σ² = shot·x + read2 (+ extra) + codec·slope²`` and
+    the negative log-likelihood."""
+
+    fit: LowRankFit
+    shot: float
+    read2: float
+    nll: float
+    codec: float = 0.0
+
+
 def fit_learned_noise(x: NDArray[np.float64], present: NDArray[np.bool_], rank: int, U: NDArray[np.float64] | None,
                       *, shot: float = DEFAULT_NOISE.shot, read: float = DEFAULT_NOISE.read, floor: float = 1e-14,
                       updates: int = 3, iters: int = 40, huber: float | None = None,
-                      extra: NDArray[np.float64] | float = 0.0) -> tuple[LowRankFit, float, float, float]:
+                      extra: NDArray[np.float64] | float = 0.0, slope2: NDArray[np.float64] | float = 1.0,
+                      codec_cap: float = 0.0) -> LearnedNoise:
     """Rank-``rank`` fit of ``x`` with its noise ``σ² = a·x + b`` learned from its own residuals (alternating the fit
     and :func:`_noise_step`; Foi et al. 2008). Returns the fit, ``a``, ``b`` and the negative log-likelihood
     ``Σ ρ(r/σ) + ½ Σ ln σ²`` of the present values (the noise is a fitted part of the model), ``ρ(z) = z²/2`` or, with
     ``huber`` = c, Huber's loss (Huber, "Robust estimation of a location parameter", Ann. Math. Stat. 35, 1964;
     fitted by iteratively reweighted least squares): a few values off the noise model (rounding of dark pixels that
     the pixel noise does not dither, black clipping) then count linearly, not quadratically. ``extra`` is a known
-    variance added to every value's (scalar or per value): the output's rounding, carried into ``x``'s light."""
+    variance added to every value's (scalar or per value): the output's rounding, carried into ``x``'s light. With
+    ``codec_cap`` > 0 an output-domain variance ``c ≤ codec_cap`` is learned too, carried into ``x``'s light by
+    ``slope2`` (the squared derivative of ``x`` by the output value; 1 when ``x`` is the output): a codec's error,
+    returned as ``codec``."""
     read2 = read**2
+    c_out = 0.0
 
     def weights() -> NDArray[np.float64]:
-        return np.where(present, noise_weights(x, shot, np.sqrt(read2), extra), 0.0)
+        return np.where(present, noise_weights(x, shot, np.sqrt(read2), extra + c_out * slope2), 0.0)
 
     fit = None
     rw = np.ones(x.shape)
@@ -118,7 +182,11 @@ def fit_learned_noise(x: NDArray[np.float64], present: NDArray[np.bool_], rank: 
         w = weights()
         fit = wals(x, w * rw, rank, U=U, iters=iters)
         U = fit.U
-        shot, read2 = _noise_step(x, fit.pred, present, fit.k, shot, read2, floor, extra)
+        if codec_cap > 0:
+            shot, read2, c_out = _joint_step(x, fit.pred, present, fit.k, shot, read2, floor, extra, slope2,
+                                             codec_cap, c_out)
+        else:
+            shot, read2 = _noise_step(x, fit.pred, present, fit.k, shot, read2, floor, extra)
         if huber is not None:
             z = np.abs(np.where(present, np.nan_to_num(x) - fit.pred, 0.0)) * np.sqrt(weights())
             rw = np.minimum(1.0, huber / np.maximum(z, 1e-12))
@@ -128,7 +196,7 @@ def fit_learned_noise(x: NDArray[np.float64], present: NDArray[np.bool_], rank: 
     z = np.abs(np.where(present, np.nan_to_num(x) - fit.pred, 0.0)) * np.sqrt(w)
     rho = 0.5 * z**2 if huber is None else np.where(z < huber, 0.5 * z**2, huber * z - 0.5 * huber**2)
     nll = float(rho[present].sum()) + 0.5 * float(np.log(1.0 / w[present]).sum())
-    return fit, shot, read2, nll
+    return LearnedNoise(fit, shot, read2, nll, c_out)
 
 
 DARK_LEVEL = 0.03
@@ -139,7 +207,24 @@ region's mean by up to half a code, far beyond a shot-noise model, and a tone cu
 the development cameras (a clean 8-bit history: ΔBIC −180 with all values, +6 with values above 3 %)."""
 
 
-def estimate_noise(y: NDArray[np.float64], rank: int, *, updates: int = 3, dark: float = 0.0) -> NoiseLevel:
+CODEC_NOISE = (1.0 / 255.0) ** 2 / 12.0
+"""Cap of the output-domain variance of a value measured from an image (the rounding variance of one 8-bit code; in
+the values' own domain, so carried into a tone hypothesis's linear light through the curve's slope).
+
+Region means measured from images carry errors made *after* the linear light: JPEG's quantisation of each 8 × 8
+block's transform coefficients (in the encoded output, at any quality) and the rounding of pixels the noise does not
+dither. Their variance does not grow with the value, so on a camera that outputs linear values it breaks the
+Poissonian-Gaussian noise of linear light that :data:`SHOT_SHARE` assumes — and constant output noise is exactly
+what a γ ≈ 2 curve makes of photon noise: clean linear JPEG histories of the image-based simulator
+(``benchmarks/imgsim.py``, development seeds) read as tone curves at ΔBIC −160 with the region means' error, about
+0.2…0.35 codes whatever the value, taken for shot noise. Allowed up to one code's rounding variance, the error is
+what it is. Only for values measured from images (:class:`illumon.observations.Observations` with measured standard
+errors, i.e. by the service): region means given at full precision (a raw pipeline's, the project's simulator's)
+keep the linear-light noise alone, where the noise's growth with the value still tells a tone curve."""
+
+
+def estimate_noise(y: NDArray[np.float64], rank: int, *, updates: int = 3, dark: float = 0.0,
+                   codec_cap: float = 0.0) -> NoiseLevel:
     """Learn the noise of a history from its own residuals: ``σ² = a·y + b`` (Foi, Trimeche, Katkovnik & Egiazarian,
     "Practical Poissonian-Gaussian noise modeling and fitting for single-image raw-data", IEEE TIP 17(10), 2008),
     fitted by iteratively reweighted least squares to the squared residuals of the rank-``rank`` factorisation,
@@ -148,11 +233,11 @@ def estimate_noise(y: NDArray[np.float64], rank: int, *, updates: int = 3, dark:
     included, counts as noise. ``b`` is at least the quantisation noise ``step²/12`` of values on a grid (Widrow &
     Kollár, *Quantization Noise*, 2008). Values at 0 (at most half a step, or ``dark``) are censored: such a value
     says only that the signal is at most there, so it carries no Gaussian residual (clipping at 0 after black
-    subtraction).
+    subtraction). ``codec_cap`` > 0 learns an output-domain variance too, at most that (:data:`CODEC_NOISE`).
     """
     step = quantisation_step(y)
     censored = np.isfinite(y) & (y <= max(0.5 * step, dark))
     present = np.isfinite(y) & ~censored
     floor = max(step**2 / 12.0, 1e-14)
-    _, shot, read2, _ = fit_learned_noise(y, present, rank, None, floor=floor, updates=updates)
-    return NoiseLevel(shot, float(np.sqrt(read2)), step, censored)
+    learned = fit_learned_noise(y, present, rank, None, floor=floor, updates=updates, codec_cap=codec_cap)
+    return NoiseLevel(learned.shot, float(np.sqrt(learned.read2)), step, censored, learned.codec, codec_cap)

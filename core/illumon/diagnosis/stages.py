@@ -34,6 +34,11 @@ estimate by less than the noise. On the independent raw pipeline's 8-bit histori
 0.0005…0.0015 at ΔBIC −10…−27 (a clean history and a fluorescent one); the hidden pedestals of both simulators are
 1.5…6 % of white, found within 0.001."""
 
+PEDESTAL_BELOW = 0.25
+"""Largest share of the patches whose value in a channel may lie below that channel's black offset (by more than
+:data:`MIN_OFFSET`): a colour matrix can take a saturated colour's signal below 0 in one channel (clipped there), so
+a few patches may; a pedestal below which a third or more of the patches sit is another effect's misfit."""
+
 REFINE_ITERS = 3
 """Alternations of measured-daylight frames and reflectances after the joint CIE fit (spectral stage)."""
 
@@ -105,7 +110,8 @@ MIN_INGEST_CLIPPED = 3
 """Regions missing above the censoring level, at least, for clipping removed at ingest to be named."""
 
 
-def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64]) -> Candidate | None:
+def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64],
+                        unseen_clipped: bool = False) -> Candidate | None:
     """Clipping that the measurement already removed (the service drops pixels at the white level and
     regions more than half clipped, so an over-exposed history reaches the diagnosis as *missing* regions, never as
     values sharing a clip level: a clip-level test alone named ``imgsim`` clipping in 0 of 20).
@@ -115,14 +121,25 @@ def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64]) -> Ca
     ``c`` (a decision stump: ``c`` and a second rate, two extra parameters). Score: ΔBIC of the stump against the
     constant rate, the level searched over the predictions; only a stump whose upper group is mostly missing and
     whose level is above the median observed value counts (occlusion and a region out of view do not follow
-    brightness). ``None`` when no region is missing."""
+    brightness). ``None`` when no region is missing.
+
+    With ``unseen_clipped`` (values measured from images by the service's robust region means, which keep at least
+    half of a region's unclipped pixels whatever else is in it, so that a region is left out only when more than half
+    its pixels clip), a region missing in *every* frame counts as brighter than any prediction: it clipped in every
+    frame. The rank-``r`` model has nothing to predict it from (its prediction is 0), and over-exposure that loses
+    the brightest region in every frame is what the image-based simulator's clipping mostly is (7 of its 9 missed
+    development histories)."""
     f, m = y.shape
     p = m // 3
-    miss = ~np.all(np.isfinite(y.reshape(f, p, 3)), axis=-1).ravel()
+    seen = np.all(np.isfinite(y.reshape(f, p, 3)), axis=-1)
+    miss = ~seen.ravel()
     k_miss = int(miss.sum())
     if k_miss < MIN_INGEST_CLIPPED or k_miss == miss.size:
         return None
-    bright = np.max(pred.reshape(f, p, 3), axis=-1).ravel()
+    bright = np.max(pred.reshape(f, p, 3), axis=-1)
+    if unseen_clipped:
+        bright[:, ~seen.any(axis=0)] = np.inf
+    bright = bright.ravel()
     n = miss.size
 
     def nll(k: float, t: float) -> float:
@@ -145,23 +162,27 @@ def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64]) -> Ca
         return None
     score = 2.0 * (best - nll0) + 2.0 * np.log(n)
     level = float(bright[order[best_i]])
+    if not np.isfinite(level):  # regions never seen only: the clip level is above every value seen
+        level = float(np.nanmax(y))
     return Candidate("clipping", float(score),
                      {"clip_level": round(level, 5), "clipped_values": int(3 * cum[best_i]),
                       "censored_at_ingest": True})
 
 
-def _bilinear_base(y: NDArray[np.float64], rank: int,
-                   learn_noise: bool) -> tuple[nz.NoiseLevel, NDArray[np.float64], bl.LowRankFit]:
-    """The bilinear stage's noise (learned or default), weights and rank-``rank`` base fit."""
+def _bilinear_base(y: NDArray[np.float64], rank: int, learn_noise: bool,
+                   codec_cap: float = 0.0) -> tuple[nz.NoiseLevel, NDArray[np.float64], bl.LowRankFit]:
+    """The bilinear stage's noise (learned or default; with an output-domain variance up to ``codec_cap``), weights
+    and rank-``rank`` base fit."""
     if learn_noise:
-        noise = nz.estimate_noise(y, rank)
+        noise = nz.estimate_noise(y, rank, codec_cap=codec_cap)
     else:
         noise = nz.NoiseLevel(DEFAULT_NOISE.shot, DEFAULT_NOISE.read, 0.0, np.zeros(y.shape, dtype=bool))
     w = noise.weights(y)
     return noise, w, bl.wals(y, w, rank)
 
 
-def tone_stage(y: NDArray[np.float64], rank: int, learn_noise: bool = True) -> tuple[Candidate, dict]:
+def tone_stage(y: NDArray[np.float64], rank: int, learn_noise: bool = True,
+               codec_cap: float = 0.0) -> tuple[Candidate, dict]:
     """The tone-curve test of :func:`bilinear_stage` alone: its ``nonlinear_response`` candidate, identical to the one
     the whole stage returns (same noise, base fit and extension), without the other extensions and the spectral
     stage (a fifth of a diagnosis' time; the service's tone-response check needs this test only).
@@ -172,7 +193,7 @@ def tone_stage(y: NDArray[np.float64], rank: int, learn_noise: bool = True) -> t
         Values, frames × (patches·channels), NaN where missing.
     rank
         Rank of the bilinear model.
-    learn_noise
+    learn_noise, codec_cap
         As in :func:`bilinear_stage`.
 
     Returns
@@ -180,14 +201,19 @@ def tone_stage(y: NDArray[np.float64], rank: int, learn_noise: bool = True) -> t
     tuple
         The candidate and the fits it recorded (``noise``, ``dark_level``, ``nonlinear_response``).
     """
-    noise, w, base = _bilinear_base(y, rank, learn_noise)
-    fits: dict = {"noise": {"shot": noise.shot, "read": noise.read, "step": noise.step,
-                            "censored": int(noise.censored.sum())}}
+    noise, w, base = _bilinear_base(y, rank, learn_noise, codec_cap)
+    fits: dict = {"noise": _noise_record(noise)}
     return tone_candidate(y, noise, w > 0, base, rank, base.n, fits), fits
 
 
-def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
-                    learn_noise: bool = True) -> tuple[bl.LowRankFit, list[Candidate], dict]:
+def _noise_record(noise: nz.NoiseLevel) -> dict:
+    """The learned noise as the stage records it."""
+    return {"shot": noise.shot, "read": noise.read, "step": noise.step, "codec": noise.codec,
+            "censored": int(noise.censored.sum())}
+
+
+def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_noise: bool = True,
+                   codec_cap: float = 0.0, unseen_clipped: bool = False) -> tuple[bl.LowRankFit, list[Candidate], dict]:
     """The bilinear stage (:mod:`.fit` describes it): the rank-``rank`` base fit and every extension it can carry —
     tone curve, black offset, clipping (at a shared level, or removed at ingest), patch change and shadow.
 
@@ -201,6 +227,12 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
         The clipping margin: when clipping passes it, patch change and shadow are scored on the unclipped values.
     learn_noise
         Learn the noise from the residuals (:func:`.noise.estimate_noise`), else assume the default camera noise.
+    codec_cap
+        Largest output-domain variance the noise of the base and of every extension may learn
+        (:data:`.noise.CODEC_NOISE` for values measured from images; 0: linear-light noise alone).
+    unseen_clipped
+        A region missing in every frame clipped in every frame (values measured from images by the service:
+        :func:`_censored_at_ingest`).
 
     Returns
     -------
@@ -209,15 +241,14 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
         ``dark_level``).
     """
     f, m = y.shape
-    noise, w, base = _bilinear_base(y, rank, learn_noise)
+    noise, w, base = _bilinear_base(y, rank, learn_noise, codec_cap)
     present = w > 0
     half_log_var = 0.5 * float(np.log(1.0 / w[present]).sum())
     n = base.n
     bic0 = _bic(_nll(base.wrss, n, half_log_var), base.k, n)
     rms0 = float(np.sqrt(base.wrss / max(n - base.k, 1)))
     cands: list[Candidate] = []
-    fits: dict = {"noise": {"shot": noise.shot, "read": noise.read, "step": noise.step,
-                            "censored": int(noise.censored.sum())}}
+    fits: dict = {"noise": _noise_record(noise)}
 
     cands.append(tone_candidate(y, noise, present, base, rank, n, fits))
 
@@ -229,13 +260,38 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
     w_lit = np.where(np.nan_to_num(y) > nz.DARK_LEVEL, w, 0.0)
     lit_b = w_lit > 0
     n_b = int(lit_b.sum())
+    # the pedestal's noise: the learned noise of the value with the pedestal (as the base's) or of the signal without
+    # it, whichever fits better. Photon noise follows the signal, not the pedestal; but noise that does not grow with
+    # the value (a codec's, or read noise the learned noise took for shot noise) makes the dark values' weights under
+    # the second far too large: a 2…4 % pedestal of a linear JPEG history scored +43 there, −21 under the first
+    # Only a pedestal the values allow counts: light or signal added to every value (flare, a black level
+    # under-subtracted), so not negative (within a code, MIN_OFFSET), and below most patches' values: at most
+    # PEDESTAL_BELOW of the patches may sit more than a code below it in a channel (a colour matrix takes a saturated
+    # colour's signal below 0 in one channel: one patch in 9 of the image-based simulator's pedestals). The freedom
+    # of a rank-4 factorisation otherwise yields pedestals of +3.3 or −0.65 (a fluorescent patch's or a clipped
+    # region's misfit; 100 % and 44 % of the patches below), and a compressive curve's toe reads as a negative
+    # pedestal (an sRGB curve declared linear: −4.5…−6.5 %, beating the curve itself); a black level subtracted too
+    # far clips the dark pixels at 0 instead, which is censored
+    with np.errstate(all="ignore"):
+        patch_level = np.nanmedian(np.where(present, y, np.nan).reshape(f, -1, 3), axis=0)  # P × 3
+
+    def allowed_pedestal(bb: NDArray[np.float64]) -> bool:
+        below = np.nanmean(patch_level < bb[None, :] - MIN_OFFSET, axis=0)
+        return bool(np.all(np.isfinite(bb)) and np.all(bb >= -MIN_OFFSET) and np.all(below <= PEDESTAL_BELOW))
+
+    log_sig_lit = 0.5 * float(np.log(1.0 / w_lit[lit_b]).sum())
     base_b = bl.wals(y, w_lit, rank, U=base.U, iters=60)
-    bic0_b = _bic(_nll(base_b.wrss, n_b, 0.5 * float(np.log(1.0 / w_lit[lit_b]).sum())), base_b.k, n_b)
+    bic0_b = _bic(_nll(base_b.wrss, n_b, log_sig_lit), base_b.k, n_b)
     fit_o, b = bl.fit_offset(y, w_lit, rank, base_b.U)
+    score_b = _bic(_nll(fit_o.wrss, n_b, log_sig_lit), fit_o.k, n_b) - bic0_b
     wb = np.where(lit_b, noise.weights(np.clip(y - b[chan][None, :], 0, None)), 0.0)
-    fit_o, b = bl.fit_offset(y, wb, rank, fit_o.U)
-    log_sig_b = 0.5 * float(np.log(1.0 / wb[lit_b]).sum())
-    score_b = _bic(_nll(fit_o.wrss, n_b, log_sig_b), fit_o.k, n_b) - bic0_b
+    fit_s, b_s = bl.fit_offset(y, wb, rank, fit_o.U)
+    score_s = _bic(_nll(fit_s.wrss, n_b, 0.5 * float(np.log(1.0 / wb[lit_b]).sum())), fit_s.k, n_b) - bic0_b
+    allowed = [(sc, ft, bb) for sc, ft, bb in ((score_b, fit_o, b), (score_s, fit_s, b_s)) if allowed_pedestal(bb)]
+    if allowed:
+        score_b, fit_o, b = min(allowed, key=lambda t: t[0])
+    else:
+        score_b = np.inf
     if score_b > 3 * np.log(n):  # the models are nested: a worse fit is a local optimum, b = 0 does as well
         score_b, b = 3 * np.log(n), np.zeros(3)
     elif float(np.max(np.abs(b))) < MIN_OFFSET:  # below a code of 8-bit output: the rounding bias of dark pixels
@@ -256,7 +312,7 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float,
         fits["clipping"] = {"level": vmax, "censored": censored}
     else:
         cands.append(Candidate("clipping", float("inf"), {"clip_level": None, "clipped_values": int(censored.sum())}))
-    ingest = _censored_at_ingest(y, base.pred)
+    ingest = _censored_at_ingest(y, base.pred, unseen_clipped)
     if ingest is not None and ingest.score < cands[-1].score:
         cands[-1] = ingest
 

@@ -126,19 +126,21 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
     # values delivered on a grid (rounded in the output, after the curve) carry the rounding's variance step²/12 in
     # the output domain, which each hypothesis carries into its own linear light through the curve's slope: constant
     # output noise is otherwise exactly what a γ = 2 curve makes of shot noise (as region means rounded to
-    # 8-bit codes showed)
+    # 8-bit codes showed); for values measured from images (noise.codec_cap > 0) every hypothesis also learns an
+    # output-domain variance up to that cap (a codec's error: nz.CODEC_NOISE), carried into its light the same way
     q = noise.step**2 / 12.0
     yv = np.nan_to_num(y)
     dark = nz.DARK_LEVEL
     while True:
         yc = np.clip(yv, dark, None)
         lit = present & (yv > dark)  # values near black are censored here
-        fit_lin, a_lin, b_lin, nll_lin = nz.fit_learned_noise(yc, lit, rank, base.U, updates=3, iters=30,
-                                                              floor=noise.read**2 * 1e-3, huber=TONE_HUBER, extra=q)
+        fit_lin, a_lin, b_lin, nll_lin, c_lin = nz.fit_learned_noise(yc, lit, rank, base.U, updates=3, iters=30,
+                                                                     floor=noise.read**2 * 1e-3, huber=TONE_HUBER,
+                                                                     extra=q, codec_cap=noise.codec_cap)
         band = lit & (yv <= DARK_STEP * dark)
         if not ADAPTIVE_DARK or dark * DARK_STEP > MAX_DARK_LEVEL or band.sum() < 10:
             break
-        z2 = np.minimum((yc - fit_lin.pred) ** 2 / (a_lin * yc + b_lin + q), 9.0)
+        z2 = np.minimum((yc - fit_lin.pred) ** 2 / (a_lin * yc + b_lin + q + c_lin), 9.0)
         above = lit & (yv > DARK_STEP * dark)
         if float(z2[band].mean()) <= ADAPTIVE_DARK * float(z2[above].mean()):
             break
@@ -149,10 +151,10 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
         return Candidate("nonlinear_response", float("inf"), {"curve": "gamma", "gamma": 1.0})
 
     def curve_nll(x: NDArray[np.float64], slope: NDArray[np.float64]) -> tuple[float, bl.LowRankFit]:
-        fit, _, _, nll = nz.fit_learned_noise(x, lit, rank, base.U, updates=3, iters=30, huber=TONE_HUBER,
-                                              floor=noise.read**2 * 1e-3 * float(np.median(slope[lit])) ** 2,
-                                              extra=q * slope**2)
-        return nll - float(np.log(slope[lit]).sum()), fit
+        learned = nz.fit_learned_noise(x, lit, rank, base.U, updates=3, iters=30, huber=TONE_HUBER,
+                                       floor=noise.read**2 * 1e-3 * float(np.median(slope[lit])) ** 2,
+                                       extra=q * slope**2, slope2=slope**2, codec_cap=noise.codec_cap)
+        return learned.nll - float(np.log(slope[lit]).sum()), learned.fit
 
     def gamma_nll(g: float) -> tuple[float, bl.LowRankFit]:
         return curve_nll(yc**g, g * yc ** (g - 1.0))

@@ -132,7 +132,9 @@ def run_case(sim: str, camera: str, case: str, seed: int) -> dict:
             "nothing": nothing.tolist(),
             "confidence": np.asarray(extra["confidence"]).tolist(), "seconds": seconds,
             "non_daylight": np.asarray(extra.get("non_daylight", np.zeros(len(err)))).tolist(),
-            "calibration": model.camera["calibration"]}
+            "calibration": model.camera["calibration"], "primaries": model.camera.get("primaries", "camera"),
+            "camera_log_gain": float(model.noise["model_error"].get("camera_log_gain", 0.0)),
+            "laplace_scale": float(model.noise["model_error"].get("laplace_scale", 1.0))}
 
 
 def summarise(rows: list[dict]) -> list[dict]:

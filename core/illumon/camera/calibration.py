@@ -45,7 +45,7 @@ from ..priors.scene_average import grey_share, scene_average_evidence
 from .formation import angular_error_deg
 from .references import neutral_references, references_kind
 
-__all__ = ["CAMERA_MIRED_SD", "CAMERA_WHITE_SD", "CameraCalibration", "prior_sensitivities",
+__all__ = ["CAMERA_MIRED_SD", "CAMERA_WHITE_SD", "STATED_WHITE_SPREAD", "CameraCalibration", "prior_sensitivities",
            "camera_transform_Kinoshita2023", "calibrate_scene_model"]
 
 CAMERA_WHITE_SD = {"measured": 0.0, "grey": 0.005, "chart": 0.015, "none": 0.11}
@@ -79,6 +79,21 @@ white-preserving matrix (:func:`illumon.camera.primaries.to_srgb_primaries`), de
 functions' under daylight away from D65 — 0.0074–0.044 for the 24 measured cameras, pooled RMS 0.018 (log r/g, b/g;
 every 7th Granada spectrum). The history's common level adds its own, larger uncertainty
 (:func:`illumon.model.level.anchor_common_level`)."""
+
+STATED_WHITE_SPREAD = {("camera", "grey"): (2.26, 0.004), ("camera", "chart"): (3.37, 0.005),
+                       ("camera", "none"): (2.26, 0.008), ("srgb", "grey"): (2.65, 0.020),
+                       ("srgb", "none"): (1.02, 0.0067)}
+"""What a camera nobody measured states about its camera white, per ``(primaries, calibration)``: ``(a, s)`` — the
+Laplace posterior's spread scaled by ``a`` (it leaves out how the camera, the priors and the scene depart from the
+model) plus the camera's own spread ``s`` (log r/g, b/g) — in its gain intervals and ``confidence``. Chosen on the
+development split (``python benchmarks/unmeasured.py --split dev --seeds 2 --out dev.json && python
+tools/confidence_calibration.py dev.json``: 14 development cameras × 2 seeds × both simulators): among the pairs with
+which the mean stated confidence equals the fraction of frames within 1°, the one with the largest likelihood of which
+frames were. They replace, in the intervals only, the physical spreads above — :data:`CAMERA_WHITE_SD` ``none``
+(0.11) is the measured cameras' spread *before* the scene's average colour moved the channel scales and stated 0.01
+where 15 % of frames were within 1°; a grey card's 0.005 stated 0.99 where 96 % were. The priors, the lamp test and the
+estimates keep the physical values (``camera["white_sd_log"]``); measured cameras and unlisted regimes keep theirs
+with ``a = 1``."""
 
 
 CLIPPED = 0.995
@@ -420,8 +435,9 @@ def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bo
     white_sd = SRGB_CAMERA_WHITE_SD if (kind in ("none", "grey") and primaries == "srgb") else CAMERA_WHITE_SD[kind]
     model.camera["white_sd_log"] = white_sd
     mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)["measured" if measured else kind]
-    model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=white_sd,
-                                      camera_mired=mired_sd)
+    scale, stated = (1.0, white_sd) if measured else STATED_WHITE_SPREAD.get((primaries, kind), (1.0, white_sd))
+    model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=stated,
+                                      camera_mired=mired_sd, laplace_scale=scale)
 
 
 REFERENCE_WHITE_SD_DEG = 0.25

@@ -130,6 +130,8 @@ def _gain_spread(solver: FrameSolver, mired: NDArray[np.float64], delta: NDArray
     jg = np.stack([(gains[1] - gains[0]) / h[0], (gains[2] - gains[0]) / h[1]], axis=-1)  # F × 3 × 2
     # the camera model's own uncertainty (an unmeasured camera's sensitivities; a reference pins most of it)
     log_gain = math.hypot(me["log_gain"], me.get("camera_log_gain", 0.0))
+    # a camera nobody measured: the Laplace part scaled by what its calibration leaves out (STATED_WHITE_SPREAD)
+    white_cov = white_cov * me.get("laplace_scale", 1.0) ** 2
     sg = np.sqrt(np.clip(np.einsum("fci,fij,fcj->fc", jg, white_cov[:, :2, :2], jg), 0, None) + (gains[0] * log_gain) ** 2)
     unit = [w / np.linalg.norm(w, axis=1, keepdims=True) for w in wh]
     ju = np.stack([(unit[1] - unit[0]) / h[0], (unit[2] - unit[0]) / h[1]], axis=-1)

@@ -118,7 +118,9 @@ def test_unmeasured_camera_calibrations(shared_data):
     in one frame brings the camera white within a degree; a chart in one frame undoes an unknown colour matrix; with
     no reference the error stays below gray-world and the confidence says the estimate is not to be trusted.
     Measured at commit time (median / max): grey 0.13 / 1.13, chart 0.76 / 3.10, none 4.54 / 5.10 (gray-world
-    median 8.36); median confidence 0.54 (grey), 0.17 (chart), 0.01 (none)."""
+    median 8.36). Confidence means what it says (``CONFIDENCE_WHITE_SD``, chosen on the development split): pooled over
+    the three histories, stated / within 1°: grey 0.965 / 0.99, chart 0.65 / 0.87, none 0.157 / 0.157 (before: the
+    none case stated 0.01)."""
     err: dict[str, list] = {"grey": [], "chart": [], "none": []}
     gw, conf = [], {k: [] for k in err}
     for camera, seed in (("Nikon_D700", 11), ("Nikon_D80", 5), ("Nikon_D5100", 2)):
@@ -132,12 +134,14 @@ def test_unmeasured_camera_calibrations(shared_data):
             if case == "none":
                 gw.append(angular_error_deg(grey_world(obs.select_patches(model.patches)), white))
     e = {k: np.concatenate(v) for k, v in err.items()}
-    c = {k: float(np.median(np.concatenate(v))) for k, v in conf.items()}
+    c = {k: float(np.mean(np.concatenate(v))) for k, v in conf.items()}
     assert np.median(e["grey"]) < 0.3 and e["grey"].max() < 1.5
     assert np.median(e["chart"]) < 1.0 and e["chart"].max() < 3.5
     assert np.median(e["none"]) < np.median(np.concatenate(gw))
-    # honest confidence: what a reference pins shows in it
-    assert c["none"] < 0.05 < c["chart"] < c["grey"]
+    # honest confidence: what a reference pins shows in it, and the stated probability is the frequency
+    assert c["none"] < c["chart"] < c["grey"]
+    assert abs(c["grey"] - np.mean(e["grey"] < 1.0)) < 0.05
+    assert abs(c["none"] - np.mean(e["none"] < 1.0)) < 0.1
     assert CAMERA_WHITE_SD["none"] > CAMERA_WHITE_SD["chart"] > CAMERA_WHITE_SD["grey"]
 
 

@@ -1,0 +1,54 @@
+"""``tools/confidence_calibration.py``: the Laplace scale and camera spread with which stated confidence is the
+frequency."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+
+def _rows(a_true: float, s_true: float, n: int = 60, seed: int = 0, s_stated: float = 0.11) -> list[dict]:
+    """Histories whose frames state confidence with spread ``s_stated`` (and no Laplace scale) on top of a Laplace part
+    that differs between histories, and whose errors are drawn as a model with ``a_true``, ``s_true`` says (Rayleigh,
+    σ² = tr / 2); each row also carries the true probabilities."""
+    from illumon.model.intervals import MODEL_ERROR
+
+    rng = np.random.default_rng(seed)
+    rows = []
+    extra = 2 * MODEL_ERROR["log_gain"] ** 2
+    for _ in range(n):
+        base = np.full(30, rng.uniform(2e-6, 3e-4))  # rad², the history's Laplace variance
+        stated = 1 - np.exp(-math.radians(1) ** 2 / (base + extra + 2 * s_stated**2))
+        tr = a_true**2 * base + extra + 2 * s_true**2
+        err = np.degrees(np.sqrt(tr / 2 * rng.chisquare(2, 30)))
+        rows.append({"case": "none", "confidence": stated.tolist(), "err": err.tolist(), "camera_log_gain": s_stated,
+                     "truth": (1 - np.exp(-math.radians(1) ** 2 / tr)).tolist()})
+    return rows
+
+
+@pytest.mark.parametrize(("a_true", "s_true"), [(1.0, 0.004), (3.0, 0.003), (2.0, 0.012)])
+def test_solve_states_the_probabilities_the_errors_were_drawn_with(a_true, s_true):
+    import confidence_calibration as tool
+
+    rows = _rows(a_true, s_true)
+    out = tool.solve(rows, ("none",))
+    assert abs(out["stated_at_s"] - out["within"]) < 1e-3  # calibrated in the large
+    base, _, ref = tool._frames(rows, ("none",))
+    got = tool.stated(out["a"], out["s"], base, ref, 1.0)
+    truth = np.concatenate([r["truth"] for r in rows])
+    assert np.mean(np.abs(got - truth)) < 0.04  # and frame by frame
+    as_stated = np.concatenate([r["confidence"] for r in rows])
+    assert np.mean(np.abs(as_stated - truth)) > 0.1  # what the rows stated was far off: the test can fail
+
+
+def test_refuses_score_split_rows(tmp_path, capsys):
+    import json
+
+    import confidence_calibration as tool
+
+    path = tmp_path / "rows.json"
+    path.write_text(json.dumps({"split": "score", "rows": _rows(1.0, 0.01, n=2)}))
+    assert tool.main([str(path)]) == 2
+    assert "development split only" in capsys.readouterr().err

@@ -1,0 +1,140 @@
+"""What makes ``confidence`` say what it means for a camera nobody measured, per calibration and output space.
+
+``confidence`` is the probability a frame's camera white is within 1° of the truth (:mod:`illumon.model.intervals`):
+``1 − exp(−ρ² / tr)`` with ``tr`` the angular variance of the white — the Laplace posterior of the frame's light,
+scaled by ``a²``, plus ``2 · s²``, ``s`` the camera model's own log-gain spread
+(:data:`illumon.camera.calibration.STATED_WHITE_SPREAD` holds ``(a, s)``). This tool reads the rows that
+``benchmarks/unmeasured.py`` writes (every frame's error, ``confidence`` and the ``a``, ``s`` it was stated with),
+backs out each frame's Laplace part and, per regime (calibration × primaries), chooses ``(a, s)``: among the pairs
+with which the mean stated confidence equals the fraction of frames within 1°, the one with the largest Bernoulli
+likelihood of which frames were. Reference frames (frame 0 of a reference case: confidence from
+:data:`~illumon.camera.calibration.REFERENCE_WHITE_SD_DEG`) keep theirs.
+
+Regimes and the cases they are chosen on (the raw ``none`` case, not ``none+matrix``: a camera with no reference
+cannot tell a fixed matrix from none, and the outside checks' raw sets are the raw case):
+
+=================  ==========================  ==============================
+regime             chosen on                   reported beside
+=================  ==========================  ==============================
+camera / grey      ``grey``
+camera / chart     ``chart+matrix``
+camera / none      ``none``                    ``none+matrix``
+srgb / grey        ``grey+rendered``, ``grey+awb``
+srgb / none        ``none+rendered``, ``none+awb``
+=================  ==========================  ==============================
+
+Run on the **development** split only (``python benchmarks/unmeasured.py --split dev --seeds 2 --out dev.json``,
+then ``python tools/confidence_calibration.py dev.json``); the score split checks the result.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import brentq
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "core")]
+
+from illumon.model.intervals import MODEL_ERROR  # noqa: E402
+
+RHO2 = math.radians(1.0) ** 2
+REGIMES = {
+    ("camera", "grey"): ("grey",),
+    ("camera", "chart"): ("chart+matrix",),
+    ("camera", "none"): ("none",),
+    ("srgb", "grey"): ("grey+rendered", "grey+awb"),
+    ("srgb", "none"): ("none+rendered", "none+awb"),
+}
+RENDERED = ("rendered", "awb", "lamps")
+
+
+def _frames(rows: list[dict], cases: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(tr without the camera's spread, error, is-a-reference-frame) over the frames of ``cases``."""
+    base, err, ref = [], [], []
+    for r in rows:
+        if r["case"] not in cases:
+            continue
+        c = np.clip(np.asarray(r["confidence"], dtype=float), 1e-12, 1 - 1e-12)
+        s, a = float(r["camera_log_gain"]), float(r.get("laplace_scale", 1.0))
+        tr = (-RHO2 / np.log1p(-c) - 2 * (MODEL_ERROR["log_gain"] ** 2 + s**2)) / a**2
+        is_ref = np.zeros(len(c), dtype=bool)
+        is_ref[0] = not r["case"].startswith("none")
+        base.append(np.clip(tr, 0.0, None))
+        err.append(np.asarray(r["err"], dtype=float))
+        ref.append(is_ref)
+    return np.concatenate(base), np.concatenate(err), np.concatenate(ref)
+
+
+def stated(a: float, s: float, base: np.ndarray, ref: np.ndarray, ref_conf: float) -> np.ndarray:
+    """Every frame's stated confidence with the Laplace part scaled by ``a`` and the camera spread ``s`` (reference
+    frames keep theirs)."""
+    tr = a**2 * base + 2 * (MODEL_ERROR["log_gain"] ** 2 + s**2)
+    return np.where(ref, ref_conf, 1.0 - np.exp(-RHO2 / np.clip(tr, 1e-30, None)))
+
+
+def mean_confidence(s: float, base: np.ndarray, ref: np.ndarray, ref_conf: float, a: float = 1.0) -> float:
+    """Mean stated confidence over the frames (see :func:`stated`)."""
+    return float(np.mean(stated(a, s, base, ref, ref_conf)))
+
+
+SCALES = np.round(np.exp(np.linspace(np.log(0.5), np.log(12.0), 41)), 3)
+"""Laplace scales tried (the Laplace posterior understates what the model leaves out by a factor)."""
+
+
+def solve(rows: list[dict], cases: tuple[str, ...]) -> dict:
+    """The Laplace scale ``a`` and camera spread ``s`` (log units) for ``cases``' frames: among the pairs with which
+    the mean stated confidence equals the fraction within 1° (calibration in the large), the one with the largest
+    Bernoulli likelihood of which frames were within (a proper score: it rewards telling good frames from bad)."""
+    base, err, ref = _frames(rows, cases)
+    ref_conf = float(1.0 - np.exp(-RHO2 / (2 * math.radians(0.25) ** 2)))
+    hit = err < 1.0
+    within = float(np.mean(hit))
+    best = None
+    for a in SCALES:
+        f = lambda s, a=a: mean_confidence(s, base, ref, ref_conf, a) - within  # noqa: E731
+        if f(0.0) < 0 or f(0.5) > 0:
+            continue  # no spread makes this scale calibrated in the large
+        s = brentq(f, 0.0, 0.5, xtol=1e-6)
+        c = np.clip(stated(a, s, base, ref, ref_conf)[~ref], 1e-9, 1 - 1e-9)
+        loglik = float(np.sum(np.where(hit[~ref], np.log(c), np.log1p(-c))))
+        if best is None or loglik > best[0]:
+            best = (loglik, float(a), float(s))
+    if best is None:  # stated below the truth even at the smallest scale and no spread
+        best = (float("nan"), float(SCALES[0]), 0.0)
+    _, a, s = best
+    return {"a": a, "s": s, "within": within, "frames": int(len(err)),
+            "stated_at_s": mean_confidence(s, base, ref, ref_conf, a), "loglik": best[0]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("rows", help="JSON written by benchmarks/unmeasured.py (--split dev)")
+    args = ap.parse_args(argv)
+    d = json.loads(Path(args.rows).read_text())
+    if d.get("split") != "dev":
+        print(f"{args.rows}: split {d.get('split')!r}; choose on the development split only", file=sys.stderr)
+        return 2
+    rows = d["rows"]
+    for r in rows:
+        if "camera_log_gain" not in r:
+            print(f"{args.rows}: rows without camera_log_gain (written before this tool); re-run the benchmark",
+                  file=sys.stderr)
+            return 2
+    print(f"{'regime':16} {'chosen on':28} {'frames':>6} {'within 1°':>9} {'a':>6} {'s (log)':>8} {'stated':>7}")
+    for (prim, kind), cases in REGIMES.items():
+        if not any(r["case"] in cases for r in rows):
+            continue
+        out = solve(rows, cases)
+        print(f"{prim + ' / ' + kind:16} {', '.join(cases):28} {out['frames']:6d} {out['within']:9.3f} "
+              f"{out['a']:6.3f} {out['s']:8.4f} {out['stated_at_s']:7.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

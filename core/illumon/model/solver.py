@@ -50,6 +50,23 @@ def _inv3(m: NDArray[np.float64]) -> NDArray[np.float64]:
     return out
 
 
+def _solve3(a: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``a⁻¹ z`` for every frame (F × 3 × 3, F × 3): LAPACK's, and for a frame whose ``a`` is singular to the last bit
+    (one patch seen with a channel censored: ``_EPS3`` is below its entries' rounding) the least-squares solution,
+    where the batched solve raised for the whole batch. Such a frame has fewer than two patches or no signal in a
+    channel: its estimate is reported as missing or carries no weight either way."""
+    try:
+        return np.linalg.solve(a, z[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        out = np.empty_like(z)
+        for i in range(len(a)):
+            try:
+                out[i] = np.linalg.solve(a[i], z[i])
+            except np.linalg.LinAlgError:
+                out[i] = np.linalg.lstsq(a[i], z[i], rcond=None)[0]
+        return out
+
+
 class FrameSolver:
     """Per-frame daylight, exposure and Laplace covariance for fixed (learned) patch reflectances.
 
@@ -152,7 +169,7 @@ class FrameSolver:
         cinv = np.where(present[..., None], 1.0 / var, 0.0).reshape(f, n_p * 3)  # diagonal
         a = (cinv @ self._gg).reshape(f, 3, 3) + _EPS3
         z = (cinv * yy.reshape(f, n_p * 3)) @ self.G.reshape(n_p * 3, 3)
-        b = np.linalg.solve(a, z[..., None])[..., 0]
+        b = _solve3(a, z)
         if self.H is not None:
             # the reflectance posterior mapped through the current b joins each patch's noise covariance
             cov = ((b[:, :, None] * b[:, None, :]).reshape(f, 9) @ self._h).reshape(f, n_p, 3, 3)
@@ -160,7 +177,7 @@ class FrameSolver:
             cinv = np.where(present[..., None, None], _inv3(cov), 0.0)
             a = (cinv.reshape(f, n_p * 9) @ self._gge).reshape(f, 3, 3) + _EPS3
             z = (cinv * yy[..., None]).reshape(f, n_p * 9) @ self._ge
-            b = np.linalg.solve(a, z[..., None])[..., 0]
+            b = _solve3(a, z)
         return b, a
 
     def start(self, b: NDArray[np.float64], a: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -9,6 +9,7 @@ from datetime import datetime, timedelta, timezone
 
 import illumon_service.refit as refit
 import numpy as np
+import pytest
 from illumon.simulation import simulate_history
 from illumon_service import crud
 from illumon_service.storage import Camera, CameraView, Estimate, Frame, make_engine, make_session_factory
@@ -124,3 +125,20 @@ def test_estimate_rows_built_column_by_column_equal_the_per_frame_rows():
     for (_, a), (_, b) in zip(got, expected, strict=True):
         assert list(a) == list(b)
         np.testing.assert_equal(a, b)  # NaN equal NaN; None where the per-frame rows have None
+
+
+def test_the_objects_set_aside_return_to_the_collector_after_the_refit():
+    """:func:`illumon_service.refit._objects_held_aside` (the read and write steps' containers not walked with the
+    whole process's by every collection): frozen while the refit runs, unfrozen after it, also when it raises."""
+    import gc
+
+    from illumon_service.refit import _objects_held_aside
+
+    assert gc.get_freeze_count() == 0
+    with pytest.raises(RuntimeError), _objects_held_aside() as aside:
+        assert gc.get_freeze_count() > 0
+        kept = [[i] for i in range(1000)]
+        aside()
+        assert gc.get_freeze_count() >= 1000 and kept
+        raise RuntimeError
+    assert gc.get_freeze_count() == 0

@@ -33,7 +33,7 @@ from ..daylight import CIEDaylight
 from ..observations import Observations
 from ..priors import ReflectanceBasis, reflectance_basis
 from ..priors.scene_average import scene_average_evidence
-from ..retrieval.common import RetrievalResult, censored, grey_world_mired, imaging_operators, white_level
+from ..retrieval.common import censored, grey_world_mired, imaging_operators, white_level
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
 from .intervals import MODEL_ERROR
@@ -130,8 +130,10 @@ def fit_scene_model(
     if primaries == "srgb":
         sensitivities, camera_prior_mean = _in_srgb_primaries(sensitivities, camera_prior_mean)
 
-    def fit_once(o: Observations) -> SceneModel:
-        return _fit_camera_and_scene(o, sensitivities, known, camera_prior_mean, primaries, kwargs)
+    def fit_once(o: Observations, estimate: Observations | None = None, rows: NDArray[np.intp] | None = None
+                 ) -> SceneModel:
+        extra = {} if estimate is None else {"estimate": estimate, "rows": rows}
+        return _fit_camera_and_scene(o, sensitivities, known, camera_prior_mean, primaries, {**kwargs, **extra})
 
     model = fit_once(obs)
     if not known and sensitivities is not None:  # an unmeasured camera's lamp verdicts are not to be acted on
@@ -174,10 +176,14 @@ def _fit_camera_and_scene(o: Observations, sensitivities: NDArray[np.float64] | 
 
 
 def _refit_without_lamp_frames(model: SceneModel, obs: Observations,
-                               fit_once: Callable[[Observations], SceneModel]) -> SceneModel:
+                               fit_once: Callable[..., SceneModel]) -> SceneModel:
     """Light that is not daylight (:mod:`.lamps`): lamp-lit frames are left out of the reflectance fit when enough
     daylight frames remain to learn every patch; every frame is then judged against the refitted scene (a few rounds:
-    frames forced onto daylight bend the reflectances, which can hide other lamp-lit frames)."""
+    frames forced onto daylight bend the reflectances, which can hide other lamp-lit frames).
+
+    Each refit estimates every frame of ``obs`` once (its training summary read from its daylight frames' rows),
+    where it estimated its daylight frames and then every frame again; the previous model's estimate is let go
+    before the refit, so no two estimates of the whole history are held at once."""
     lamp = np.zeros(len(obs.frames), dtype=bool)
     for _ in range(LAMP_ROUNDS):
         # out of the reflectance fit, once some frame is more likely lit by a lamp than not: every frame whose
@@ -190,9 +196,9 @@ def _refit_without_lamp_frames(model: SceneModel, obs: Observations,
                 or not np.all(day.present.any(axis=0))):
             break  # nothing (new) to leave out, or a history judged mostly lamp-lit: no daylight to learn from
         lamp = new
-        model = fit_once(day)
-        model.history_estimate = None  # the daylight frames' (its training summary's): freed before every frame's
-        model.history_estimate = model.estimate(obs)
+        model.history_estimate = None  # judged: freed before the refit's estimate of every frame
+        rows = np.flatnonzero(~new)
+        model = fit_once(day, estimate=obs, rows=rows)
     return model
 
 
@@ -298,9 +304,10 @@ def _alternate(
     return theta, coef, n_iter
 
 
-def _training_summary(obs: Observations, present_all: NDArray[np.bool_], n_sub: int, res: RetrievalResult,
+def _training_summary(obs: Observations, present_all: NDArray[np.bool_], n_sub: int, cct: NDArray[np.float64],
                       n_iter: int, seconds: float) -> dict:
-    mired_all = 1e6 / res.cct
+    """``cct``: the estimates of ``obs``'s frames."""
+    mired_all = 1e6 / cct
     ok = np.isfinite(mired_all)
     times = [t for t in obs.times if t]
     return {
@@ -313,8 +320,8 @@ def _training_summary(obs: Observations, present_all: NDArray[np.bool_], n_sub: 
         "mired_min": float(np.min(mired_all[ok])),
         "mired_max": float(np.max(mired_all[ok])),
         "mired_std": float(np.std(mired_all[ok])),
-        "cct_p05": float(np.percentile(res.cct[ok], 5)),
-        "cct_p95": float(np.percentile(res.cct[ok], 95)),
+        "cct_p05": float(np.percentile(cct[ok], 5)),
+        "cct_p95": float(np.percentile(cct[ok], 95)),
         "iterations": n_iter,
         "fit_seconds": round(seconds, 3),
     }
@@ -332,11 +339,17 @@ def _fit_fixed_camera(
     iterations: int = 40,
     tol: float = 0.01,
     balance_sd: float | None = None,
+    estimate: Observations | None = None,
+    rows: NDArray[np.intp] | None = None,
 ) -> tuple[SceneModel, NDArray[np.float64]]:
     """:func:`fit_scene_model` for given (effective) sensitivities. Returns the model and every frame's
     ``(mired, δ, log k)`` (F × 3) from the learned reflectances. ``balance_sd``: the output is white-balanced by the
     camera, the history's mean white lies within that spread (log r/g, b/g) of grey — for daylight; a history lit
-    only by lamps is told apart by its scene average (:mod:`.level`)."""
+    only by lamps is told apart by its scene average (:mod:`.level`).
+
+    ``estimate``: the frames ``model.history_estimate`` (and the returned ``θ``) holds, a history whose frames
+    ``rows`` are ``obs`` (the same patches; the training summary and identifiability read those rows); default
+    ``obs``. Every frame is estimated on its own, so the rows equal an estimate of ``obs`` alone."""
     t0 = time.perf_counter()
     dm = daylight or CIEDaylight()
     rb = reflectance_basis()
@@ -395,10 +408,11 @@ def _fit_fixed_camera(
     if level is not None and level.unbalanced > 0.5:  # lamps only: the level the scene average gave, for the verdicts
         model.noise.update(unbalanced=level.unbalanced, level=level.mean.tolist(), level_sd=level.sd)
     # Illuminants of every frame with the learned reflectances (the fast solver), for the training summary.
-    res, extra = model.estimate(obs)
+    res, extra = model.estimate(obs if estimate is None else estimate)
     model.history_estimate = (res, extra)
-    model.training = _training_summary(obs, present_all, len(sub), res, n_iter, time.perf_counter() - t0)
-    mired_all = 1e6 / res.cct
+    cct = res.cct if estimate is None else res.cct[rows]
+    model.training = _training_summary(obs, present_all, len(sub), cct, n_iter, time.perf_counter() - t0)
+    mired_all = 1e6 / cct
     model.identifiability = identifiability(
         y, present, css, dm, rb, theta, coef, objective.w2 / noise_scale**2, mired_all[np.isfinite(mired_all)]
     )

@@ -549,16 +549,24 @@ def _frame_means(model, obs, theta: NDArray[np.float64]) -> NDArray[np.float64]:
     shared = [(j, index[p]) for j, p in enumerate(obs.patches) if p in index]
     oj, mi = [s[0] for s in shared], [s[1] for s in shared]
     solver = model.solver(mi)
-    y = np.asarray(obs.values, dtype=float)[:, oj] / model.noise["scale"]
-    th = np.where(np.isfinite(theta), theta, 0.0)
-    b = solver._b(th[:, 0], th[:, 1], th[:, 2])
-    pred = np.einsum("pck,fk->fpc", solver.G, b)
-    present = np.all(np.isfinite(y), axis=-1)
-    filled = np.where(present[..., None], y, pred)
-    out = filled.mean(axis=1)
-    # a scene average needs most of the scene: frames showing fewer than half the model's patches have none
-    out[(present.sum(axis=1) < 2) | (present.sum(axis=1) < 0.5 * len(model.patches))] = np.nan
+    values = np.asarray(obs.values, dtype=float)
+    out = np.empty((len(values), 3))
+    for i in range(0, len(values), _MEANS_CHUNK):  # frame by frame: chunks bound the F × P × 3 temporaries
+        y = values[i:i + _MEANS_CHUNK, oj] / model.noise["scale"]
+        th = np.where(np.isfinite(theta[i:i + _MEANS_CHUNK]), theta[i:i + _MEANS_CHUNK], 0.0)
+        b = solver._b(th[:, 0], th[:, 1], th[:, 2])
+        pred = np.einsum("pck,fk->fpc", solver.G, b)
+        present = np.all(np.isfinite(y), axis=-1)
+        filled = np.where(present[..., None], y, pred)
+        part = filled.mean(axis=1)
+        # a scene average needs most of the scene: frames showing fewer than half the model's patches have none
+        part[(present.sum(axis=1) < 2) | (present.sum(axis=1) < 0.5 * len(model.patches))] = np.nan
+        out[i:i + _MEANS_CHUNK] = part
     return out
+
+
+_MEANS_CHUNK = 8192
+"""Frames :func:`_frame_means` averages at once."""
 
 
 def history_lamps(model, obs) -> NDArray[np.float64]:

@@ -31,7 +31,7 @@ from .intervals import assemble_estimates, interval_columns
 from .lamps import apply_lamps
 from .solver import FrameSolver
 
-__all__ = ["MODEL_FORMAT", "MODEL_VERSION", "SceneModel", "estimate_with_model"]
+__all__ = ["ESTIMATE_CHUNK", "MODEL_FORMAT", "MODEL_VERSION", "SceneModel", "estimate_with_model"]
 
 MODEL_FORMAT = "illumon-scene-model"
 MODEL_VERSION = 1
@@ -204,18 +204,81 @@ class SceneModel:
         oj = [s[0] for s in shared]
         mi = [s[1] for s in shared]
         solver = solver or self.solver(mi)
-        y = np.asarray(obs.values, dtype=float)[:, oj] / self.noise["scale"]
-        present = np.all(np.isfinite(y), axis=-1)
+        scale = self.noise["scale"]
+        values = np.asarray(obs.values, dtype=float)
+        n = len(obs.frames)
+        chunks = [slice(i, i + ESTIMATE_CHUNK) for i in range(0, n, ESTIMATE_CHUNK)] or [slice(0, 0)]
+        present = np.concatenate([np.all(np.isfinite(values[c][:, oj] / scale), axis=-1) for c in chunks])
         few = present.sum(axis=1) < 2
         if few.all():
             raise ValueError("no frame has two or more of the model's patches")
-        extra = None if obs.sd is None else obs.extra_variance()[:, oj] / self.noise["scale"] ** 2
-        theta, cov, cost = solver.solve(y, present, extra)
-        res, cols = assemble_estimates(obs, self.noise, self.camera, theta, cov, few, solver, cost, len(shared),
-                                       _patch_reflectances(self, obs.patches))
+        reflectances = _patch_reflectances(self, obs.patches)
+        out = _Estimates(n)
+        for c in chunks:  # every frame is estimated on its own: chunks bound the temporaries, not the numbers
+            y = values[c][:, oj] / scale
+            extra = None if obs.sd is None else _extra_variance(obs.sd[c][:, oj]) / scale**2
+            theta, cov, cost = solver.solve(y, present[c], extra)
+            part = obs if len(chunks) == 1 else Observations(obs.frames[c], obs.patches, values[c], obs.times[c])
+            out.add(c, *assemble_estimates(part, self.noise, self.camera, theta, cov, few[c], solver, cost,
+                                           len(shared), reflectances))
+        res, cols = out.result(obs)
         if self.lamps:
             apply_lamps(self, obs, res, cols)
         return res, cols
+
+
+ESTIMATE_CHUNK = 8192
+"""Frames :meth:`SceneModel.estimate` solves and assembles at once (the temporaries of 100k frames' intervals and
+spectra at once were ~180 MB; the same numbers either way)."""
+
+_FRAME_INFO = ("gain_lo", "gain_hi", "theta", "covariance", "cost", "too_few_patches")
+"""The per-frame arrays of an estimate's ``info`` (:func:`.intervals.assemble_estimates`)."""
+
+
+def _extra_variance(sd: NDArray[np.float64]) -> NDArray[np.float64]:
+    """:meth:`Observations.extra_variance` of the standard errors ``sd``."""
+    return np.where(np.isfinite(sd), sd, 0.0) ** 2
+
+
+class _Estimates:
+    """The chunks of :meth:`SceneModel.estimate` written into arrays of every frame as they come (no list of chunks
+    then a concatenation: one copy of the estimate at a time)."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.res: RetrievalResult | None = None
+        self.cols: dict = {}
+
+    def _into(self, store: dict, key: str, chunk: slice, value: NDArray) -> None:
+        if key not in store:
+            store[key] = np.empty((self.n, *np.shape(value)[1:]), dtype=np.asarray(value).dtype)
+        store[key][chunk] = value
+
+    def add(self, chunk: slice, res: RetrievalResult, cols: dict) -> None:
+        if self.res is None and chunk.stop >= self.n and chunk.start == 0:  # one chunk: taken as it is
+            self.res, self.cols = res, cols
+            return
+        if self.res is None:
+            self.res = res
+            self.fields: dict = {}
+            self.info: dict = {}
+        for k in ("spectra", "xy", "cct", "duv", "white", "gains", "exposures"):
+            self._into(self.fields, k, chunk, getattr(res, k))
+        for k in _FRAME_INFO:
+            self._into(self.info, k, chunk, res.info[k])
+        for k, v in cols.items():
+            self._into(self.cols, k, chunk, v)
+
+    def result(self, obs: Observations) -> tuple[RetrievalResult, dict]:
+        res = self.res
+        assert res is not None
+        if len(res.frames) == self.n:
+            return res, self.cols
+        for k, v in self.fields.items():
+            setattr(res, k, v)
+        res.info.update(self.info)
+        res.frames, res.times = list(obs.frames), list(obs.times)
+        return res, self.cols
 
 
 def _patch_reflectances(model: SceneModel, patches: list[str]) -> NDArray[np.float64]:

@@ -25,8 +25,49 @@ _MAX_STEP = np.array([40.0, 0.01, np.inf])
 _EPS3 = 1e-12 * np.eye(3)
 _H = np.array([1e-3, 1e-6])  # finite-difference steps in (mired, δ)
 
+_START_CHUNK = 32
+"""Frames :meth:`FrameSolver.start` scores against its grid at once (32 × 1 089 grid points per temporary)."""
+
 SOLVE_CHUNK = 8192
 """Frames :meth:`FrameSolver.solve` solves at once (a 100k-frame history at once held ~550 MB of temporaries)."""
+
+
+def _inv3(m: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Inverses of 3 × 3 matrices (… × 3 × 3) by their adjugates: what ``np.linalg.inv`` gives to rounding, without
+    a LAPACK call per matrix (a 100k-frame history's 1.6 million patch covariances took 1.5 s that way)."""
+    m00, m01, m02 = m[..., 0, 0], m[..., 0, 1], m[..., 0, 2]
+    m10, m11, m12 = m[..., 1, 0], m[..., 1, 1], m[..., 1, 2]
+    m20, m21, m22 = m[..., 2, 0], m[..., 2, 1], m[..., 2, 2]
+    out = np.empty_like(m)
+    out[..., 0, 0] = m11 * m22 - m12 * m21
+    out[..., 1, 0] = m12 * m20 - m10 * m22
+    out[..., 2, 0] = m10 * m21 - m11 * m20
+    out[..., 0, 1] = m02 * m21 - m01 * m22
+    out[..., 1, 1] = m00 * m22 - m02 * m20
+    out[..., 2, 1] = m01 * m20 - m00 * m21
+    out[..., 0, 2] = m01 * m12 - m02 * m11
+    out[..., 1, 2] = m02 * m10 - m00 * m12
+    out[..., 2, 2] = m00 * m11 - m01 * m10
+    det = m00 * out[..., 0, 0] + m01 * out[..., 1, 0] + m02 * out[..., 2, 0]
+    out /= det[..., None, None]
+    return out
+
+
+def _solve3(a: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``a⁻¹ z`` for every frame (F × 3 × 3, F × 3): LAPACK's, and for a frame whose ``a`` is singular to the last bit
+    (one patch seen with a channel censored: ``_EPS3`` is below its entries' rounding) the least-squares solution,
+    where the batched solve raised for the whole batch. Such a frame has fewer than two patches or no signal in a
+    channel: its estimate is reported as missing or carries no weight either way."""
+    try:
+        return np.linalg.solve(a, z[..., None])[..., 0]
+    except np.linalg.LinAlgError:
+        out = np.empty_like(z)
+        for i in range(len(a)):
+            try:
+                out[i] = np.linalg.solve(a[i], z[i])
+            except np.linalg.LinAlgError:
+                out[i] = np.linalg.lstsq(a[i], z[i], rcond=None)[0]
+        return out
 
 
 class FrameSolver:
@@ -74,9 +115,17 @@ class FrameSolver:
         k, w = imaging_operators(sensitivities, daylight.basis, reflectance)  # nb×3×K, nb×3
         self.w = w
         self.G = np.einsum("kcj,pj->pck", k, coefficients)  # P × 3(c) × 3(k)
+        g, n_p = self.G, self.G.shape[0]
+        # the sums over patches and channels of :meth:`linear` as matrix products with these tables:
+        # GG[(p, c), (k, l)] = G[p, c, k] G[p, c, l]; GGE[(p, c, e), (k, l)] = G[p, e, k] G[p, c, l];
+        # GE[(p, c, e), k] = G[p, e, k]
+        self._gg = (g[:, :, :, None] * g[:, :, None, :]).reshape(n_p * 3, 9)
+        self._gge = (g[:, None, :, :, None] * g[:, :, None, None, :]).reshape(n_p * 9, 9)
+        self._ge = np.broadcast_to(g[:, None, :, :], (n_p, 3, 3, 3)).reshape(n_p * 9, 3)
         if covariance is not None:
             # H[p, c, e, k, l] = (K_k Σ_p K_lᵀ)_{ce}: reflectance uncertainty of patch p for illuminant weights k, l
             self.H = np.einsum("kcj,pjm,lem->pcekl", k, covariance, k)
+            self._h = self.H.reshape(n_p * 9, 9).T.copy()  # 9 (k, l) × (p, c, e)
         else:
             self.H = None
         self.rel = float(relative_error)
@@ -118,23 +167,20 @@ class FrameSolver:
         if extra_var is not None:
             var = var + np.where(present[..., None], extra_var, 0.0)
         var = np.where(censored(yy, self.abs, self.white), 1e12, var)  # censored at 0 or near white: no weight
-        b = None
-        for it in range(2 if self.H is not None else 1):
-            if it == 0:
-                cinv = np.where(present[..., None], 1.0 / var, 0.0)  # diagonal
-                gw = self.G[None] * cinv[..., None]  # F × P × 3 × 3
-                a = np.einsum("fpck,pcl->fkl", gw, self.G)
-                z = np.einsum("fpck,fpc->fk", gw, yy)
-            else:
-                cov = np.einsum("pcekl,fk,fl->fpce", self.H, b, b)
-                cov[..., [0, 1, 2], [0, 1, 2]] += var
-                cinv = np.linalg.inv(cov)
-                cinv = np.where(present[..., None, None], cinv, 0.0)
-                gw = np.einsum("fpce,pek->fpck", cinv, self.G)
-                a = np.einsum("fpck,pcl->fkl", gw, self.G)
-                z = np.einsum("fpck,fpc->fk", gw, yy)
-            a = a + _EPS3
-            b = np.linalg.solve(a, z[..., None])[..., 0]
+        f, n_p = present.shape
+        # the sums over patches and channels as matrix products (the einsums they replace took 5 × as long)
+        cinv = np.where(present[..., None], 1.0 / var, 0.0).reshape(f, n_p * 3)  # diagonal
+        a = (cinv @ self._gg).reshape(f, 3, 3) + _EPS3
+        z = (cinv * yy.reshape(f, n_p * 3)) @ self.G.reshape(n_p * 3, 3)
+        b = _solve3(a, z)
+        if self.H is not None:
+            # the reflectance posterior mapped through the current b joins each patch's noise covariance
+            cov = ((b[:, :, None] * b[:, None, :]).reshape(f, 9) @ self._h).reshape(f, n_p, 3, 3)
+            cov[..., _DIAG, _DIAG] += var
+            cinv = np.where(present[..., None, None], _inv3(cov), 0.0)
+            a = (cinv.reshape(f, n_p * 9) @ self._gge).reshape(f, 3, 3) + _EPS3
+            z = (cinv * yy[..., None]).reshape(f, n_p * 9) @ self._ge
+            b = _solve3(a, z)
         return b, a
 
     def start(self, b: NDArray[np.float64], a: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -142,17 +188,28 @@ class FrameSolver:
         eliminated in closed form, ``k = uᵀAb̂ / uᵀAu`` for the unit-exposure ``u(θ)``."""
         out = np.empty((b.shape[0], 3))
         u = self.grid_u
+        ut = np.ascontiguousarray(u.T)
         uu = (u[:, :, None] * u[:, None, :]).reshape(len(u), 9).T  # 9 × n: uᵀAu = vec(A)·vec(uuᵀ), one matmul
-        for i in range(0, b.shape[0], 256):
-            ab = (a[i : i + 256] @ b[i : i + 256, :, None])[..., 0]  # F × 3
-            num = ab @ u.T  # F × n
-            den = a[i : i + 256].reshape(-1, 9) @ uu
-            k = np.clip(num / np.maximum(den, 1e-300), 1e-12, None)
-            cost = den * k**2 - 2 * k * num + self.grid_prior
+        step = _START_CHUNK
+        for i in range(0, b.shape[0], step):
+            ab = (a[i : i + step] @ b[i : i + step, :, None])[..., 0]  # F × 3
+            num = ab @ ut  # F × n
+            den = a[i : i + step].reshape(-1, 9) @ uu
+            # k = clip(num / den, 1e-12), cost = den k² − 2 k num + prior, in place (the same operations in the same
+            # order: the same bits as the expressions, in 32-frame pieces that stay in cache: 1.7 × faster)
+            k = np.maximum(den, 1e-300)
+            np.divide(num, k, out=k)
+            np.maximum(k, 1e-12, out=k)
+            cost = k * k
+            cost *= den
+            num *= k
+            num *= 2.0
+            cost -= num
+            cost += self.grid_prior
             best = np.argmin(cost, axis=1)
             rows = np.arange(best.size)
-            out[i : i + 256, :2] = self.grid_theta[best]
-            out[i : i + 256, 2] = np.log(k[rows, best])
+            out[i : i + step, :2] = self.grid_theta[best]
+            out[i : i + step, 2] = np.log(k[rows, best])
         return out
 
     def _jacobian(self, theta: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

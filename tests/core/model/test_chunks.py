@@ -1,0 +1,132 @@
+"""A refit's estimates in bounded pieces (issue 29): the scene model's estimate of a history a chunk at a time equals
+the estimate of every frame at once, and a lamp round's refit that estimates the whole history once gives the rows,
+training summary and identifiability of a fit of its daylight frames alone.
+
+History: :func:`illumon.simulation.effects.hide_effect` (``off_locus_illuminant``, seed 10 001 as in
+``test_lamps.py``), so the model carries lamp verdicts and :func:`illumon.model.lamps.apply_lamps` runs.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from illumon.model import fit_scene_model, lamps, scene
+from illumon.model.fit import _fit_fixed_camera
+from illumon.observations import Observations
+from illumon.simulation.effects import hide_effect
+
+
+@pytest.fixture(scope="module")
+def lamp_history(shared_data):
+    from illumon.simulation import datasets
+
+    css = datasets.load_camera("Canon_300D")
+    obs = hide_effect("off_locus_illuminant", "Canon_300D", 10001).observations
+    # measured standard errors too, so the chunks' extra variance is exercised
+    obs = Observations(obs.frames, obs.patches, obs.values, obs.times, 0.002 * np.abs(obs.values))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = fit_scene_model(obs, css)
+    return obs, css, model
+
+
+def _close(a: dict, b: dict) -> None:
+    """Equal to rounding (relative to each array's largest value: a covariance's cross terms cancel): a frame's
+    numbers do not depend on the frames beside it, but the matrix products' rounding may depend on how many rows
+    they have (BLAS kernels)."""
+    for k in a:
+        x, y = np.asarray(a[k], dtype=float), np.asarray(b[k], dtype=float)
+        np.testing.assert_array_equal(np.isfinite(x), np.isfinite(y), err_msg=k)
+        scale = float(np.max(np.abs(y[np.isfinite(y)]), initial=0.0))
+        np.testing.assert_allclose(x, y, rtol=1e-9, atol=1e-9 * scale, err_msg=k)
+
+
+def _arrays(res, cols) -> dict:
+    out = {k: getattr(res, k) for k in ("spectra", "xy", "cct", "duv", "white", "gains", "exposures")}
+    out.update({f"info_{k}": res.info[k] for k in scene._FRAME_INFO})
+    out.update({f"col_{k}": v for k, v in cols.items()})
+    return out
+
+
+def test_chunked_estimate_equals_one_piece(lamp_history, monkeypatch):
+    obs, _, model = lamp_history
+    assert model.lamps, "the history's model judges lamps"
+    whole_res, whole_cols = model.estimate(obs)
+    monkeypatch.setattr(scene, "ESTIMATE_CHUNK", 7)
+    monkeypatch.setattr(lamps, "_MEANS_CHUNK", 5)
+    res, cols = model.estimate(obs)
+    assert len(obs.frames) > 3 * 7
+    assert res.frames == whole_res.frames and res.times == whole_res.times
+    assert set(cols) == set(whole_cols) and "non_daylight" in cols
+    _close(_arrays(res, cols), _arrays(whole_res, whole_cols))
+    np.testing.assert_array_equal(res.reflectances, whole_res.reflectances)
+
+
+def test_a_refit_estimating_every_frame_equals_the_fit_of_its_frames(lamp_history):
+    obs, css, _ = lamp_history
+    rows = np.arange(0, len(obs.frames), 3)
+    part = obs.subset(rows)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        alone, _ = _fit_fixed_camera(part, css)
+        every, theta = _fit_fixed_camera(part, css, estimate=obs, rows=rows)
+    assert theta.shape == (len(obs.frames), 3)
+    assert every.training.pop("fit_seconds") >= 0 and alone.training.pop("fit_seconds") >= 0
+    assert every.training.keys() == alone.training.keys()
+    for k, v in alone.training.items():
+        assert every.training[k] == (pytest.approx(v, rel=1e-9) if isinstance(v, float) else v), k
+    assert every.identifiability.keys() == alone.identifiability.keys()
+    np.testing.assert_array_equal(every.coefficients, alone.coefficients)
+    res, cols = every.history_estimate
+    assert res.frames == obs.frames
+    a = _arrays(*alone.history_estimate)
+    _close(a, {k: v[rows] for k, v in _arrays(res, cols).items()})
+
+
+def _linear_reference(solver, y, present, extra_var=None):
+    """:meth:`FrameSolver.linear` as it was written before its sums became matrix products (einsums and
+    ``np.linalg.inv``)."""
+    from illumon.retrieval.common import censored
+
+    yy = np.where(present[..., None], y, 0.0)
+    var = (solver.noise_scale**2) * ((solver.rel * yy) ** 2 + solver.abs**2)
+    if extra_var is not None:
+        var = var + np.where(present[..., None], extra_var, 0.0)
+    var = np.where(censored(yy, solver.abs, solver.white), 1e12, var)
+    b = None
+    for it in range(2 if solver.H is not None else 1):
+        if it == 0:
+            cinv = np.where(present[..., None], 1.0 / var, 0.0)
+            gw = solver.G[None] * cinv[..., None]
+        else:
+            cov = np.einsum("pcekl,fk,fl->fpce", solver.H, b, b)
+            cov[..., [0, 1, 2], [0, 1, 2]] += var
+            cinv = np.where(present[..., None, None], np.linalg.inv(cov), 0.0)
+            gw = np.einsum("fpce,pek->fpck", cinv, solver.G)
+        a = np.einsum("fpck,pcl->fkl", gw, solver.G) + 1e-12 * np.eye(3)
+        z = np.einsum("fpck,fpc->fk", gw, yy)
+        b = np.linalg.solve(a, z[..., None])[..., 0]
+    return b, a
+
+
+def test_frame_solver_linear_equals_the_einsum_reference(lamp_history):
+    from illumon.model.solver import _inv3
+
+    obs, _, model = lamp_history
+    y = np.asarray(obs.values) / model.noise["scale"]
+    present = np.all(np.isfinite(y), axis=-1)
+    extra = obs.extra_variance() / model.noise["scale"] ** 2
+    for cov in (model.covariance, None):
+        solver = model.solver()
+        if cov is None:
+            solver.H = None
+        for ev in (None, extra):
+            b, a = solver.linear(y, present, ev)
+            rb, ra = _linear_reference(solver, y, present, ev)
+            np.testing.assert_allclose(b, rb, rtol=1e-10, atol=0)
+            np.testing.assert_allclose(a, ra, rtol=1e-10, atol=1e-12 * np.abs(ra).max())
+    m = np.random.default_rng(0).normal(size=(200, 3, 3))
+    m = m @ m.transpose(0, 2, 1) + 1e-3 * np.eye(3)
+    np.testing.assert_allclose(_inv3(m), np.linalg.inv(m), rtol=1e-9, atol=1e-9 * np.abs(np.linalg.inv(m)).max())

@@ -248,6 +248,7 @@ def _mixture_density(lo: NDArray[np.float64], hi: NDArray[np.float64], n_points:
     """:func:`_mixture_loglik` as a function of ``u`` (… × 2) for ``n_points`` points spanning ``lo`` … ``hi``: the
     table is built once (when there are more than ``per_node`` points per table node), so the points can be
     evaluated a chunk at a time."""
+    hi = np.maximum(hi, lo + TABLE_STEP * sd)  # points that share a coordinate: a table still needs a span there
     side = np.minimum(np.ceil((hi - lo) / (TABLE_STEP * sd)).astype(int) + 2, TABLE_MAX_SIDE)
     if n_points > per_node * int(np.prod(side)):
         axes = [np.linspace(lo[i], hi[i], int(side[i])) for i in range(2)]

@@ -203,3 +203,17 @@ def test_lamp_posterior_tables_are_exact_far_from_the_centres_and_reused_to_the_
     for got, want in ((after.non_daylight, alone.non_daylight), (after.offset, alone.offset),
                       (after.offset_sd, alone.offset_sd)):
         assert np.array_equal(got, want)
+
+
+def test_a_table_over_points_that_share_a_coordinate_is_built():
+    """Points spanning nothing along one axis (one frame outside the offset's support, a support one point wide
+    there) still get a table, equal to the exact mixture: it failed with "points … must be strictly ascending" on a
+    lamp-lit history (``benchmarks/unmeasured.py --split dev``, rawsim, Nikon Z6, none+lamps, seed 8201)."""
+    from illumon.model import lamps
+
+    rng = np.random.default_rng(3)
+    centres = rng.normal(0.0, 0.2, (12, 2))
+    logw = np.full(12, -np.log(12.0))
+    u = np.stack([np.linspace(-0.1, 0.2, 40), np.full(40, 0.05)], axis=1)
+    dens = lamps._mixture_density(u.min(axis=0), u.max(axis=0), len(u), centres, logw, 0.03, per_node=0.5)
+    assert np.allclose(dens(u), lamps._exact_loglik(u, centres, logw, 0.03), atol=1e-3)

@@ -379,11 +379,12 @@ def _fit_fixed_camera(
                                      iterations, tol)
     anchored_sd, level = None, None
     if balance_sd is not None:
-        # the level static patches cannot see (:mod:`.level`): a rendered camera's balance against the scene average
+        # the level static patches cannot see (:mod:`.level`): a rendered camera's balance against the scene average;
+        # its lamp-lit component's mixed lamps are half the prior's mean daylight (chosen so on the MIMO scenes)
         average = scene_average_evidence(y, present)
         fit_level = mean_log_chroma(dm, css, theta)
         level = common_level_posterior(fit_level, SCENE_AVERAGE_SD, balance_sd, average,
-                                       scene_reading(dm, css, theta, average, rb), lamp_population(css, dm)[2])
+                                       scene_reading(dm, css, theta, average, rb), lamp_population(css, dm, 1)[2])
         theta, coef, anchored_sd = anchor_common_level(objective, theta, css, level)
     am = objective.operators(theta)
     resid2 = objective.w2 * (objective.yz - np.einsum("fcj,pj->fpc", am, coef)) ** 2

@@ -44,6 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.interpolate import RegularGridInterpolator
 from scipy.signal import correlate
+from scipy.stats import norm
 
 from .._blas import single_blas_thread
 from ..daylight import CIEDaylight
@@ -84,6 +85,12 @@ FRAME_SD = 0.02
 scene whose light differs from the frame's (shade, reflections) and the CIE model's departure from a measured sky."""
 
 _MIX = (1.0, 0.5)  # lamp share of the light: the lamp alone, or half and half with daylight
+MIX_DAYLIGHTS = 7
+"""Daylights a lamp is mixed with half and half: this many quantiles of the daylight prior's reciprocal temperature
+(the daylight in a mixed light is as uncertain as a daylight frame's). With the prior's mean alone, every mixed lamp
+sat near the most common daylight white, and a daylight frame there was more probable as a lamp: 33–47 % of the frames
+of rendered daylight histories read ``non_daylight`` ≥ 0.5 (``benchmarks/unmeasured.py``, ``none+rendered``,
+``grey+rendered``)."""
 _LAMP_SD = 0.03  # spread of a lamp type's white (manufacturing, ageing; log units)
 
 
@@ -129,23 +136,25 @@ def _daylight_grid(dm: CIEDaylight) -> tuple[NDArray[np.float64], NDArray[np.flo
 
 
 def lamp_population(
-    sensitivities: NDArray[np.float64], daylight: CIEDaylight | None = None,
+    sensitivities: NDArray[np.float64], daylight: CIEDaylight | None = None, mix_daylights: int = MIX_DAYLIGHTS,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """The two hypotheses' whites through a camera, as log chroma (r/g, b/g).
 
     Returns the daylight whites (N × 2) with their log prior weights (N,), and the lamp whites (M × 2) with theirs:
-    every lamp of the CIE tables alone and half and half with daylight at the prior's mean temperature (equal weights).
+    every lamp of the CIE tables alone and half and half with daylight at ``mix_daylights`` quantiles of the prior's
+    reciprocal temperature (each share half the weight; one: the prior's mean).
     """
-    return tuple(v.copy() for v in _population(sensitivities, daylight or CIEDaylight()))
+    return tuple(v.copy() for v in _population(sensitivities, daylight or CIEDaylight(), mix_daylights))
 
 
-def _population(sensitivities: NDArray[np.float64], dm: CIEDaylight) -> tuple[NDArray[np.float64], ...]:
+def _population(sensitivities: NDArray[np.float64], dm: CIEDaylight,
+                mix_daylights: int = MIX_DAYLIGHTS) -> tuple[NDArray[np.float64], ...]:
     """:func:`lamp_population`, read-only, remembered for the last few cameras and CIE daylight priors (a new frame's
     estimate judges it against them: a third of the lamp test's time per frame)."""
     css = np.asarray(sensitivities, dtype=float)
     key = None
     if type(dm) is CIEDaylight:
-        key = (css.shape, css.tobytes(), dm.duv_sigma, dm.mired_mean, dm.mired_sigma)
+        key = (css.shape, css.tobytes(), dm.duv_sigma, dm.mired_mean, dm.mired_sigma, mix_daylights)
         hit = _recall(_populations, key)
         if hit is not None:
             return hit
@@ -153,13 +162,18 @@ def _population(sensitivities: NDArray[np.float64], dm: CIEDaylight) -> tuple[ND
     day = dm.spectra(theta)
     u_d = _log_chroma(day @ css)
     lamps = cie_lamp_spectra()
-    d_mean = dm.spectra(np.array([[dm.mired_mean, 0.0]]))[0]
-    rows = []
+    rows, logw = [], []
     for share in _MIX:
-        # equal luminance-like weight at 560 nm: both spectra are 100 there
-        rows.append(share * lamps + (1.0 - share) * d_mean[None, :] * 100.0 / d_mean[32])
+        # each share weighs the same; a mixed lamp's daylight is one of the prior's quantiles (equal weights)
+        mired = [dm.mired_mean] if share == 1.0 else (
+            dm.mired_mean + dm.mired_sigma * norm.ppf((np.arange(mix_daylights) + 0.5) / mix_daylights))
+        for m in mired:
+            d = dm.spectra(np.array([[m, 0.0]]))[0]
+            # equal luminance-like weight at 560 nm: both spectra are 100 there
+            rows.append(share * lamps + (1.0 - share) * d[None, :] * 100.0 / d[32])
+            logw.append(np.full(len(lamps), -math.log(len(_MIX) * len(mired) * len(lamps))))
     u_l = _log_chroma(np.concatenate(rows) @ css)
-    logw_l = np.full(len(u_l), -math.log(len(u_l)))
+    logw_l = np.concatenate(logw)
     out = (u_d, logw_d, u_l, logw_l)
     for v in out:
         v.flags.writeable = False

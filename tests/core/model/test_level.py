@@ -45,7 +45,7 @@ def test_lamp_lit_history_leaves_the_balance_a_chart_does_not():
     from illumon.camera.primaries import daylight_prior_for, srgb_sensitivities
     from illumon.model.lamps import lamp_population
 
-    lamps = lamp_population(srgb_sensitivities(), daylight_prior_for("srgb"))[2]
+    lamps = lamp_population(srgb_sensitivities(), daylight_prior_for("srgb"), 1)[2]
     fit_level = np.array([0.0, 0.02])
     warm = np.array([0.13, -0.31])
 

@@ -99,7 +99,8 @@ def test_estimate_unmeasured_camera_with_grey_card(shared_data, tmp_path, capsys
     err, conf = res[out]
     assert np.median(err) < 0.6 and err.max() < 1.5  # measured 0.22 / 0.61
     err0, conf0 = res[out0]
-    assert np.median(conf0) < 0.1 < np.median(conf)  # the uncalibrated camera says so
+    # the uncalibrated camera says so (a camera with no reference states ~0.15: the development frequency, STATED_WHITE_SPREAD)
+    assert np.median(conf0) < 0.25 < np.median(conf)
     model = tmp_path / "m.json"
     assert main(["fit", str(obs), "--known-reflectances", str(known), "--model", str(model)]) == 0
     assert "grey card" in capsys.readouterr().out

@@ -117,8 +117,10 @@ def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank:
     modelled (values linearised, offsets subtracted, clipped values dropped), the global effect explains it and
     stays (a tone curve on values rounded to codes: its misfit of the spectral model read as lamp light, −57, which
     linearising removes). A patch change or a shadow is put down to lamp light the same way (lamp-lit frames late in
-    an image-based history read as a patch changing at their onset, ΔBIC −42 against the lamp's −67), never to
-    fluorescence (a changed or shaded patch misfits the spectral model by that alone).
+    an image-based history read as a patch changing at their onset, ΔBIC −42 against the lamp's −67), and to
+    fluorescence of *another* patch (an emission distorts the frame factors the other patches are judged against: a
+    patch "changing" at frame 24 beside a fluorescent patch at −17); never to fluorescence of the changed or shaded
+    patch itself, which misfits the spectral model by that alone (three development histories read so).
     """
     y = obs.values.reshape(obs.values.shape[0], -1)
     modelled: list[Candidate] | None = None
@@ -127,8 +129,8 @@ def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank:
             continue
         if cand.effect == "fluorescence" and chosen.effect == "clipping":
             continue  # the clipped patch misfits the spectral model too: no independent evidence of emission
-        if chosen.effect not in GLOBAL_EFFECTS and cand.effect != "off_locus_illuminant":
-            continue  # a changed or shaded patch misfits the spectral model too
+        if cand.effect == "fluorescence" and chosen.patch is not None and cand.patch == chosen.patch:
+            continue  # so does a changed or shaded patch
         masked = y.copy()
         if cand.effect == "off_locus_illuminant":
             keep = np.setdiff1d(np.arange(y.shape[0]), cand.parameters["frame_indices"])
@@ -222,17 +224,35 @@ def _further_effects(obs: Observations, css: NDArray[np.float64], rank: int, mar
     """Several effects at once (a history may carry more than one): model the one found, look again in what is left, until nothing
     passes its margin (at most :data:`MAX_EFFECTS`); every effect in the original history's indices."""
     current = obs
+    structural = np.zeros(obs.values.shape, dtype=bool)
     while found and len(found) < MAX_EFFECTS:
-        current = _modelled(current, found[-1])
+        previous, current = current, _modelled(current, found[-1])
         if current is None or current.values.shape[0] < rank + 2 or current.values.shape[1] < 3:
             break
+        structural = _structural(previous, current, structural)
         nxt, ncands, ninfo = _choose(current, css, rank, margins, learn_noise,
-                                     exclude={d.effect for d in found}, from_images=from_images)
+                                     exclude={d.effect for d in found}, from_images=from_images,
+                                     structural=structural)
         if nxt is None:
             break
         found.append(_as_diagnosis(current, nxt, ncands, ninfo))
     # every effect in the original history's indices (a later one was found with earlier ones modelled)
     return [d if i == 0 else (_on_original(obs, d) or d) for i, d in enumerate(found)]
+
+
+def _structural(previous: Observations, current: Observations, mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Values of ``current`` (``previous`` with an effect modelled) missing because of the modelling, with those
+    ``mask`` marks in ``previous``: dropped values, and the part of a split patch before or after its onset."""
+    rows = [previous.frames.index(fr) for fr in current.frames]
+    gone = np.isnan(current.values)
+    out = np.zeros(current.values.shape, dtype=bool)
+    for j, name in enumerate(current.patches):
+        if name in previous.patches:
+            k = previous.patches.index(name)
+            out[:, j] = mask[rows, k] | (gone[:, j] & np.isfinite(previous.values[rows, k]))
+        else:  # the part of a split patch: missing where the other part is
+            out[:, j] = gone[:, j]
+    return out
 
 
 def _illuminant_changes(obs: Observations, sensitivities: NDArray[np.float64], found: list[Diagnosis]) -> None:
@@ -293,12 +313,13 @@ MINOR_CLIPPING_FRACTION = 0.01
 
 
 def _choose(obs: Observations, css: NDArray[np.float64], rank: int, margins: dict[str, float], learn_noise: bool,
-            exclude: set[str] | frozenset = frozenset(),
-            from_images: bool = False) -> tuple[Candidate | None, list[Candidate], dict]:
+            exclude: set[str] | frozenset = frozenset(), from_images: bool = False,
+            structural: NDArray[np.bool_] | None = None) -> tuple[Candidate | None, list[Candidate], dict]:
     """One round of selection (module docstring): the bilinear stage, the spectral stage, the converse checks."""
     f, p, _ = obs.values.shape
     y = obs.values.reshape(f, 3 * p)
-    _, cands, info = bilinear_stage(y, rank, margins["clipping"], learn_noise, *_image_noise(from_images))
+    _, cands, info = bilinear_stage(y, rank, margins["clipping"], learn_noise, *_image_noise(from_images),
+                                    None if structural is None else structural.reshape(f, 3 * p))
     spectral, sinfo = spectral_stage(obs, css, margins["fluorescence"])
     info.update(sinfo)
     cands += spectral

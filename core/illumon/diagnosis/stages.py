@@ -110,8 +110,8 @@ MIN_INGEST_CLIPPED = 3
 """Regions missing above the censoring level, at least, for clipping removed at ingest to be named."""
 
 
-def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64],
-                        unseen_clipped: bool = False) -> Candidate | None:
+def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64], unseen_clipped: bool = False,
+                        structural: NDArray[np.bool_] | None = None) -> Candidate | None:
     """Clipping that the measurement already removed (the service drops pixels at the white level and
     regions more than half clipped, so an over-exposed history reaches the diagnosis as *missing* regions, never as
     values sharing a clip level: a clip-level test alone named ``imgsim`` clipping in 0 of 20).
@@ -128,18 +128,21 @@ def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64],
     its pixels clip), a region missing in *every* frame counts as brighter than any prediction: it clipped in every
     frame. The rank-``r`` model has nothing to predict it from (its prediction is 0), and over-exposure that loses
     the brightest region in every frame is what the image-based simulator's clipping mostly is (7 of its 9 missed
-    development histories)."""
+    development histories). ``structural`` (frames × (patches·channels)) marks values missing because an effect found
+    earlier was modelled (a shaded run or a fluorescent patch dropped, a changed patch split), not because the
+    measurement left them out: they are no outcome of this test."""
     f, m = y.shape
     p = m // 3
     seen = np.all(np.isfinite(y.reshape(f, p, 3)), axis=-1)
-    miss = ~seen.ravel()
+    counted = np.ones((f, p), dtype=bool) if structural is None else ~structural.reshape(f, p, 3).any(axis=-1)
+    bright = np.max(pred.reshape(f, p, 3), axis=-1)
+    if unseen_clipped:
+        bright[:, ~(seen & counted).any(axis=0) & counted.any(axis=0)] = np.inf
+    miss = ~seen[counted]
+    bright = bright[counted]
     k_miss = int(miss.sum())
     if k_miss < MIN_INGEST_CLIPPED or k_miss == miss.size:
         return None
-    bright = np.max(pred.reshape(f, p, 3), axis=-1)
-    if unseen_clipped:
-        bright[:, ~seen.any(axis=0)] = np.inf
-    bright = bright.ravel()
     n = miss.size
 
     def nll(k: float, t: float) -> float:
@@ -213,7 +216,8 @@ def _noise_record(noise: nz.NoiseLevel) -> dict:
 
 
 def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_noise: bool = True,
-                   codec_cap: float = 0.0, unseen_clipped: bool = False) -> tuple[bl.LowRankFit, list[Candidate], dict]:
+                   codec_cap: float = 0.0, unseen_clipped: bool = False,
+                   structural: NDArray[np.bool_] | None = None) -> tuple[bl.LowRankFit, list[Candidate], dict]:
     """The bilinear stage (:mod:`.fit` describes it): the rank-``rank`` base fit and every extension it can carry —
     tone curve, black offset, clipping (at a shared level, or removed at ingest), patch change and shadow.
 
@@ -233,6 +237,9 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     unseen_clipped
         A region missing in every frame clipped in every frame (values measured from images by the service:
         :func:`_censored_at_ingest`).
+    structural
+        Values missing because an effect found earlier was modelled (not an outcome of the test of clipping at
+        ingest), or None.
 
     Returns
     -------
@@ -312,7 +319,7 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
         fits["clipping"] = {"level": vmax, "censored": censored}
     else:
         cands.append(Candidate("clipping", float("inf"), {"clip_level": None, "clipped_values": int(censored.sum())}))
-    ingest = _censored_at_ingest(y, base.pred, unseen_clipped)
+    ingest = _censored_at_ingest(y, base.pred, unseen_clipped, structural)
     if ingest is not None and ingest.score < cands[-1].score:
         cands[-1] = ingest
 

@@ -62,7 +62,8 @@ from ..retrieval import retrieve_illuminants
 from .candidate import Candidate
 from .correction import Diagnosis, corrected_observations, estimate_with_effect
 from .noise import CODEC_NOISE
-from .stages import MIN_OFF_LOCUS_FRAMES, bilinear_stage, spectral_stage
+from .spectral import fit_spectral_base, refine_with_measured_daylight, spectral_pedestal
+from .stages import MIN_OFF_LOCUS_FRAMES, MIN_OFFSET, REFINE_ITERS, bilinear_stage, pedestal_allowed, spectral_stage
 
 __all__ = ["RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "Candidate", "diagnose"]
 
@@ -340,7 +341,53 @@ def _choose(obs: Observations, css: NDArray[np.float64], rank: int, margins: dic
         ok = [c for c in spectral_ok if c.score < -margins[c.effect]]
         if ok:
             chosen = ok[0]
+            if chosen.effect == "off_locus_illuminant" and "black_offset" not in exclude:
+                chosen = _pedestal_cause(obs, css, chosen, margins) or chosen
     return chosen, cands, info
+
+
+def _pedestal_cause(obs: Observations, css: NDArray[np.float64], lamp: Candidate,
+                    margins: dict[str, float]) -> Candidate | None:
+    """A black offset that explains what the spectral stage took for lamp light, or None.
+
+    An auto-exposure that keeps the scene's mean brightness steady leaves a pedestal invisible to the bilinear model
+    (one combination of its frame factors is constant and carries it), while the spectral model, whose reflectances
+    cannot add the same signal under every light, misfits it as light off the daylight locus: 2…6 % pedestals of
+    the image-based simulator's development histories scored ΔBIC +10…+21 as offsets and −66…−152 as lamp light, and
+    subtracting the true pedestal left the lamp at −1…+2. The pedestal is fitted within the spectral model
+    (:func:`.spectral.spectral_pedestal`) and named when it passes the offset's margin (its cost drop read as
+    ``−2·ΔNLL``, three parameters), is at least :data:`.stages.MIN_OFFSET` and allowed by the values
+    (:func:`.stages.pedestal_allowed`), the lamp no longer passes its margin with it subtracted, and it survives the
+    lamp modelled (fitted again without the lamp-lit frames) — the rule that a global effect and a spectral one
+    explain each other only when each survives the other modelled.
+    """
+    y = obs.values.reshape(obs.values.shape[0], -1)
+
+    def pedestal(o: Observations) -> tuple[NDArray[np.float64], float]:
+        base = fit_spectral_base(o, css)
+        refine_with_measured_daylight(base, iters=REFINE_ITERS)
+        b, gain = spectral_pedestal(base)
+        return b, -gain + 3.0 * np.log(max(int(base.prob.present.sum()) * 3, 2))
+
+    def passes(b: NDArray[np.float64], score: float) -> bool:
+        return bool(score < -margins["black_offset"] and np.max(b) >= MIN_OFFSET)
+
+    try:
+        b, score = pedestal(obs)
+        if not (passes(b, score) and pedestal_allowed(y, np.isfinite(y), b)):
+            return None
+        corrected = Observations(list(obs.frames), list(obs.patches), np.clip(obs.values - b, 1e-6, None),
+                                 list(obs.times), obs.sd)
+        again, _ = spectral_stage(corrected, css, margins["fluorescence"])
+        if next(c.score for c in again if c.effect == lamp.effect) < -margins[lamp.effect]:
+            return None
+        keep = np.setdiff1d(np.arange(len(obs.frames)), lamp.parameters["frame_indices"])
+        if keep.size >= 6 and not passes(*pedestal(obs.subset(keep))):
+            return None
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    return Candidate("black_offset", float(score), {"offsets": [round(float(v), 5) for v in b],
+                                                    "found_by": "spectral"})
 
 
 def _image_noise(from_images: bool) -> tuple[float, bool]:

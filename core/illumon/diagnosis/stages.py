@@ -5,6 +5,8 @@ and its constants are in :mod:`.tone`; :func:`tone_stage` runs it alone."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -24,8 +26,8 @@ from .spectral import (
 )
 from .tone import tone_candidate
 
-__all__ = ["MIN_OFFSET", "REFINE_ITERS", "MIN_OFF_LOCUS_FRAMES", "OFF_LOCUS_FRAME_Z", "bilinear_stage", "spectral_stage",
-           "tone_stage"]
+__all__ = ["MIN_OFFSET", "PEDESTAL_BELOW", "pedestal_allowed", "REFINE_ITERS", "MIN_OFF_LOCUS_FRAMES",
+           "OFF_LOCUS_FRAME_Z", "bilinear_stage", "spectral_stage", "tone_stage"]
 
 MIN_OFFSET = 1.0 / 255.0
 """Smallest black offset reported (a fraction of white): one code of 8-bit output. A smaller pedestal cannot be told
@@ -172,6 +174,18 @@ def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64], unsee
                       "censored_at_ingest": True})
 
 
+def pedestal_allowed(y: NDArray[np.float64], present: NDArray[np.bool_], b: NDArray[np.float64]) -> bool:
+    """Whether the values ``y`` (frames × (patches·channels), used where ``present``) allow a black offset ``b`` (3,):
+    not negative and below most patches (the constraints of :func:`bilinear_stage`'s offset; a region never seen
+    does not count)."""
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a region never seen has no level
+        level = np.nanmedian(np.where(present, y, np.nan).reshape(y.shape[0], -1, 3), axis=0)  # P × 3
+        seen = np.isfinite(level)
+        below = np.sum((level < np.asarray(b)[None, :] - MIN_OFFSET) & seen, axis=0) / np.maximum(seen.sum(0), 1)
+    return bool(np.all(np.isfinite(b)) and np.all(np.asarray(b) >= -MIN_OFFSET) and np.all(below <= PEDESTAL_BELOW))
+
+
 def _bilinear_base(y: NDArray[np.float64], rank: int, learn_noise: bool,
                    codec_cap: float = 0.0) -> tuple[nz.NoiseLevel, NDArray[np.float64], bl.LowRankFit]:
     """The bilinear stage's noise (learned or default; with an output-domain variance up to ``codec_cap``), weights
@@ -279,12 +293,6 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     # region's misfit; 100 % and 44 % of the patches below), and a compressive curve's toe reads as a negative
     # pedestal (an sRGB curve declared linear: −4.5…−6.5 %, beating the curve itself); a black level subtracted too
     # far clips the dark pixels at 0 instead, which is censored
-    with np.errstate(all="ignore"):
-        patch_level = np.nanmedian(np.where(present, y, np.nan).reshape(f, -1, 3), axis=0)  # P × 3
-
-    def allowed_pedestal(bb: NDArray[np.float64]) -> bool:
-        below = np.nanmean(patch_level < bb[None, :] - MIN_OFFSET, axis=0)
-        return bool(np.all(np.isfinite(bb)) and np.all(bb >= -MIN_OFFSET) and np.all(below <= PEDESTAL_BELOW))
 
     log_sig_lit = 0.5 * float(np.log(1.0 / w_lit[lit_b]).sum())
     base_b = bl.wals(y, w_lit, rank, U=base.U, iters=60)
@@ -294,7 +302,8 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     wb = np.where(lit_b, noise.weights(np.clip(y - b[chan][None, :], 0, None)), 0.0)
     fit_s, b_s = bl.fit_offset(y, wb, rank, fit_o.U)
     score_s = _bic(_nll(fit_s.wrss, n_b, 0.5 * float(np.log(1.0 / wb[lit_b]).sum())), fit_s.k, n_b) - bic0_b
-    allowed = [(sc, ft, bb) for sc, ft, bb in ((score_b, fit_o, b), (score_s, fit_s, b_s)) if allowed_pedestal(bb)]
+    allowed = [(sc, ft, bb) for sc, ft, bb in ((score_b, fit_o, b), (score_s, fit_s, b_s))
+               if pedestal_allowed(y, present, bb)]
     if allowed:
         score_b, fit_o, b = min(allowed, key=lambda t: t[0])
     else:

@@ -61,7 +61,7 @@ from ..observations import Observations
 from ..retrieval import retrieve_illuminants
 from .candidate import Candidate
 from .correction import Diagnosis, corrected_observations, estimate_with_effect
-from .noise import CODEC_NOISE
+from .noise import CODEC_NOISE, dark_level, dark_level_set, history_dark_level
 from .spectral import fit_spectral_base, refine_with_measured_daylight, spectral_pedestal
 from .stages import MIN_OFF_LOCUS_FRAMES, MIN_OFFSET, REFINE_ITERS, bilinear_stage, pedestal_allowed, spectral_stage
 
@@ -164,6 +164,7 @@ def diagnose(
     margins: dict[str, float] | None = None,
     learn_noise: bool = True,
     from_images: bool | None = None,
+    white_level: float | None = None,
 ) -> Diagnosis:
     """Name the effect that breaks the linear model in a history, where it is, and what modelling it changes.
 
@@ -187,6 +188,10 @@ def diagnose(
         (the standard errors it measures) is present. Such values may carry output-domain noise (a codec's:
         :data:`.noise.CODEC_NOISE`) beside the noise of linear light, and a region they leave out was more than half
         clipped (:func:`.stages._censored_at_ingest`).
+    white_level
+        The white level the values were divided by (their codes), if known: values within
+        :data:`.noise.DARK_CODES` codes of black are censored at any brightness; above that, a dim history's censoring
+        level follows its own brightness (:func:`.noise.history_dark_level`).
 
     Returns
     -------
@@ -198,6 +203,13 @@ def diagnose(
         raise ValueError(f"diagnosis needs at least {rank + 2} frames, got {f}")
     if p < 3:
         raise ValueError(f"diagnosis needs at least 3 patches, got {p}")
+    with dark_level_set(history_dark_level(obs.values, white_level)):
+        return _diagnose(obs, sensitivities, rank, reestimate, margins, learn_noise, from_images)
+
+
+def _diagnose(obs: Observations, sensitivities: NDArray[np.float64], rank: int, reestimate: bool,
+              margins: dict[str, float], learn_noise: bool, from_images: bool | None) -> Diagnosis:
+    """:func:`diagnose` at the history's censoring level."""
     css = np.asarray(sensitivities, dtype=float)
     images = obs.sd is not None if from_images is None else bool(from_images)
     chosen, cands, info = _choose(obs, css, rank, margins, learn_noise, from_images=images)
@@ -212,7 +224,9 @@ def diagnose(
         minor = [d for d in found if _few_clipped(obs, d)]
         if minor:
             _illuminant_changes(obs, sensitivities, minor)
-    return _ranked(obs, diag, found, reestimate)
+    out = _ranked(obs, diag, found, reestimate)
+    out.info["censoring_level"] = round(dark_level(), 6)
+    return out
 
 
 def _few_clipped(obs: Observations, d: Diagnosis) -> bool:

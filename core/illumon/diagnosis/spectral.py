@@ -39,7 +39,7 @@ from ..priors import default_daylight_prior, reflectance_basis
 from ..retrieval.common import grey_world_mired, imaging_operators
 from ..retrieval.joint import JointProblem
 from ..spectra import WAVELENGTHS, read_spectral_csv
-from .noise import DARK_LEVEL
+from .noise import dark_level as current_dark_level
 
 __all__ = [
     "SpectralBase", "fit_spectral_base", "refine_with_measured_daylight", "off_locus_gains", "fluorescence_gains",
@@ -64,8 +64,11 @@ class SpectralBase:
 
 
 def fit_spectral_base(obs: Observations, sensitivities: NDArray[np.float64], max_nfev: int = 100,
-                      daylight: str = "cie", dark_level: float = DARK_LEVEL) -> SpectralBase:
-    """Fit the joint model (CIE daylight with its prior, reflectance basis with its prior) from a gray-world start."""
+                      daylight: str = "cie", dark_level: float | None = None) -> SpectralBase:
+    """Fit the joint model (CIE daylight with its prior, reflectance basis with its prior) from a gray-world start;
+    values at or below ``dark_level`` (default: the diagnosed history's, :func:`.noise.dark_level`) censored."""
+    if dark_level is None:
+        dark_level = current_dark_level()
     model = daylight_model(daylight)
     rb = reflectance_basis()
     c = np.asarray(sensitivities, dtype=float)

@@ -278,7 +278,7 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     # pedestal of a fraction of a code otherwise fits (clean 8…12-bit raw histories: ΔBIC −29…−47 for offsets
     # below 0.002); a real pedestal (1.5…6 % of white) lifts every value, the bright ones included
     chan = np.arange(m) % 3
-    w_lit = np.where(np.nan_to_num(y) > nz.DARK_LEVEL, w, 0.0)
+    w_lit = np.where(np.nan_to_num(y) > nz.dark_level(), w, 0.0)
     lit_b = w_lit > 0
     n_b = int(lit_b.sum())
     # the pedestal's noise: the learned noise of the value with the pedestal (as the base's) or of the signal without

@@ -1,4 +1,5 @@
-"""``illumon diagnose OBSERVATIONS.csv --sensitivities SENSITIVITIES.csv --out REPORT.json [--white-level 255]``."""
+"""``illumon diagnose OBSERVATIONS.csv --sensitivities SENSITIVITIES.csv --out REPORT.json [--white-level 255]
+[--primaries camera|srgb]``."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from .common import add_white_level
+from .common import add_primaries, add_white_level
 
 __all__ = ["add_diagnose_command", "run_diagnosis"]
 
@@ -16,7 +17,7 @@ __all__ = ["add_diagnose_command", "run_diagnosis"]
 
 
 def run_diagnosis(observations_path: str, obs, sensitivities, *, reestimate: bool = True,
-                  white_level: float | None = None):
+                  white_level: float | None = None, primaries: str = "camera"):
     """Diagnose ``obs`` with input checks whose messages name the file (raises ``ValueError``). ``white_level``: the
     codes the values were divided by (the lit values are counted above the history's censoring level,
     :func:`illumon.diagnosis.noise.history_dark_level`)."""
@@ -41,7 +42,7 @@ def run_diagnosis(observations_path: str, obs, sensitivities, *, reestimate: boo
         raise ValueError(f"{observations_path}: only {lit} value(s) above {level:.3g} of the white level (the "
                          f"brightest is {np.nanmax(values):.3g}); diagnosis reads the values above it — is "
                          "--white-level the camera's white?")
-    return diagnose(obs, sensitivities, reestimate=reestimate, white_level=white_level)
+    return diagnose(obs, sensitivities, reestimate=reestimate, white_level=white_level, primaries=primaries)
 
 
 def _cmd_diagnose(args: argparse.Namespace) -> int:
@@ -50,7 +51,7 @@ def _cmd_diagnose(args: argparse.Namespace) -> int:
 
     obs = read_observations(args.observations, white_level=args.white_level)
     css = read_sensitivities(args.sensitivities)
-    diag = run_diagnosis(args.observations, obs, css, white_level=args.white_level)
+    diag = run_diagnosis(args.observations, obs, css, white_level=args.white_level, primaries=args.primaries)
     report = diag.to_json()
     if report["parameters"].get("clip_level") is not None:
         report["parameters"]["clip_level_value"] = round(report["parameters"]["clip_level"] * args.white_level, 4)
@@ -69,4 +70,5 @@ def add_diagnose_command(subparsers: Any) -> None:
     p.add_argument("--sensitivities", required=True, help="camera sensitivities CSV wavelength_nm,r,g,b")
     p.add_argument("--out", required=True, help="REPORT.json to write")
     add_white_level(p)
+    add_primaries(p)
     p.set_defaults(func=_cmd_diagnose)

@@ -57,12 +57,13 @@ from numpy.typing import NDArray
 
 from .._blas import single_blas_thread
 from ..camera import angular_error_deg
+from ..camera.primaries import check_primaries
 from ..observations import Observations
 from ..retrieval import retrieve_illuminants
 from .candidate import Candidate
 from .correction import Diagnosis, corrected_observations, estimate_with_effect
 from .noise import CODEC_NOISE, dark_level, dark_level_set, history_dark_level
-from .spectral import fit_spectral_base, refine_with_measured_daylight, spectral_pedestal
+from .spectral import fit_spectral_base, lamp_shares, refine_with_measured_daylight, spectral_pedestal
 from .stages import MIN_OFF_LOCUS_FRAMES, MIN_OFFSET, REFINE_ITERS, bilinear_stage, pedestal_allowed, spectral_stage
 
 __all__ = ["RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "Candidate", "diagnose"]
@@ -165,6 +166,7 @@ def diagnose(
     learn_noise: bool = True,
     from_images: bool | None = None,
     white_level: float | None = None,
+    primaries: str = "camera",
 ) -> Diagnosis:
     """Name the effect that breaks the linear model in a history, where it is, and what modelling it changes.
 
@@ -192,6 +194,10 @@ def diagnose(
         The white level the values were divided by (their codes), if known: values within
         :data:`.noise.DARK_CODES` codes of black are censored at any brightness; above that, a dim history's censoring
         level follows its own brightness (:func:`.noise.history_dark_level`).
+    primaries
+        The camera's output space (:data:`illumon.camera.primaries.PRIMARIES`). For rendered output (``"srgb"``: white
+        balance and a colour matrix) a history lit by lamps throughout is named ``off_locus_illuminant`` when the
+        estimator's common level judges it so (:func:`_lamp_lit_history`); sensor RGB has no balance to judge it by.
 
     Returns
     -------
@@ -204,17 +210,22 @@ def diagnose(
     if p < 3:
         raise ValueError(f"diagnosis needs at least 3 patches, got {p}")
     with dark_level_set(history_dark_level(obs.values, white_level)):
-        return _diagnose(obs, sensitivities, rank, reestimate, margins, learn_noise, from_images)
+        return _diagnose(obs, sensitivities, rank, reestimate, margins, learn_noise, from_images, primaries)
 
 
 def _diagnose(obs: Observations, sensitivities: NDArray[np.float64], rank: int, reestimate: bool,
-              margins: dict[str, float], learn_noise: bool, from_images: bool | None) -> Diagnosis:
+              margins: dict[str, float], learn_noise: bool, from_images: bool | None,
+              primaries: str = "camera") -> Diagnosis:
     """:func:`diagnose` at the history's censoring level."""
     css = np.asarray(sensitivities, dtype=float)
     images = obs.sd is not None if from_images is None else bool(from_images)
     chosen, cands, info = _choose(obs, css, rank, margins, learn_noise, from_images=images)
     diag = _as_diagnosis(obs, chosen, cands, info)
     found = _further_effects(obs, css, rank, margins, learn_noise, [diag] if chosen is not None else [], images)
+    if check_primaries(primaries) == "srgb":
+        lamp = _lamp_lit_history(obs, css, found, primaries)
+        if lamp is not None:
+            found = [d for d in found if d.effect != "off_locus_illuminant"] + [lamp]
     if reestimate:
         if not found:
             diag.illuminant_change_deg = 0.0
@@ -227,6 +238,71 @@ def _diagnose(obs: Observations, sensitivities: NDArray[np.float64], rank: int, 
     out = _ranked(obs, diag, found, reestimate)
     out.info["censoring_level"] = round(dark_level(), 6)
     return out
+
+
+def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[Diagnosis],
+                      primaries: str) -> Diagnosis | None:
+    """Light that is not daylight over the whole history, or None.
+
+    The spectral stage finds lamp-lit frames as outliers of the history's own frames (:func:`.spectral.off_locus_gains`
+    in units of its typical frame), so a history lit by lamps *throughout* has none: its typical frame is lamp-lit (the
+    real MIMO lamp-lit scenes, every frame a pair of white, red or blue lamps: lamp light named in 2 of 6 frames of
+    one development scene, ``none`` for the other). The estimator's scene model judges such a history as a whole: for
+    rendered output the camera's balance places a daylight history's mean white near grey, a lamp-lit one's near a
+    lamp's (:func:`illumon.model.level.common_level_posterior`), and each frame's ``non_daylight`` follows
+    (:func:`illumon.model.lamps.apply_lamps`). When the history is more likely lamp-lit than not, the effect is named
+    with the frames whose ``non_daylight`` ≥ 0.5 (at least :data:`MIN_OFF_LOCUS_FRAMES`; those the spectral stage
+    found are kept too). ``lamp_share`` is the share of lamp light re-fitted as in the spectral stage
+    (:func:`.spectral.lamp_shares`) where at least two daylight frames remain to learn the reflectances from, else
+    ``None`` (not estimable: no daylight frame). The verdict is judged with the global effects found modelled
+    (values linearised, offsets subtracted, clipped values dropped: a tone curve pulls the scene's average towards
+    grey, a pedestal towards its own colour), the rule that a spectral effect is named beside a global one only when
+    it survives the other modelled; the global effects keep their own (bilinear) evidence, which lamps lighting every
+    frame cannot explain away (no frame is left to fit without them). Score: ``−2 ln`` of the posterior odds."""
+    import warnings
+
+    from ..model import fit_scene_model
+
+    judged = obs
+    for d in found:
+        if d.effect in GLOBAL_EFFECTS:
+            judged = corrected_observations(judged, d)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = fit_scene_model(judged, css, primaries=primaries)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    p = float(model.noise.get("unbalanced", 0.0) or 0.0)
+    if p <= 0.5 or model.history_estimate is None:
+        return None
+    nd = np.asarray(model.history_estimate[1].get("non_daylight", []), dtype=float)
+    if nd.shape != (len(obs.frames),):
+        return None
+    spectral = next((d for d in found if d.effect == "off_locus_illuminant"), None)
+    frames = set(np.flatnonzero(nd >= 0.5).tolist())
+    if spectral is not None:
+        frames |= set(spectral.parameters.get("frame_indices", []))
+    idx = sorted(int(i) for i in frames)
+    if len(idx) < MIN_OFF_LOCUS_FRAMES:
+        return None
+    shares: list[float | None] = [None] * len(idx)
+    day = np.setdiff1d(np.arange(len(obs.frames)), idx)
+    if day.size >= 2:
+        try:
+            base = fit_spectral_base(obs, css)
+            refine_with_measured_daylight(base, iters=REFINE_ITERS)
+            shares = lamp_shares(base, idx, sigma=fit_spectral_base(obs.subset(day), css).sigma)
+        except (ValueError, np.linalg.LinAlgError):
+            pass
+    score = -2.0 * float(np.log(min(p, 1 - 1e-12) / max(1.0 - p, 1e-12)))
+    params = {"frame_indices": idx, "frames": [obs.frames[i] for i in idx],
+              "non_daylight": [round(float(nd[i]), 3) for i in idx], "history_non_daylight": round(p, 4),
+              "lamp_share": [None if v is None else round(float(v), 2) for v in shares], "found_by": "scene_level"}
+    if spectral is not None:
+        params["spectral_frames"] = list(spectral.parameters.get("frames", []))
+    return Diagnosis("off_locus_illuminant", None, None, params, [], 0.0, 0.0, None,
+                     info={"score": score, "rms_base": 0.0})
 
 
 def _few_clipped(obs: Observations, d: Diagnosis) -> bool:

@@ -109,5 +109,4 @@ def test_a_dim_16_bit_history_is_diagnosed_not_refused(shared_data, tmp_path):
     _write_css(css, h.history.sensitivities)
     assert main(["diagnose", str(obs), "--sensitivities", str(css), "--out", str(out), "--white-level", "65535"]) == 0
     rep = json.loads(out.read_text())
-    assert rep["effect"] in EFFECT_NAMES
-    assert rep["effect"] != "off_locus_illuminant"
+    assert rep["effect"] == "none"  # a clean history, dim or not

@@ -258,7 +258,9 @@ def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[D
     (values linearised, offsets subtracted, clipped values dropped: a tone curve pulls the scene's average towards
     grey, a pedestal towards its own colour), the rule that a spectral effect is named beside a global one only when
     it survives the other modelled; the global effects keep their own (bilinear) evidence, which lamps lighting every
-    frame cannot explain away (no frame is left to fit without them). Score: ``−2 ln`` of the posterior odds."""
+    frame cannot explain away (no frame is left to fit without them). Score: ``−2 ln`` of the posterior odds. What
+    modelling it changes (``illuminant_change_deg``) is the move from the daylight-only joint estimate to the scene
+    model's whites, which follow the lamps (``info["lamp_whites"]``)."""
     import warnings
 
     from ..model import fit_scene_model
@@ -302,7 +304,8 @@ def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[D
     if spectral is not None:
         params["spectral_frames"] = list(spectral.parameters.get("frames", []))
     return Diagnosis("off_locus_illuminant", None, None, params, [], 0.0, 0.0, None,
-                     info={"score": score, "rms_base": 0.0})
+                     info={"score": score, "rms_base": 0.0,
+                           "lamp_whites": np.asarray(model.history_estimate[0].white, dtype=float)})
 
 
 def _few_clipped(obs: Observations, d: Diagnosis) -> bool:
@@ -354,7 +357,11 @@ def _illuminant_changes(obs: Observations, sensitivities: NDArray[np.float64], f
     for i, d in enumerate(found):
         if i > 0 and d.patch is not None and d.patch not in obs.patches:
             continue  # a part of a split patch: its change is not defined on the original history
-        after = estimate_with_effect(obs, sensitivities, d, base_result=before, **fast)
+        if d.parameters.get("found_by") == "scene_level":  # lamps throughout: the scene model's whites follow them
+            after = copy.deepcopy(before)
+            after.white = d.info["lamp_whites"]
+        else:
+            after = estimate_with_effect(obs, sensitivities, d, base_result=before, **fast)
         d.illuminant_change_deg = round(float(np.median(angular_error_deg(before.white, after.white))), 4)
         d.info["before"], d.info["after"] = before, after
 

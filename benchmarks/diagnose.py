@@ -78,7 +78,8 @@ def history(sim: str, effect: str, i: int, cameras: tuple[str, ...] = CAMERAS, s
     return h.observations, h.history.sensitivities, h.history.true_white, h.patch, h.frame, cam, seed
 
 
-def one(sim: str, effect: str, i: int, split: str = "score", variant: str | None = None) -> dict:
+def one(sim: str, effect: str, i: int, split: str = "score", variant: str | None = None,
+        primaries: str = "camera") -> dict:
     """Diagnose one history; illuminant error before / after; every candidate's score (to study margins offline)."""
     warnings.filterwarnings("ignore")
     if split == "dev":
@@ -87,7 +88,9 @@ def one(sim: str, effect: str, i: int, split: str = "score", variant: str | None
     else:
         obs, css, truth, patch, frame, cam, seed = history(sim, effect, i, variant=variant)
     t = time.perf_counter()
-    d = diagnose(obs, css, reestimate=False)
+    # imgsim renders output (white-balance preset, colour matrix): with --primaries srgb it is diagnosed as such;
+    # illumon and rawsim deliver sensor RGB
+    d = diagnose(obs, css, reestimate=False, primaries=primaries if sim == "imgsim" else "camera")
     dt = time.perf_counter() - t
     ok = d.effect == effect
     if ok and "patch" in LOCATED_EFFECTS.get(effect, ()):
@@ -144,6 +147,10 @@ def main() -> int:
                     help="score protocol (default) or the development one the margins are chosen on")
     ap.add_argument("--variant", choices=tuple(rawsim.PIPELINE_VARIANTS), default=None,
                     help="render rawsim histories with a pipeline variant (robustness check, not scored)")
+    ap.add_argument("--primaries", choices=("camera", "srgb"), default="camera",
+                    help="output space the imgsim histories (rendered output) are diagnosed in (camera)")
+    ap.add_argument("--effects", default=",".join(EFFECTS),
+                    help="hidden effects to run, comma-separated (all); the named rate is over those run")
     ap.add_argument("--out", default=None, help="JSON (default benchmarks/results/diagnose[_dev][_VARIANT].json)")
     args = ap.parse_args()
     if args.out is None:
@@ -157,7 +164,11 @@ def main() -> int:
         print(f"illumon: error: --sims must name {' or '.join(ALL_SIMS)}", file=sys.stderr)
         return 2
     n = 5 if args.quick else args.seeds
-    jobs = [(s, e, i, args.split, args.variant) for s in sims for e in EFFECTS for i in range(n)]
+    effects = [e for e in args.effects.split(",") if e]
+    if any(e not in EFFECTS for e in effects):
+        print(f"illumon: error: --effects must name some of {', '.join(EFFECTS)}", file=sys.stderr)
+        return 2
+    jobs = [(s, e, i, args.split, args.variant, args.primaries) for s in sims for e in effects for i in range(n)]
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=args.jobs) as ex:
         rows = list(ex.map(one, *zip(*jobs, strict=True)))

@@ -15,6 +15,17 @@ Split, fixed before any parameter was chosen: **development** ``bmug``, ``diff``
 (development; :data:`illumon.model.lamps.LAMP_PRIOR` is the largest prior that flags none of their frames).
 ``--sim N`` adds N simulated lamp-lit histories on the score cameras (:func:`simulated`).
 
+``--diagnose`` adds the product's diagnosis as an outside user runs it (``illumon diagnose``: sensitivities the
+linear-sRGB colour-matching functions clipped at 0, :func:`illumon.camera.primaries.srgb_sensitivities`, what outside
+checkers pass for a camera nobody measured; values as loaded, white level 65535) on every scene, both with
+``--primaries camera`` (the CLI's default) and ``srgb`` (raw-converted linear output, as the estimator's table above
+reads it): the effects named, the lamp-lit frames, and whether ``off_locus_illuminant`` was named. The daylight side:
+the ``sony-dolp`` chart sets — ``sony-raw`` with the mean measured camera's sensitivities (sensor RGB), the ISP sets
+with the clipped sRGB functions and ``--primaries srgb``; they have 3 frames, fewer than the diagnosis needs (6), so
+the diagnosis refuses them and the column gives the whole-history lamp check alone
+(:func:`illumon.diagnosis.fit._lamp_lit_history`, rendered output only). ``--split development`` runs the development
+scenes only, ``--split score`` the held-out ones (looked at once, after every choice).
+
 ``python benchmarks/lamps.py`` prints the table and writes ``benchmarks/results/lamps.json``.
 
 References
@@ -98,6 +109,57 @@ def run(obs, primaries: str):
     return np.asarray(res.white, dtype=float), np.asarray(extra.get("non_daylight", np.zeros(len(res.white))))
 
 
+def diagnosis_row(obs, css: NDArray, primaries: str) -> dict:
+    """The product's diagnosis of ``obs`` as ``illumon diagnose`` runs it (white level 65535), or why it refused."""
+    from illumon.cli.diagnose import run_diagnosis
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            d = run_diagnosis("<history>", obs, css, white_level=65535.0, primaries=primaries)
+    except ValueError as exc:
+        return {"refused": str(exc).replace("<history>: ", ""), "off_locus": False, "effects": []}
+    effects = [{"effect": e["effect"], "frames": e["parameters"].get("frames"),
+                "found_by": e["parameters"].get("found_by", "spectral" if e["effect"] == "off_locus_illuminant" else None),
+                "illuminant_change_deg": e["illuminant_change_deg"]} for e in d.effects]
+    return {"effect": d.effect, "effects": effects, "off_locus": any(e["effect"] == "off_locus_illuminant" for e in effects),
+            "censoring_level": d.info.get("censoring_level")}
+
+
+def _diagnosis_text(r: dict) -> str:
+    if "refused" in r:
+        return "refused (" + r["refused"].split(";")[0] + ")"
+    if not r["effects"]:
+        return "none"
+    return ", ".join(e["effect"] + (f" [{' '.join(e['frames'])}]" if e.get("frames") else "") for e in r["effects"])
+
+
+def daylight_diagnosis(s) -> dict:
+    """A ``sony-dolp`` daylight set through the diagnosis (module docstring): sony-raw with the mean measured camera's
+    sensitivities, the ISP sets with the clipped sRGB functions; and the whole-history lamp check alone."""
+    from illumon.camera.calibration import prior_sensitivities
+    from illumon.camera.primaries import srgb_sensitivities
+    from illumon.diagnosis.fit import _lamp_lit_history
+    from real import _observations
+
+    obs = _observations(s, [])
+    if s.primaries == "srgb":
+        css, name = np.clip(srgb_sensitivities(), 0.0, None), "clipped sRGB functions"
+    else:
+        css, name = prior_sensitivities(), "mean measured camera"
+    out = {"sensitivities": name, "diagnose": diagnosis_row(obs, css, s.primaries)}
+    if s.primaries == "srgb":
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            lamp = _lamp_lit_history(obs, css, [], "srgb")
+        out["lamp_check"] = "off-locus" + str(lamp.parameters["frames"]) if lamp is not None else "daylight (no off-locus)"
+        out["off_locus"] = lamp is not None
+    else:
+        out["lamp_check"] = "not applicable (sensor RGB)"
+        out["off_locus"] = False
+    return out
+
+
 def simulated(n: int) -> dict:
     """``n`` histories of :func:`illumon.simulation.effects.hide_effect` ``off_locus_illuminant`` (measured camera,
     Granada daylight, 3…F/5 frames lit 60–100 % by a CIE lamp) on the score cameras of ``benchmarks/rawsim.py``, seeds
@@ -149,6 +211,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "lamps.json"))
     ap.add_argument("--primaries", default="srgb", choices=["srgb", "camera"])
     ap.add_argument("--no-daylight", action="store_true", help="skip the daylight chart sets")
+    ap.add_argument("--split", default="all", choices=["development", "score", "all"],
+                    help="scenes to run: development (bmug, diff; and the daylight sets), score (lion, spdif), all")
+    ap.add_argument("--diagnose", action="store_true",
+                    help="add the product's diagnosis (clipped sRGB functions as sensitivities, white level 65535)")
     ap.add_argument("--sim", type=int, default=0,
                     help="also N simulated lamp-lit histories (score cameras, seeds 1 000 000…; 0: none)")
     args = ap.parse_args(argv)
@@ -161,7 +227,14 @@ def main(argv: list[str] | None = None) -> int:
               "daylight_sets": {}}
     print(f"development scenes: {', '.join(DEVELOPMENT)}; score (held out): {', '.join(SCORE)}; primaries {args.primaries}")
     print(f"{'scene':<8} {'split':<12} {'illumon °':>9} {'gray-world °':>12} {'ratio':>6}  non_daylight per frame")
-    for scene in DEVELOPMENT + SCORE:
+    scenes = {"development": DEVELOPMENT, "score": SCORE, "all": DEVELOPMENT + SCORE}[args.split]
+    report["split_run"] = args.split
+    if args.split != "development":
+        print("score scenes (lion, spdif) included: held out, to be looked at once after every choice")
+    from illumon.camera.primaries import srgb_sensitivities
+
+    css = np.clip(srgb_sensitivities(), 0.0, None)  # what outside checkers pass for a camera nobody measured
+    for scene in scenes:
         obs, truth = load_scene(folder, scene)
         white, nd = run(obs, args.primaries)
         gw = np.nanmean(np.asarray(obs.values), axis=1)
@@ -176,7 +249,17 @@ def main(argv: list[str] | None = None) -> int:
         r = report["scenes"][scene]
         print(f"{scene:<8} {split:<12} {r['median_deg']:9.2f} {r['gray_world_median_deg']:12.2f} {r['ratio']:6.2f}  "
               + " ".join(f"{f}:{v:.2f}" for f, v in zip(obs.frames, nd, strict=True)))
-    if not args.no_daylight and (data / "real" / "sony-dolp").is_dir():
+        if args.diagnose:
+            r["diagnosis"] = {prim: diagnosis_row(obs, css, prim) for prim in ("camera", "srgb")}
+            for prim, dr in r["diagnosis"].items():
+                print(f"    diagnosis --primaries {prim:<6}: off-locus {'named' if dr['off_locus'] else 'NOT named':<9}  "
+                      + _diagnosis_text(dr))
+    if args.diagnose:
+        named = {prim: [s for s in scenes if report["scenes"][s]["diagnosis"][prim]["off_locus"]] for prim in ("camera", "srgb")}
+        report["off_locus_named"] = named
+        print("off-locus named (lamp-lit scenes): " + "; ".join(
+            f"--primaries {prim} {len(v)} of {len(scenes)}" for prim, v in named.items()))
+    if args.split != "score" and not args.no_daylight and (data / "real" / "sony-dolp").is_dir():
         raw = sony_raw(data)
         for s in [raw, *isp_sets(raw)]:
             from real import _observations
@@ -187,6 +270,10 @@ def main(argv: list[str] | None = None) -> int:
                                                "flagged_fraction": float(np.mean(nd >= 0.5))}
             print(f"{s.name:<16} daylight (development) illumon {np.median(e):.2f}°  non_daylight "
                   + " ".join(f"{v:.2f}" for v in nd))
+            if args.diagnose:
+                report["daylight_sets"][s.name]["diagnosis"] = dr = daylight_diagnosis(s)
+                print(f"    diagnosis ({dr['sensitivities']}, --primaries {s.primaries}): "
+                      + _diagnosis_text(dr["diagnose"]) + f"; whole-history lamp check: {dr['lamp_check']}")
     if args.sim:
         report["simulated"] = simulated(args.sim)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

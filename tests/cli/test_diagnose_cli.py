@@ -94,3 +94,19 @@ def test_diagnose_rejects_short_sensitivities(tmp_path, capsys):
     css.write_text("wavelength_nm,r,g,b\n420,1,1,1\n680,1,1,1\n")
     assert main(["diagnose", str(obs), "--sensitivities", str(css), "--out", str(tmp_path / "r.json")]) == 2
     assert "400–700" in capsys.readouterr().err
+
+
+def test_a_dim_16_bit_history_is_diagnosed_not_refused(shared_data, tmp_path):
+    """A 16-bit linear camera whose regions sit at 0.5…2.5 % of white (thousands of codes above black, as the real
+    MIMO lamp-lit scenes' do): 3 % of white censored every value and the history was refused; it is read above its
+    own censoring level (``illumon.diagnosis.noise.history_dark_level``)."""
+    h = hide_effect("none", "Nikon_D3X", 15_002, frames=24, patches=8)
+    dim = h.observations
+    dim.values = dim.values * (0.025 / np.nanpercentile(dim.values, 99))
+    assert np.nanmax(dim.values) <= 0.15 and np.sum(dim.values > 0.03) < 12  # refused by the former rule
+    obs, css, out = tmp_path / "o.csv", tmp_path / "c.csv", tmp_path / "r.json"
+    write_observations(obs, dim, white_level=65535)
+    _write_css(css, h.history.sensitivities)
+    assert main(["diagnose", str(obs), "--sensitivities", str(css), "--out", str(out), "--white-level", "65535"]) == 0
+    rep = json.loads(out.read_text())
+    assert rep["effect"] == "none"  # a clean history, dim or not

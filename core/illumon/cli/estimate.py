@@ -65,7 +65,8 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
             from ..diagnosis.correction import estimate_with_effects
             from .diagnose import run_diagnosis
 
-            diag = run_diagnosis(args.observations, obs, css, reestimate=False)
+            diag = run_diagnosis(args.observations, obs, css, reestimate=False, white_level=args.white_level,
+                                 primaries=args.primaries)
             result = estimate_with_effects(obs, css, diag, method=args.method, **kwargs)
             more = [e["effect"] for e in diag.effects[1:]]
             print(f"illumon: model effects: {diag.effect}" + (f" (and {', '.join(more)})" if more else "")

@@ -57,12 +57,14 @@ from numpy.typing import NDArray
 
 from .._blas import single_blas_thread
 from ..camera import angular_error_deg
+from ..camera.primaries import check_primaries
 from ..observations import Observations
 from ..retrieval import retrieve_illuminants
 from .candidate import Candidate
 from .correction import Diagnosis, corrected_observations, estimate_with_effect
-from .noise import CODEC_NOISE
-from .stages import MIN_OFF_LOCUS_FRAMES, bilinear_stage, spectral_stage
+from .noise import CODEC_NOISE, dark_level, dark_level_set, history_dark_level
+from .spectral import fit_spectral_base, lamp_shares, refine_with_measured_daylight, spectral_pedestal
+from .stages import MIN_OFF_LOCUS_FRAMES, MIN_OFFSET, REFINE_ITERS, bilinear_stage, pedestal_allowed, spectral_stage
 
 __all__ = ["RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "Candidate", "diagnose"]
 
@@ -117,8 +119,10 @@ def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank:
     modelled (values linearised, offsets subtracted, clipped values dropped), the global effect explains it and
     stays (a tone curve on values rounded to codes: its misfit of the spectral model read as lamp light, −57, which
     linearising removes). A patch change or a shadow is put down to lamp light the same way (lamp-lit frames late in
-    an image-based history read as a patch changing at their onset, ΔBIC −42 against the lamp's −67), never to
-    fluorescence (a changed or shaded patch misfits the spectral model by that alone).
+    an image-based history read as a patch changing at their onset, ΔBIC −42 against the lamp's −67), and to
+    fluorescence of *another* patch (an emission distorts the frame factors the other patches are judged against: a
+    patch "changing" at frame 24 beside a fluorescent patch at −17); never to fluorescence of the changed or shaded
+    patch itself, which misfits the spectral model by that alone (three development histories read so).
     """
     y = obs.values.reshape(obs.values.shape[0], -1)
     modelled: list[Candidate] | None = None
@@ -127,8 +131,8 @@ def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank:
             continue
         if cand.effect == "fluorescence" and chosen.effect == "clipping":
             continue  # the clipped patch misfits the spectral model too: no independent evidence of emission
-        if chosen.effect not in GLOBAL_EFFECTS and cand.effect != "off_locus_illuminant":
-            continue  # a changed or shaded patch misfits the spectral model too
+        if cand.effect == "fluorescence" and chosen.patch is not None and cand.patch == chosen.patch:
+            continue  # so does a changed or shaded patch
         masked = y.copy()
         if cand.effect == "off_locus_illuminant":
             keep = np.setdiff1d(np.arange(y.shape[0]), cand.parameters["frame_indices"])
@@ -161,6 +165,8 @@ def diagnose(
     margins: dict[str, float] | None = None,
     learn_noise: bool = True,
     from_images: bool | None = None,
+    white_level: float | None = None,
+    primaries: str = "camera",
 ) -> Diagnosis:
     """Name the effect that breaks the linear model in a history, where it is, and what modelling it changes.
 
@@ -184,6 +190,14 @@ def diagnose(
         (the standard errors it measures) is present. Such values may carry output-domain noise (a codec's:
         :data:`.noise.CODEC_NOISE`) beside the noise of linear light, and a region they leave out was more than half
         clipped (:func:`.stages._censored_at_ingest`).
+    white_level
+        The white level the values were divided by (their codes), if known: values within
+        :data:`.noise.DARK_CODES` codes of black are censored at any brightness; above that, a dim history's censoring
+        level follows its own brightness (:func:`.noise.history_dark_level`).
+    primaries
+        The camera's output space (:data:`illumon.camera.primaries.PRIMARIES`). For rendered output (``"srgb"``: white
+        balance and a colour matrix) a history lit by lamps throughout is named ``off_locus_illuminant`` when the
+        estimator's common level judges it so (:func:`_lamp_lit_history`); sensor RGB has no balance to judge it by.
 
     Returns
     -------
@@ -195,11 +209,23 @@ def diagnose(
         raise ValueError(f"diagnosis needs at least {rank + 2} frames, got {f}")
     if p < 3:
         raise ValueError(f"diagnosis needs at least 3 patches, got {p}")
+    with dark_level_set(history_dark_level(obs.values, white_level)):
+        return _diagnose(obs, sensitivities, rank, reestimate, margins, learn_noise, from_images, primaries)
+
+
+def _diagnose(obs: Observations, sensitivities: NDArray[np.float64], rank: int, reestimate: bool,
+              margins: dict[str, float], learn_noise: bool, from_images: bool | None,
+              primaries: str = "camera") -> Diagnosis:
+    """:func:`diagnose` at the history's censoring level."""
     css = np.asarray(sensitivities, dtype=float)
     images = obs.sd is not None if from_images is None else bool(from_images)
     chosen, cands, info = _choose(obs, css, rank, margins, learn_noise, from_images=images)
     diag = _as_diagnosis(obs, chosen, cands, info)
     found = _further_effects(obs, css, rank, margins, learn_noise, [diag] if chosen is not None else [], images)
+    if check_primaries(primaries) == "srgb":
+        lamp = _lamp_lit_history(obs, css, found, primaries)
+        if lamp is not None:
+            found = [d for d in found if d.effect != "off_locus_illuminant"] + [lamp]
     if reestimate:
         if not found:
             diag.illuminant_change_deg = 0.0
@@ -209,7 +235,77 @@ def diagnose(
         minor = [d for d in found if _few_clipped(obs, d)]
         if minor:
             _illuminant_changes(obs, sensitivities, minor)
-    return _ranked(obs, diag, found, reestimate)
+    out = _ranked(obs, diag, found, reestimate)
+    out.info["censoring_level"] = round(dark_level(), 6)
+    return out
+
+
+def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[Diagnosis],
+                      primaries: str) -> Diagnosis | None:
+    """Light that is not daylight over the whole history, or None.
+
+    The spectral stage finds lamp-lit frames as outliers of the history's own frames (:func:`.spectral.off_locus_gains`
+    in units of its typical frame), so a history lit by lamps *throughout* has none: its typical frame is lamp-lit (the
+    real MIMO lamp-lit scenes, every frame a pair of white, red or blue lamps: lamp light named in 2 of 6 frames of
+    one development scene, ``none`` for the other). The estimator's scene model judges such a history as a whole: for
+    rendered output the camera's balance places a daylight history's mean white near grey, a lamp-lit one's near a
+    lamp's (:func:`illumon.model.level.common_level_posterior`), and each frame's ``non_daylight`` follows
+    (:func:`illumon.model.lamps.apply_lamps`). When the history is more likely lamp-lit than not, the effect is named
+    with the frames whose ``non_daylight`` ≥ 0.5 (at least :data:`MIN_OFF_LOCUS_FRAMES`; those the spectral stage
+    found are kept too). ``lamp_share`` is the share of lamp light re-fitted as in the spectral stage
+    (:func:`.spectral.lamp_shares`) where at least two daylight frames remain to learn the reflectances from, else
+    ``None`` (not estimable: no daylight frame). The verdict is judged with the global effects found modelled
+    (values linearised, offsets subtracted, clipped values dropped: a tone curve pulls the scene's average towards
+    grey, a pedestal towards its own colour), the rule that a spectral effect is named beside a global one only when
+    it survives the other modelled; the global effects keep their own (bilinear) evidence, which lamps lighting every
+    frame cannot explain away (no frame is left to fit without them). Score: ``−2 ln`` of the posterior odds. What
+    modelling it changes (``illuminant_change_deg``) is the move from the daylight-only joint estimate to the scene
+    model's whites, which follow the lamps (``info["lamp_whites"]``)."""
+    import warnings
+
+    from ..model import fit_scene_model
+
+    judged = obs
+    for d in found:
+        if d.effect in GLOBAL_EFFECTS:
+            judged = corrected_observations(judged, d)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = fit_scene_model(judged, css, primaries=primaries)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    p = float(model.noise.get("unbalanced", 0.0) or 0.0)
+    if p <= 0.5 or model.history_estimate is None:
+        return None
+    nd = np.asarray(model.history_estimate[1].get("non_daylight", []), dtype=float)
+    if nd.shape != (len(obs.frames),):
+        return None
+    spectral = next((d for d in found if d.effect == "off_locus_illuminant"), None)
+    frames = set(np.flatnonzero(nd >= 0.5).tolist())
+    if spectral is not None:
+        frames |= set(spectral.parameters.get("frame_indices", []))
+    idx = sorted(int(i) for i in frames)
+    if len(idx) < MIN_OFF_LOCUS_FRAMES:
+        return None
+    shares: list[float | None] = [None] * len(idx)
+    day = np.setdiff1d(np.arange(len(obs.frames)), idx)
+    if day.size >= 2:
+        try:
+            base = fit_spectral_base(obs, css)
+            refine_with_measured_daylight(base, iters=REFINE_ITERS)
+            shares = lamp_shares(base, idx, sigma=fit_spectral_base(obs.subset(day), css).sigma)
+        except (ValueError, np.linalg.LinAlgError):
+            pass
+    score = -2.0 * float(np.log(min(p, 1 - 1e-12) / max(1.0 - p, 1e-12)))
+    params = {"frame_indices": idx, "frames": [obs.frames[i] for i in idx],
+              "non_daylight": [round(float(nd[i]), 3) for i in idx], "history_non_daylight": round(p, 4),
+              "lamp_share": [None if v is None else round(float(v), 2) for v in shares], "found_by": "scene_level"}
+    if spectral is not None:
+        params["spectral_frames"] = list(spectral.parameters.get("frames", []))
+    return Diagnosis("off_locus_illuminant", None, None, params, [], 0.0, 0.0, None,
+                     info={"score": score, "rms_base": 0.0,
+                           "lamp_whites": np.asarray(model.history_estimate[0].white, dtype=float)})
 
 
 def _few_clipped(obs: Observations, d: Diagnosis) -> bool:
@@ -222,17 +318,35 @@ def _further_effects(obs: Observations, css: NDArray[np.float64], rank: int, mar
     """Several effects at once (a history may carry more than one): model the one found, look again in what is left, until nothing
     passes its margin (at most :data:`MAX_EFFECTS`); every effect in the original history's indices."""
     current = obs
+    structural = np.zeros(obs.values.shape, dtype=bool)
     while found and len(found) < MAX_EFFECTS:
-        current = _modelled(current, found[-1])
+        previous, current = current, _modelled(current, found[-1])
         if current is None or current.values.shape[0] < rank + 2 or current.values.shape[1] < 3:
             break
+        structural = _structural(previous, current, structural)
         nxt, ncands, ninfo = _choose(current, css, rank, margins, learn_noise,
-                                     exclude={d.effect for d in found}, from_images=from_images)
+                                     exclude={d.effect for d in found}, from_images=from_images,
+                                     structural=structural)
         if nxt is None:
             break
         found.append(_as_diagnosis(current, nxt, ncands, ninfo))
     # every effect in the original history's indices (a later one was found with earlier ones modelled)
     return [d if i == 0 else (_on_original(obs, d) or d) for i, d in enumerate(found)]
+
+
+def _structural(previous: Observations, current: Observations, mask: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Values of ``current`` (``previous`` with an effect modelled) missing because of the modelling, with those
+    ``mask`` marks in ``previous``: dropped values, and the part of a split patch before or after its onset."""
+    rows = [previous.frames.index(fr) for fr in current.frames]
+    gone = np.isnan(current.values)
+    out = np.zeros(current.values.shape, dtype=bool)
+    for j, name in enumerate(current.patches):
+        if name in previous.patches:
+            k = previous.patches.index(name)
+            out[:, j] = mask[rows, k] | (gone[:, j] & np.isfinite(previous.values[rows, k]))
+        else:  # the part of a split patch: missing where the other part is
+            out[:, j] = gone[:, j]
+    return out
 
 
 def _illuminant_changes(obs: Observations, sensitivities: NDArray[np.float64], found: list[Diagnosis]) -> None:
@@ -243,7 +357,11 @@ def _illuminant_changes(obs: Observations, sensitivities: NDArray[np.float64], f
     for i, d in enumerate(found):
         if i > 0 and d.patch is not None and d.patch not in obs.patches:
             continue  # a part of a split patch: its change is not defined on the original history
-        after = estimate_with_effect(obs, sensitivities, d, base_result=before, **fast)
+        if d.parameters.get("found_by") == "scene_level":  # lamps throughout: the scene model's whites follow them
+            after = copy.deepcopy(before)
+            after.white = d.info["lamp_whites"]
+        else:
+            after = estimate_with_effect(obs, sensitivities, d, base_result=before, **fast)
         d.illuminant_change_deg = round(float(np.median(angular_error_deg(before.white, after.white))), 4)
         d.info["before"], d.info["after"] = before, after
 
@@ -293,12 +411,13 @@ MINOR_CLIPPING_FRACTION = 0.01
 
 
 def _choose(obs: Observations, css: NDArray[np.float64], rank: int, margins: dict[str, float], learn_noise: bool,
-            exclude: set[str] | frozenset = frozenset(),
-            from_images: bool = False) -> tuple[Candidate | None, list[Candidate], dict]:
+            exclude: set[str] | frozenset = frozenset(), from_images: bool = False,
+            structural: NDArray[np.bool_] | None = None) -> tuple[Candidate | None, list[Candidate], dict]:
     """One round of selection (module docstring): the bilinear stage, the spectral stage, the converse checks."""
     f, p, _ = obs.values.shape
     y = obs.values.reshape(f, 3 * p)
-    _, cands, info = bilinear_stage(y, rank, margins["clipping"], learn_noise, *_image_noise(from_images))
+    _, cands, info = bilinear_stage(y, rank, margins["clipping"], learn_noise, *_image_noise(from_images),
+                                    None if structural is None else structural.reshape(f, 3 * p))
     spectral, sinfo = spectral_stage(obs, css, margins["fluorescence"])
     info.update(sinfo)
     cands += spectral
@@ -319,7 +438,53 @@ def _choose(obs: Observations, css: NDArray[np.float64], rank: int, margins: dic
         ok = [c for c in spectral_ok if c.score < -margins[c.effect]]
         if ok:
             chosen = ok[0]
+            if chosen.effect == "off_locus_illuminant" and "black_offset" not in exclude:
+                chosen = _pedestal_cause(obs, css, chosen, margins) or chosen
     return chosen, cands, info
+
+
+def _pedestal_cause(obs: Observations, css: NDArray[np.float64], lamp: Candidate,
+                    margins: dict[str, float]) -> Candidate | None:
+    """A black offset that explains what the spectral stage took for lamp light, or None.
+
+    An auto-exposure that keeps the scene's mean brightness steady leaves a pedestal invisible to the bilinear model
+    (one combination of its frame factors is constant and carries it), while the spectral model, whose reflectances
+    cannot add the same signal under every light, misfits it as light off the daylight locus: 2…6 % pedestals of
+    the image-based simulator's development histories scored ΔBIC +10…+21 as offsets and −66…−152 as lamp light, and
+    subtracting the true pedestal left the lamp at −1…+2. The pedestal is fitted within the spectral model
+    (:func:`.spectral.spectral_pedestal`) and named when it passes the offset's margin (its cost drop read as
+    ``−2·ΔNLL``, three parameters), is at least :data:`.stages.MIN_OFFSET` and allowed by the values
+    (:func:`.stages.pedestal_allowed`), the lamp no longer passes its margin with it subtracted, and it survives the
+    lamp modelled (fitted again without the lamp-lit frames) — the rule that a global effect and a spectral one
+    explain each other only when each survives the other modelled.
+    """
+    y = obs.values.reshape(obs.values.shape[0], -1)
+
+    def pedestal(o: Observations) -> tuple[NDArray[np.float64], float]:
+        base = fit_spectral_base(o, css)
+        refine_with_measured_daylight(base, iters=REFINE_ITERS)
+        b, gain = spectral_pedestal(base)
+        return b, -gain + 3.0 * np.log(max(int(base.prob.present.sum()) * 3, 2))
+
+    def passes(b: NDArray[np.float64], score: float) -> bool:
+        return bool(score < -margins["black_offset"] and np.max(b) >= MIN_OFFSET)
+
+    try:
+        b, score = pedestal(obs)
+        if not (passes(b, score) and pedestal_allowed(y, np.isfinite(y), b)):
+            return None
+        corrected = Observations(list(obs.frames), list(obs.patches), np.clip(obs.values - b, 1e-6, None),
+                                 list(obs.times), obs.sd)
+        again, _ = spectral_stage(corrected, css, margins["fluorescence"])
+        if next(c.score for c in again if c.effect == lamp.effect) < -margins[lamp.effect]:
+            return None
+        keep = np.setdiff1d(np.arange(len(obs.frames)), lamp.parameters["frame_indices"])
+        if keep.size >= 6 and not passes(*pedestal(obs.subset(keep))):
+            return None
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    return Candidate("black_offset", float(score), {"offsets": [round(float(v), 5) for v in b],
+                                                    "found_by": "spectral"})
 
 
 def _image_noise(from_images: bool) -> tuple[float, bool]:

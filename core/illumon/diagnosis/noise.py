@@ -9,6 +9,9 @@ quantisation noise of values on a grid, and values within a few codes of black c
 
 from __future__ import annotations
 
+import contextvars
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -19,7 +22,8 @@ from scipy.optimize import nnls
 from ..camera.noise import DEFAULT_NOISE
 from .bilinear import LowRankFit, wals
 
-__all__ = ["noise_weights", "NoiseLevel", "quantisation_step", "estimate_noise", "DARK_LEVEL", "SHOT_SHARE",
+__all__ = ["noise_weights", "NoiseLevel", "quantisation_step", "estimate_noise", "DARK_LEVEL", "DARK_CODES",
+           "DIM_BRIGHTEST", "dark_level", "dark_level_set", "history_dark_level", "SHOT_SHARE",
            "CODEC_NOISE", "LearnedNoise", "fit_learned_noise"]
 
 
@@ -205,6 +209,55 @@ dark): in a camera's output they sit within a few codes of the black clipping (t
 where rounding of pixels that the pixel noise does not dither and the clipping at 0 after black subtraction bias a
 region's mean by up to half a code, far beyond a shot-noise model, and a tone curve is fitted to that bias. Chosen on
 the development cameras (a clean 8-bit history: ΔBIC −180 with all values, +6 with values above 3 %)."""
+
+DARK_CODES = DARK_LEVEL * 255.0
+""":data:`DARK_LEVEL` in codes of 8-bit output (7.65): the fewest codes above black a value needs to count as lit,
+whatever the data's bit depth (:func:`history_dark_level`)."""
+
+DIM_BRIGHTEST = 0.2
+"""A history whose brightest values (99th percentile) lie below this fraction of the white level is *dim*: its
+censoring level is :data:`DARK_LEVEL` of ``brightest / DIM_BRIGHTEST``, not of the white level
+(:func:`history_dark_level`). The simulators' histories are exposed well above it (their levels are unchanged)."""
+
+_DARK = contextvars.ContextVar("illumon_diagnosis_dark_level", default=DARK_LEVEL)
+
+
+def dark_level() -> float:
+    """The censoring level of the history being diagnosed (:func:`history_dark_level`; :data:`DARK_LEVEL` outside a
+    diagnosis): the tone test, the offset test and the spectral fit read values above it only."""
+    return _DARK.get()
+
+
+@contextmanager
+def dark_level_set(level: float) -> Iterator[None]:
+    """Diagnose with the censoring level ``level`` (restored on exit; per thread and task)."""
+    token = _DARK.set(float(level))
+    try:
+        yield
+    finally:
+        _DARK.reset(token)
+
+
+def history_dark_level(values: NDArray[np.float64], white_level: float | None = None) -> float:
+    """The censoring level for a history's values (0…1 of ``white_level``): :data:`DARK_LEVEL`, or for a dim history
+    (brightest values, the 99th percentile, below :data:`DIM_BRIGHTEST`) the same share of its own range,
+    ``DARK_LEVEL · brightest / DIM_BRIGHTEST`` — but never below :data:`DARK_CODES` codes of the data's bit depth
+    (``white_level``; unknown: 16-bit).
+
+    The censoring protects against the bias of a region's mean within a few codes of black (rounding of pixels the
+    noise does not dither, clipping at 0 after black subtraction). On 8-bit output (``white_level`` 255) the level stays
+    3 % of white whatever the brightness, and a history near black is refused as before. A real 16-bit linear camera
+    (the MIMO lamp-lit scenes: regions at 1…10 % of white, i.e. 650…6 500 codes) had every value below 3 % of white:
+    the diagnosis censored nearly all of them (or the CLI refused the history) although they are hundreds of codes
+    above black and far above the noise."""
+    v = np.asarray(values, dtype=float)
+    v = v[np.isfinite(v) & (v > 0)]
+    if v.size == 0:
+        return DARK_LEVEL
+    brightest = float(np.percentile(v, 99))
+    floor = DARK_CODES / float(white_level if white_level and white_level > 0 else 65535.0)
+    return float(min(DARK_LEVEL, max(DARK_LEVEL * brightest / DIM_BRIGHTEST, floor)))
+
 
 
 CODEC_NOISE = (1.0 / 255.0) ** 2 / 12.0

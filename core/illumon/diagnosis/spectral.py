@@ -39,12 +39,12 @@ from ..priors import default_daylight_prior, reflectance_basis
 from ..retrieval.common import grey_world_mired, imaging_operators
 from ..retrieval.joint import JointProblem
 from ..spectra import WAVELENGTHS, read_spectral_csv
-from .noise import DARK_LEVEL
+from .noise import dark_level as current_dark_level
 
 __all__ = [
     "SpectralBase", "fit_spectral_base", "refine_with_measured_daylight", "off_locus_gains", "fluorescence_gains",
     "generic_fluorescence_gains", "excitation_bands", "EXCITATION_CENTRES_NM", "daylight_mixture",
-    "LOCAL_REFLECTANCE_SD", "local_reflectance_functions",
+    "LOCAL_REFLECTANCE_SD", "local_reflectance_functions", "spectral_pedestal",
 ]
 
 
@@ -64,8 +64,11 @@ class SpectralBase:
 
 
 def fit_spectral_base(obs: Observations, sensitivities: NDArray[np.float64], max_nfev: int = 100,
-                      daylight: str = "cie", dark_level: float = DARK_LEVEL) -> SpectralBase:
-    """Fit the joint model (CIE daylight with its prior, reflectance basis with its prior) from a gray-world start."""
+                      daylight: str = "cie", dark_level: float | None = None) -> SpectralBase:
+    """Fit the joint model (CIE daylight with its prior, reflectance basis with its prior) from a gray-world start;
+    values at or below ``dark_level`` (default: the diagnosed history's, :func:`.noise.dark_level`) censored."""
+    if dark_level is None:
+        dark_level = current_dark_level()
     model = daylight_model(daylight)
     rb = reflectance_basis()
     c = np.asarray(sensitivities, dtype=float)
@@ -178,6 +181,57 @@ def refine_with_measured_daylight(base: SpectralBase, iters: int = 3) -> Spectra
     xs, _, _ = _daylight_frames(base, sigma)  # iters = 0: the frames only, reflectances of the joint fit
     base.day_spectra = xs @ day_basis.T
     return base
+
+
+def spectral_pedestal(base: SpectralBase, iters: int = 25, tol: float = 1e-4) -> tuple[NDArray[np.float64], float]:
+    """A black offset fitted within the spectral model: ``y = k·Cᵀ(E·R) + β`` with one pedestal ``β`` per channel.
+
+    The camera-agnostic bilinear model cannot see a pedestal when the exposure keeps the scene's brightness steady (an
+    auto-exposure metering the mean): one combination of its frame factors is then constant and carries the pedestal
+    as a column (a patch-independent "reflectance"). The spectral model cannot: a reflectance that adds the same
+    signal under every frame's light exists only if the light's colour does not change. Frames (measured daylight,
+    :func:`_daylight_frames`) alternate with the reflectances and ``β`` (linear, jointly: the reflectance step's
+    normal equations with the shared ``β`` eliminated by its Schur complement), from the refined fit ``base``
+    (:func:`refine_with_measured_daylight`; not changed), until ``β`` moves by less than ``tol`` (on the values'
+    scale) or after ``iters`` rounds: exposure and pedestal trade off, so the alternation is slow (a 5 % pedestal
+    reached 65 % of itself after 3 rounds, 95 % after 12).
+
+    Returns
+    -------
+    tuple
+        ``β`` (3,, on the values' scale) and the drop of the frames' cost (whitened misfit in units of ``base.phi``
+        plus the daylight mixture's, :func:`_daylight_frames`) against no pedestal.
+    """
+    prob = base.prob
+    day_basis = _daylight_basis()
+    y0 = prob.Y
+    sigma = base.sigma
+    beta = np.zeros(3)
+    _, cost0, _ = _daylight_frames(base, sigma)
+    w2 = (prob.W**2).transpose(1, 0, 2)  # P × F × 3
+    yt = y0.transpose(1, 0, 2)  # P × F × 3
+    try:
+        for _ in range(iters):
+            prob.Y = y0 - beta
+            xs, _, _ = _daylight_frames(base, sigma)
+            a, _ = imaging_operators(base.sensitivities, (xs @ day_basis.T).T, prob.rb)  # F × 3 × K
+            n = np.einsum("pfc,fci,fcj->pij", w2, a, a) + prob.Lambda  # P × K × K
+            r = np.einsum("pfc,fci->pi", w2 * yt, a) + prob.Lambda @ prob.mu  # P × K
+            g = np.einsum("pfc,fci->pic", w2, a)  # P × K × 3: the pedestal's columns
+            n_r = np.linalg.solve(n, r[..., None])[..., 0]
+            n_g = np.linalg.solve(n, g)
+            schur = np.diag(w2.sum(axis=(0, 1))) - np.einsum("pic,pid->cd", g, n_g)
+            rhs = np.einsum("pfc,pfc->c", w2, yt) - np.einsum("pic,pi->c", g, n_r)
+            step = np.linalg.solve(schur, rhs) - beta
+            beta = beta + step
+            sigma = n_r - np.einsum("pic,c->pi", n_g, beta)
+            if float(np.max(np.abs(step))) * prob.scale < tol:
+                break
+        prob.Y = y0 - beta
+        _, cost1, _ = _daylight_frames(base, sigma)
+    finally:
+        prob.Y = y0
+    return beta * prob.scale, float(cost0.sum() - cost1.sum())
 
 
 def off_locus_gains(base: SpectralBase) -> tuple[NDArray[np.float64], int]:

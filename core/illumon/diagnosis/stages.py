@@ -5,6 +5,8 @@ and its constants are in :mod:`.tone`; :func:`tone_stage` runs it alone."""
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -24,8 +26,8 @@ from .spectral import (
 )
 from .tone import tone_candidate
 
-__all__ = ["MIN_OFFSET", "REFINE_ITERS", "MIN_OFF_LOCUS_FRAMES", "OFF_LOCUS_FRAME_Z", "bilinear_stage", "spectral_stage",
-           "tone_stage"]
+__all__ = ["MIN_OFFSET", "PEDESTAL_BELOW", "pedestal_allowed", "REFINE_ITERS", "MIN_OFF_LOCUS_FRAMES",
+           "OFF_LOCUS_FRAME_Z", "bilinear_stage", "spectral_stage", "tone_stage"]
 
 MIN_OFFSET = 1.0 / 255.0
 """Smallest black offset reported (a fraction of white): one code of 8-bit output. A smaller pedestal cannot be told
@@ -110,8 +112,8 @@ MIN_INGEST_CLIPPED = 3
 """Regions missing above the censoring level, at least, for clipping removed at ingest to be named."""
 
 
-def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64],
-                        unseen_clipped: bool = False) -> Candidate | None:
+def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64], unseen_clipped: bool = False,
+                        structural: NDArray[np.bool_] | None = None) -> Candidate | None:
     """Clipping that the measurement already removed (the service drops pixels at the white level and
     regions more than half clipped, so an over-exposed history reaches the diagnosis as *missing* regions, never as
     values sharing a clip level: a clip-level test alone named ``imgsim`` clipping in 0 of 20).
@@ -128,18 +130,21 @@ def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64],
     its pixels clip), a region missing in *every* frame counts as brighter than any prediction: it clipped in every
     frame. The rank-``r`` model has nothing to predict it from (its prediction is 0), and over-exposure that loses
     the brightest region in every frame is what the image-based simulator's clipping mostly is (7 of its 9 missed
-    development histories)."""
+    development histories). ``structural`` (frames × (patches·channels)) marks values missing because an effect found
+    earlier was modelled (a shaded run or a fluorescent patch dropped, a changed patch split), not because the
+    measurement left them out: they are no outcome of this test."""
     f, m = y.shape
     p = m // 3
     seen = np.all(np.isfinite(y.reshape(f, p, 3)), axis=-1)
-    miss = ~seen.ravel()
+    counted = np.ones((f, p), dtype=bool) if structural is None else ~structural.reshape(f, p, 3).any(axis=-1)
+    bright = np.max(pred.reshape(f, p, 3), axis=-1)
+    if unseen_clipped:
+        bright[:, ~(seen & counted).any(axis=0) & counted.any(axis=0)] = np.inf
+    miss = ~seen[counted]
+    bright = bright[counted]
     k_miss = int(miss.sum())
     if k_miss < MIN_INGEST_CLIPPED or k_miss == miss.size:
         return None
-    bright = np.max(pred.reshape(f, p, 3), axis=-1)
-    if unseen_clipped:
-        bright[:, ~seen.any(axis=0)] = np.inf
-    bright = bright.ravel()
     n = miss.size
 
     def nll(k: float, t: float) -> float:
@@ -167,6 +172,18 @@ def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64],
     return Candidate("clipping", float(score),
                      {"clip_level": round(level, 5), "clipped_values": int(3 * cum[best_i]),
                       "censored_at_ingest": True})
+
+
+def pedestal_allowed(y: NDArray[np.float64], present: NDArray[np.bool_], b: NDArray[np.float64]) -> bool:
+    """Whether the values ``y`` (frames × (patches·channels), used where ``present``) allow a black offset ``b`` (3,):
+    not negative and below most patches (the constraints of :func:`bilinear_stage`'s offset; a region never seen
+    does not count)."""
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a region never seen has no level
+        level = np.nanmedian(np.where(present, y, np.nan).reshape(y.shape[0], -1, 3), axis=0)  # P × 3
+        seen = np.isfinite(level)
+        below = np.sum((level < np.asarray(b)[None, :] - MIN_OFFSET) & seen, axis=0) / np.maximum(seen.sum(0), 1)
+    return bool(np.all(np.isfinite(b)) and np.all(np.asarray(b) >= -MIN_OFFSET) and np.all(below <= PEDESTAL_BELOW))
 
 
 def _bilinear_base(y: NDArray[np.float64], rank: int, learn_noise: bool,
@@ -213,7 +230,8 @@ def _noise_record(noise: nz.NoiseLevel) -> dict:
 
 
 def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_noise: bool = True,
-                   codec_cap: float = 0.0, unseen_clipped: bool = False) -> tuple[bl.LowRankFit, list[Candidate], dict]:
+                   codec_cap: float = 0.0, unseen_clipped: bool = False,
+                   structural: NDArray[np.bool_] | None = None) -> tuple[bl.LowRankFit, list[Candidate], dict]:
     """The bilinear stage (:mod:`.fit` describes it): the rank-``rank`` base fit and every extension it can carry —
     tone curve, black offset, clipping (at a shared level, or removed at ingest), patch change and shadow.
 
@@ -233,6 +251,9 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     unseen_clipped
         A region missing in every frame clipped in every frame (values measured from images by the service:
         :func:`_censored_at_ingest`).
+    structural
+        Values missing because an effect found earlier was modelled (not an outcome of the test of clipping at
+        ingest), or None.
 
     Returns
     -------
@@ -257,7 +278,7 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     # pedestal of a fraction of a code otherwise fits (clean 8…12-bit raw histories: ΔBIC −29…−47 for offsets
     # below 0.002); a real pedestal (1.5…6 % of white) lifts every value, the bright ones included
     chan = np.arange(m) % 3
-    w_lit = np.where(np.nan_to_num(y) > nz.DARK_LEVEL, w, 0.0)
+    w_lit = np.where(np.nan_to_num(y) > nz.dark_level(), w, 0.0)
     lit_b = w_lit > 0
     n_b = int(lit_b.sum())
     # the pedestal's noise: the learned noise of the value with the pedestal (as the base's) or of the signal without
@@ -272,12 +293,6 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     # region's misfit; 100 % and 44 % of the patches below), and a compressive curve's toe reads as a negative
     # pedestal (an sRGB curve declared linear: −4.5…−6.5 %, beating the curve itself); a black level subtracted too
     # far clips the dark pixels at 0 instead, which is censored
-    with np.errstate(all="ignore"):
-        patch_level = np.nanmedian(np.where(present, y, np.nan).reshape(f, -1, 3), axis=0)  # P × 3
-
-    def allowed_pedestal(bb: NDArray[np.float64]) -> bool:
-        below = np.nanmean(patch_level < bb[None, :] - MIN_OFFSET, axis=0)
-        return bool(np.all(np.isfinite(bb)) and np.all(bb >= -MIN_OFFSET) and np.all(below <= PEDESTAL_BELOW))
 
     log_sig_lit = 0.5 * float(np.log(1.0 / w_lit[lit_b]).sum())
     base_b = bl.wals(y, w_lit, rank, U=base.U, iters=60)
@@ -287,7 +302,8 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     wb = np.where(lit_b, noise.weights(np.clip(y - b[chan][None, :], 0, None)), 0.0)
     fit_s, b_s = bl.fit_offset(y, wb, rank, fit_o.U)
     score_s = _bic(_nll(fit_s.wrss, n_b, 0.5 * float(np.log(1.0 / wb[lit_b]).sum())), fit_s.k, n_b) - bic0_b
-    allowed = [(sc, ft, bb) for sc, ft, bb in ((score_b, fit_o, b), (score_s, fit_s, b_s)) if allowed_pedestal(bb)]
+    allowed = [(sc, ft, bb) for sc, ft, bb in ((score_b, fit_o, b), (score_s, fit_s, b_s))
+               if pedestal_allowed(y, present, bb)]
     if allowed:
         score_b, fit_o, b = min(allowed, key=lambda t: t[0])
     else:
@@ -312,7 +328,7 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
         fits["clipping"] = {"level": vmax, "censored": censored}
     else:
         cands.append(Candidate("clipping", float("inf"), {"clip_level": None, "clipped_values": int(censored.sum())}))
-    ingest = _censored_at_ingest(y, base.pred, unseen_clipped)
+    ingest = _censored_at_ingest(y, base.pred, unseen_clipped, structural)
     if ingest is not None and ingest.score < cands[-1].score:
         cands[-1] = ingest
 

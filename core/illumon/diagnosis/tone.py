@@ -130,7 +130,7 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
     # output-domain variance up to that cap (a codec's error: nz.CODEC_NOISE), carried into its light the same way
     q = noise.step**2 / 12.0
     yv = np.nan_to_num(y)
-    dark = nz.DARK_LEVEL
+    dark = nz.dark_level()
     while True:
         yc = np.clip(yv, dark, None)
         lit = present & (yv > dark)  # values near black are censored here

@@ -55,6 +55,7 @@ def check_response(
     """
     from illumon._blas import single_blas_thread
     from illumon.diagnosis.fit import NONE_MARGIN, RANK
+    from illumon.diagnosis.noise import CODEC_NOISE
     from illumon.diagnosis.stages import tone_stage
 
     obs = frames if isinstance(frames, Observations) else build_observations(frames, region_ids)
@@ -70,7 +71,9 @@ def check_response(
         f, p, _ = obs.values.shape
         if p < 3:  # as the diagnosis requires
             raise ValueError(f"diagnosis needs at least 3 patches, got {p}")
-        tone, _ = single_blas_thread(tone_stage)(obs.values.reshape(f, 3 * p), RANK)
+        # region means measured from images (with their standard errors) may carry a codec's noise, as in the diagnosis
+        codec = CODEC_NOISE if obs.sd is not None else 0.0
+        tone, _ = single_blas_thread(tone_stage)(obs.values.reshape(f, 3 * p), RANK, True, codec)
     except Exception as exc:  # noqa: BLE001 - a check that cannot run must not fail the refit
         log.warning("tone-response check failed: %s", exc)
         out["reason"] = f"tone response not checked: {exc}"

@@ -62,3 +62,19 @@ def test_check_response_decides_as_the_diagnosis() -> None:
             d = diagnose(obs, h.history.sensitivities, reestimate=False)
             tone = next(c for c in d.candidates if c.effect == "nonlinear_response")
             assert out["gamma"] == float(tone.parameters["gamma"])
+
+
+def test_check_response_allows_the_codec_noise_of_image_measured_frames(shared_data) -> None:
+    """Frames measured from images (with standard errors): a clean camera encoding linear 8-bit JPEG is not told it
+    sends tone-encoded values (its output-domain noise read as a γ ≈ 1.5 curve's, ΔBIC −160, before the codec's noise
+    was learned), as the whole diagnosis decides; the image-based simulator's development history of
+    ``tests/core/diagnosis/test_images.py``."""
+    imgsim = pytest.importorskip("imgsim")
+    rawsim = pytest.importorskip("rawsim")
+    h = imgsim.hide_effect_img("none", rawsim.DEV_CAMERAS[10], 3010, split="dev")
+    obs = h.observations
+    assert obs.sd is not None
+    out = check_response(obs, list(obs.patches), h.sensitivities, "linear")
+    assert out["checked"] and out["effect"] == "none" and not out["warnings"], out
+    f, p, _ = obs.values.shape
+    assert tone_stage(obs.values.reshape(f, 3 * p), RANK)[0].score < -NONE_MARGIN["nonlinear_response"]

@@ -1,0 +1,62 @@
+"""Light that is not daylight over a whole history (issue 28): a rendered camera's history lit only by lamps is named
+``off_locus_illuminant`` with its lamp-lit frames, a daylight one is not; and a dim history of a high bit depth is read
+above its own censoring level. Development cameras and seeds only (``benchmarks/unmeasured.py`` renders the
+histories: ``none+lamps`` is the real MIMO lamp-lit scenes' case, ``none+rendered`` its daylight twin)."""
+
+import numpy as np
+import pytest
+from illumon.diagnosis.fit import diagnose
+from illumon.diagnosis.noise import DARK_LEVEL, history_dark_level
+
+
+def _rendered(case: str, seed: int):
+    import rawsim
+    import unmeasured
+    from illumon.simulation import datasets
+
+    cam = rawsim.DEV_CAMERAS[seed % len(rawsim.DEV_CAMERAS)]
+    obs, _, _ = unmeasured.render("illumon", cam, case, seed)
+    return obs, datasets.load_camera(cam)
+
+
+def test_a_history_lit_by_lamps_throughout_is_off_locus_with_its_frames(shared_data):
+    """Every frame one or two CIE lamps (rawsim.lamp_run), rendered with a daylight preset: the spectral stage judges
+    frames against the history's typical frame, which is lamp-lit too, so it found none; the estimator's level
+    posterior judges the history as a whole and every frame lamp-lit."""
+    obs, css = _rendered("none+lamps", 3001)
+    d = diagnose(obs, css, primaries="srgb", reestimate=False)
+    lamp = [e for e in d.effects if e["effect"] == "off_locus_illuminant"]
+    assert lamp, d.effects
+    par = lamp[0]["parameters"]
+    assert par["found_by"] == "scene_level" and par["history_non_daylight"] > 0.5
+    assert set(par["frames"]) == set(obs.frames)  # every frame is lamp-lit
+    assert all(v >= 0.5 for v in par["non_daylight"])
+    assert all(v is None for v in par["lamp_share"])  # no daylight frame to learn the reflectances from
+
+
+def test_a_rendered_daylight_history_is_not_off_locus(shared_data):
+    obs, css = _rendered("none+rendered", 3001)
+    d = diagnose(obs, css, primaries="srgb", reestimate=False)
+    assert "off_locus_illuminant" not in [e["effect"] for e in d.effects], d.effects
+
+
+def test_sensor_rgb_is_not_judged_by_a_balance(shared_data):
+    """Sensor RGB (``primaries="camera"``) has no white balance to judge a whole history by: no scene-level verdict."""
+    obs, css = _rendered("none+lamps", 3002)
+    d = diagnose(obs, css, reestimate=False)
+    assert all(e["parameters"].get("found_by") != "scene_level" for e in d.effects)
+
+
+@pytest.mark.parametrize(
+    "brightest, white, expected",
+    [
+        (0.8, 255, DARK_LEVEL),  # an ordinary history: 3 % of white
+        (0.02, 255, DARK_LEVEL),  # 8-bit near black: still 3 % of white (7.65 codes), refused by the CLI
+        (0.8, 65535, DARK_LEVEL),
+        (0.037, 65535, DARK_LEVEL * 0.037 / 0.2),  # MIMO bmug: 16-bit regions at ~2 400 codes
+        (1e-4, 65535, DARK_LEVEL * 255 / 65535),  # a few codes of 16-bit: the floor
+    ],
+)
+def test_history_dark_level(brightest, white, expected):
+    v = np.linspace(0.1, 1.0, 500) * brightest
+    assert history_dark_level(v, white) == pytest.approx(expected, rel=0.02)

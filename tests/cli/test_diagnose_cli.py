@@ -110,3 +110,32 @@ def test_a_dim_16_bit_history_is_diagnosed_not_refused(shared_data, tmp_path):
     assert main(["diagnose", str(obs), "--sensitivities", str(css), "--out", str(out), "--white-level", "65535"]) == 0
     rep = json.loads(out.read_text())
     assert rep["effect"] == "none"  # a clean history, dim or not
+
+
+def test_estimate_model_effects_reads_the_sensitivities_as_diagnose_does(shared_data, tmp_path, capsys, monkeypatch):
+    """``estimate --primaries srgb --model-effects auto`` names what ``diagnose --primaries srgb`` names, and hands the
+    diagnosis the measured sensitivities as ``diagnose`` does (its scene model carries them to sRGB primaries; they
+    were carried twice)."""
+    import rawsim
+    import unmeasured
+    from illumon.simulation import datasets
+
+    cam = rawsim.DEV_CAMERAS[3001 % len(rawsim.DEV_CAMERAS)]
+    o, _, _ = unmeasured.render("illumon", cam, "none+lamps", 3001)
+    obs, css, out, est = tmp_path / "o.csv", tmp_path / "c.csv", tmp_path / "r.json", tmp_path / "e.csv"
+    write_observations(obs, o, white_level=1.0)
+    _write_css(css, datasets.load_camera(cam))
+    common = ["--sensitivities", str(css), "--white-level", "1", "--primaries", "srgb"]
+    assert main(["diagnose", str(obs), "--out", str(out), *common]) == 0
+    rep = json.loads(out.read_text())
+    assert rep["effect"] == "off_locus_illuminant"
+    capsys.readouterr()
+    import illumon.cli.diagnose as cli_diagnose
+
+    seen = []
+    real = cli_diagnose.run_diagnosis
+    monkeypatch.setattr(cli_diagnose, "run_diagnosis", lambda path, o, c, **kw: seen.append(c) or real(path, o, c, **kw))
+    assert main(["estimate", str(obs), "--out", str(est), "--model-effects", "auto", *common]) == 0
+    said = capsys.readouterr().err
+    assert f"model effects: {rep['effect']}" in said, said
+    np.testing.assert_allclose(seen[0], datasets.load_camera(cam) / datasets.load_camera(cam).max(), atol=1e-6)

@@ -48,7 +48,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
         from ..retrieval import retrieve_illuminants
         from ..spectra import read_sensitivities
 
-        css = read_sensitivities(args.sensitivities)
+        css = measured = read_sensitivities(args.sensitivities)
         if args.primaries == "srgb":
             from ..camera.primaries import to_srgb_primaries
 
@@ -65,7 +65,9 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
             from ..diagnosis.correction import estimate_with_effects
             from .diagnose import run_diagnosis
 
-            diag = run_diagnosis(args.observations, obs, css, reestimate=False, white_level=args.white_level,
+            # the diagnosis reads the sensitivities as `illumon diagnose` does (its scene model carries them to sRGB
+            # primaries itself when told --primaries srgb)
+            diag = run_diagnosis(args.observations, obs, measured, reestimate=False, white_level=args.white_level,
                                  primaries=args.primaries)
             result = estimate_with_effects(obs, css, diag, method=args.method, **kwargs)
             more = [e["effect"] for e in diag.effects[1:]]

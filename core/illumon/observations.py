@@ -18,7 +18,7 @@ from numpy.typing import NDArray
 
 from .spectra import finite_number
 
-__all__ = ["Observations", "ObservationError", "read_observations", "write_observations"]
+__all__ = ["Observations", "ObservationError", "read_observations", "write_observations", "sd_variance"]
 
 REQUIRED_COLUMNS = ("frame", "time", "patch", "r", "g", "b")
 
@@ -69,7 +69,7 @@ class Observations:
         """``sd²`` with 0 where no standard error is known (F × P × 3)."""
         if self.sd is None:
             return np.zeros_like(self.values)
-        return np.where(np.isfinite(self.sd), self.sd, 0.0) ** 2
+        return sd_variance(self.sd)
 
     @property
     def present(self) -> NDArray[np.bool_]:
@@ -92,6 +92,12 @@ class Observations:
             frames=list(self.frames), patches=list(patches), values=self.values[:, cols], times=list(self.times),
             sd=None if self.sd is None else self.sd[:, cols],
         )
+
+
+def sd_variance(sd: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Variances of the standard errors ``sd`` (any shape), 0 where none is known (NaN): what
+    :meth:`Observations.extra_variance` gives for the whole history, for a part of it."""
+    return np.where(np.isfinite(sd), sd, 0.0) ** 2
 
 
 def _parse_time(value: str, where: str) -> str:

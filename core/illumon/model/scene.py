@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from .._blas import single_blas_thread
 from ..daylight import CIEDaylight
-from ..observations import Observations
+from ..observations import Observations, sd_variance
 from ..priors import ReflectanceBasis, reflectance_basis
 from ..retrieval.common import RetrievalResult
 from ..spectra import GRID
@@ -216,7 +216,7 @@ class SceneModel:
         out = _Estimates(n)
         for c in chunks:  # every frame is estimated on its own: chunks bound the temporaries, not the numbers
             y = values[c][:, oj] / scale
-            extra = None if obs.sd is None else _extra_variance(obs.sd[c][:, oj]) / scale**2
+            extra = None if obs.sd is None else sd_variance(obs.sd[c][:, oj]) / scale**2
             theta, cov, cost = solver.solve(y, present[c], extra)
             part = obs if len(chunks) == 1 else Observations(obs.frames[c], obs.patches, values[c], obs.times[c])
             out.add(c, *assemble_estimates(part, self.noise, self.camera, theta, cov, few[c], solver, cost,
@@ -235,11 +235,6 @@ _FRAME_INFO = ("gain_lo", "gain_hi", "theta", "covariance", "cost", "too_few_pat
 """The per-frame arrays of an estimate's ``info`` (:func:`.intervals.assemble_estimates`)."""
 
 
-def _extra_variance(sd: NDArray[np.float64]) -> NDArray[np.float64]:
-    """:meth:`Observations.extra_variance` of the standard errors ``sd``."""
-    return np.where(np.isfinite(sd), sd, 0.0) ** 2
-
-
 class _Estimates:
     """The chunks of :meth:`SceneModel.estimate` written into arrays of every frame as they come (no list of chunks
     then a concatenation: one copy of the estimate at a time)."""
@@ -248,6 +243,8 @@ class _Estimates:
         self.n = n
         self.res: RetrievalResult | None = None
         self.cols: dict = {}
+        self.fields: dict = {}  # the result's per-frame arrays, filled chunk by chunk
+        self.info: dict = {}  # its info's per-frame arrays (_FRAME_INFO)
 
     def _into(self, store: dict, key: str, chunk: slice, value: NDArray) -> None:
         if key not in store:
@@ -260,8 +257,6 @@ class _Estimates:
             return
         if self.res is None:
             self.res = res
-            self.fields: dict = {}
-            self.info: dict = {}
         for k in ("spectra", "xy", "cct", "duv", "white", "gains", "exposures"):
             self._into(self.fields, k, chunk, getattr(res, k))
         for k in _FRAME_INFO:

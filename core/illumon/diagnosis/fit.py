@@ -63,8 +63,16 @@ from ..retrieval import retrieve_illuminants
 from .candidate import Candidate
 from .correction import Diagnosis, corrected_observations, estimate_with_effect
 from .noise import CODEC_NOISE, dark_level, dark_level_set, history_dark_level
-from .spectral import fit_spectral_base, lamp_shares, refine_with_measured_daylight, spectral_pedestal
-from .stages import MIN_OFF_LOCUS_FRAMES, MIN_OFFSET, REFINE_ITERS, bilinear_stage, pedestal_allowed, spectral_stage
+from .spectral import lamp_shares, spectral_pedestal
+from .stages import (
+    MIN_OFF_LOCUS_FRAMES,
+    MIN_OFFSET,
+    bilinear_stage,
+    daylight_reflectances,
+    pedestal_allowed,
+    refined_spectral_base,
+    spectral_stage,
+)
 
 __all__ = ["RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "Candidate", "diagnose"]
 
@@ -292,9 +300,7 @@ def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[D
     day = np.setdiff1d(np.arange(len(obs.frames)), idx)
     if day.size >= 2:
         try:
-            base = fit_spectral_base(obs, css)
-            refine_with_measured_daylight(base, iters=REFINE_ITERS)
-            shares = lamp_shares(base, idx, sigma=fit_spectral_base(obs.subset(day), css).sigma)
+            shares = lamp_shares(refined_spectral_base(obs, css), idx, sigma=daylight_reflectances(obs, css, idx))
         except (ValueError, np.linalg.LinAlgError):
             pass
     score = -2.0 * float(np.log(min(p, 1 - 1e-12) / max(1.0 - p, 1e-12)))
@@ -461,8 +467,7 @@ def _pedestal_cause(obs: Observations, css: NDArray[np.float64], lamp: Candidate
     y = obs.values.reshape(obs.values.shape[0], -1)
 
     def pedestal(o: Observations) -> tuple[NDArray[np.float64], float]:
-        base = fit_spectral_base(o, css)
-        refine_with_measured_daylight(base, iters=REFINE_ITERS)
+        base = refined_spectral_base(o, css)
         b, gain = spectral_pedestal(base)
         return b, -gain + 3.0 * np.log(max(int(base.prob.present.sum()) * 3, 2))
 

@@ -17,6 +17,7 @@ from . import noise as nz
 from .candidate import Candidate
 from .spectral import (
     EXCITATION_CENTRES_NM,
+    SpectralBase,
     fit_spectral_base,
     fluorescence_gains,
     generic_fluorescence_gains,
@@ -26,7 +27,8 @@ from .spectral import (
 )
 from .tone import tone_candidate
 
-__all__ = ["MIN_OFFSET", "PEDESTAL_BELOW", "pedestal_allowed", "REFINE_ITERS", "MIN_OFF_LOCUS_FRAMES",
+__all__ = ["MIN_OFFSET", "PEDESTAL_BELOW", "pedestal_allowed", "refined_spectral_base", "daylight_reflectances",
+           "REFINE_ITERS", "MIN_OFF_LOCUS_FRAMES",
            "OFF_LOCUS_FRAME_Z", "bilinear_stage", "spectral_stage", "tone_stage"]
 
 MIN_OFFSET = 1.0 / 255.0
@@ -172,6 +174,22 @@ def _censored_at_ingest(y: NDArray[np.float64], pred: NDArray[np.float64], unsee
     return Candidate("clipping", float(score),
                      {"clip_level": round(level, 5), "clipped_values": int(3 * cum[best_i]),
                       "censored_at_ingest": True})
+
+
+def refined_spectral_base(obs: Observations, sensitivities: NDArray[np.float64]) -> SpectralBase:
+    """The spectral model of ``obs`` (:func:`.spectral.fit_spectral_base`) with measured-daylight frames and the
+    reflectances alternated :data:`REFINE_ITERS` times (less daylight-model error in the reflectances)."""
+    base = fit_spectral_base(obs, sensitivities)
+    refine_with_measured_daylight(base, iters=REFINE_ITERS)
+    return base
+
+
+def daylight_reflectances(obs: Observations, sensitivities: NDArray[np.float64],
+                          lamp_frames: list[int]) -> NDArray[np.float64]:
+    """Reflectance coefficients learned from the frames of ``obs`` other than ``lamp_frames`` (the ``sigma`` a lamp's
+    share is re-fitted against: :func:`.spectral.lamp_shares`)."""
+    day = np.setdiff1d(np.arange(len(obs.frames)), lamp_frames)
+    return fit_spectral_base(obs.subset(day), sensitivities).sigma
 
 
 def pedestal_allowed(y: NDArray[np.float64], present: NDArray[np.bool_], b: NDArray[np.float64]) -> bool:
@@ -364,10 +382,8 @@ def spectral_stage(obs: Observations, sensitivities: NDArray[np.float64],
     """
     from scipy.stats import chi2
 
-    base = fit_spectral_base(obs, sensitivities)
+    base = refined_spectral_base(obs, sensitivities)
     f = base.prob.F
-    # alternate measured-daylight frames and reflectances (less daylight-model error in the reflectances)
-    refine_with_measured_daylight(base, iters=REFINE_ITERS)
     # fluorescence (Han et al. 2012, eqs. 1–2): the patch whose reflectance + an emission of free colour following a
     # generic short-wave absorption band beats reflectance alone the most. One patch fluoresces: its gain must stand
     # out from the runner-up's, which measures how much an ordinary patch gains from the spectral model's own misfit
@@ -406,7 +422,7 @@ def spectral_stage(obs: Observations, sensitivities: NDArray[np.float64],
     if float(sums.min()) < 0:  # the share of lamp light, with reflectances learned from the other frames
         day = np.setdiff1d(np.arange(f), frames)
         try:
-            sigma = fit_spectral_base(obs.subset(day), sensitivities).sigma if day.size >= 2 else None
+            sigma = daylight_reflectances(obs, sensitivities, frames) if day.size >= 2 else None
         except (ValueError, np.linalg.LinAlgError):
             sigma = None
         shares = lamp_shares(base, frames, sigma=sigma)

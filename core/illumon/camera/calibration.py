@@ -41,7 +41,7 @@ from ..bayes import GaussianPrior, gaussian_posterior
 from ..daylight import CIEDaylight
 from ..observations import Observations
 from ..priors import default_camera_prior
-from ..priors.scene_average import grey_share, scene_average_evidence
+from ..priors.scene_average import expected_offset, scene_average_evidence
 from .formation import angular_error_deg
 from .references import neutral_references, references_kind
 
@@ -304,7 +304,6 @@ def _scene_average_transform(scene: Observations, base: NDArray[np.float64], mod
     converge — the development lamp-lit scenes average within 0.02–0.09 of grey and 0.2 from the mean measured
     surface, which sent their whites 9–19° off."""
     rb = model.reflectance_basis()
-    mean_reflectance = np.clip(rb.functions @ rb.prior_mean, 0.0, 1.0)
     v = np.asarray(scene.values, dtype=float)
     present = np.all(np.isfinite(v), axis=-1)
     ok = present.sum(axis=1) >= 2
@@ -313,8 +312,7 @@ def _scene_average_transform(scene: Observations, base: NDArray[np.float64], mod
     observed = _log_chroma(np.nanmean(np.where(np.isfinite(v[ok]), v[ok], np.nan), axis=1))
     light = model.daylight_model().spectra(theta[ok, :2])
     average = scene_average_evidence(v, present)
-    expected = _log_chroma(light * mean_reflectance @ base)
-    expected = expected + grey_share(average) * (_log_chroma(light @ base) - expected)
+    expected = _log_chroma(light @ base) + expected_offset(light, base, rb, average)
     shift = np.mean(observed - expected, axis=0)
     s_cam = prior_white_spread()
     s_scene = min(SCENE_AVERAGE_SD, average.sd)

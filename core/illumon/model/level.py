@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from ..priors.scene_average import SceneAverage, grey_share
+from ..priors.scene_average import SceneAverage, expected_offset
 
 __all__ = ["LAMP_LEVEL_SD", "UNBALANCED_PRIOR", "CommonLevel", "common_level_posterior", "anchor_common_level",
            "mean_log_chroma", "scene_reading"]
@@ -116,12 +116,7 @@ def scene_reading(dm, css: NDArray[np.float64], theta: NDArray[np.float64], scen
     scene is expected to average to — the mean measured surface's under the frames' light (``theta`` through
     ``css``; ``rb`` the reflectance prior) for a scene as varied as the measured surfaces, grey for one whose patches
     barely differ (:func:`~illumon.priors.scene_average.grey_share`)."""
-    mean_surface = np.clip(rb.functions @ rb.prior_mean, 0.0, 1.0)
-    light = dm.spectra(theta[:, :2])
-    white = np.log(np.clip(light @ css, 1e-12, None))
-    surface = np.log(np.clip((light * mean_surface) @ css, 1e-12, None))
-    offset = np.mean((surface[:, [0, 2]] - surface[:, 1:2]) - (white[:, [0, 2]] - white[:, 1:2]), axis=0)
-    return scene.mean - (1.0 - grey_share(scene)) * offset
+    return scene.mean - np.mean(expected_offset(dm.spectra(theta[:, :2]), css, rb, scene), axis=0)
 
 
 def anchor_common_level(objective, theta: NDArray[np.float64], css: NDArray[np.float64], level: CommonLevel

@@ -20,7 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["SCENE_GREY_SD", "MEASURED_SURFACE_SPREAD", "SceneAverage", "scene_average_evidence", "grey_share"]
+__all__ = ["SCENE_GREY_SD", "MEASURED_SURFACE_SPREAD", "SceneAverage", "scene_average_evidence", "grey_share",
+           "expected_offset"]
 
 SCENE_GREY_SD = 0.033
 """Spread (log r/g, b/g) of a nearly achromatic scene's average colour around grey: the RMS of the gray-world errors
@@ -85,3 +86,19 @@ def grey_share(average: SceneAverage) -> float:
     if not math.isfinite(average.spread):
         return 0.0
     return 1.0 - min(1.0, average.spread / MEASURED_SURFACE_SPREAD)
+
+
+def expected_offset(light: NDArray[np.float64], sensitivities: NDArray[np.float64], rb, average: SceneAverage
+                    ) -> NDArray[np.float64]:
+    """Where a scene's average colour is expected relative to its light's white, per frame (F × 2, log r/g and b/g):
+    the mean measured surface's offset under each frame's ``light`` (F × grid) through ``sensitivities`` (``rb``:
+    the reflectance prior), times ``1 − grey_share(average)`` — all of it for a scene as varied as the measured
+    surfaces, none for one whose patches do not differ in colour."""
+    mean_surface = np.clip(rb.functions @ rb.prior_mean, 0.0, 1.0)
+    white = _log_chroma(light @ sensitivities)
+    surface = _log_chroma((light * mean_surface) @ sensitivities)
+    return (1.0 - grey_share(average)) * (surface - white)
+
+
+def _log_chroma(rgb: NDArray[np.float64]) -> NDArray[np.float64]:
+    return np.log(np.clip(rgb[..., [0, 2]], 1e-12, None) / np.clip(rgb[..., 1:2], 1e-12, None))

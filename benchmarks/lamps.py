@@ -21,9 +21,10 @@ checkers pass for a camera nobody measured; values as loaded, white level 65535)
 ``--primaries camera`` (the CLI's default) and ``srgb`` (raw-converted linear output, as the estimator's table above
 reads it): the effects named, the lamp-lit frames, and whether ``off_locus_illuminant`` was named. The daylight side:
 the ``sony-dolp`` chart sets — ``sony-raw`` with the mean measured camera's sensitivities (sensor RGB), the ISP sets
-with the clipped sRGB functions and ``--primaries srgb``; they have 3 frames, fewer than the diagnosis needs (6), so
-the diagnosis refuses them and the column gives the whole-history lamp check alone
-(:func:`illumon.diagnosis.fit._lamp_lit_history`, rendered output only). ``--split development`` runs the development
+with the clipped sRGB functions and ``--primaries srgb``. They have 3 frames, fewer than the bilinear effects need
+(6): the diagnosis refuses sensor RGB that short and judges rendered output for its light alone
+(:func:`illumon.diagnosis.fit._short_history`, as it does the 3-frame scene ``spdif``); the column also gives the
+whole-history lamp check itself (:func:`illumon.diagnosis.fit._lamp_lit_history`, rendered output only). ``--split development`` runs the development
 scenes only, ``--split score`` the held-out ones (looked at once, after every choice).
 
 ``python benchmarks/lamps.py`` prints the table and writes ``benchmarks/results/lamps.json``.

@@ -139,3 +139,22 @@ def test_estimate_model_effects_reads_the_sensitivities_as_diagnose_does(shared_
     said = capsys.readouterr().err
     assert f"model effects: {rep['effect']}" in said, said
     np.testing.assert_allclose(seen[0], datasets.load_camera(cam) / datasets.load_camera(cam).max(), atol=1e-6)
+
+
+def test_three_frames_of_rendered_output_are_judged_for_their_light(shared_data, tmp_path):
+    """``--primaries srgb`` on three frames lit by lamps (the real MIMO scenes' case, three frames each in some scenes):
+    a report naming ``off_locus_illuminant`` with its frames, and a note that nothing else was judged; the same frames
+    as sensor RGB are refused in one line."""
+    import unmeasured  # benchmarks/ (pytest's pythonpath)
+    from illumon.camera.primaries import srgb_sensitivities
+
+    lit, _, _ = unmeasured.render("rawsim", "Nikon_D5100", "none+lamps", 7)
+    obs, css, out = tmp_path / "o.csv", tmp_path / "c.csv", tmp_path / "r.json"
+    write_observations(obs, lit.subset(np.arange(3)))
+    _write_css(css, np.clip(srgb_sensitivities(), 0.0, None))
+    assert main(["diagnose", str(obs), "--sensitivities", str(css), "--out", str(out), "--primaries", "srgb"]) == 0
+    rep = json.loads(out.read_text())
+    assert KEYS <= set(rep)
+    assert rep["effect"] == "off_locus_illuminant" and rep["parameters"]["frames"] == lit.frames[:3]
+    assert rep["residual_base"] is None and rep["notes"]
+    assert main(["diagnose", str(obs), "--sensitivities", str(css), "--out", str(out)]) == 2

@@ -21,11 +21,12 @@ def run_diagnosis(observations_path: str, obs, sensitivities, *, reestimate: boo
     """Diagnose ``obs`` with input checks whose messages name the file (raises ``ValueError``). ``white_level``: the
     codes the values were divided by (the lit values are counted above the history's censoring level,
     :func:`illumon.diagnosis.noise.history_dark_level`)."""
-    from ..diagnosis.fit import RANK, diagnose
+    from ..diagnosis.fit import RANK, diagnose, min_frames, short_history_hint
 
     f, p = len(obs.frames), len(obs.patches)
-    if f < RANK + 2:
-        raise ValueError(f"{observations_path}: only {f} frame(s); diagnosis needs at least {RANK + 2}")
+    if f < min_frames(primaries):
+        raise ValueError(f"{observations_path}: only {f} frame(s); diagnosis needs at least {RANK + 2}"
+                         + short_history_hint(primaries, RANK))
     if p < 3:
         raise ValueError(f"{observations_path}: only {p} patch(es); diagnosis needs at least 3")
     if (obs.present.sum(axis=1) < 2).any():

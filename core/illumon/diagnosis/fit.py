@@ -74,7 +74,8 @@ from .stages import (
     spectral_stage,
 )
 
-__all__ = ["RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "Candidate", "diagnose"]
+__all__ = ["RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "SHORT_HISTORY_FRAMES", "Candidate", "diagnose", "min_frames",
+           "short_history_hint"]
 
 RANK = 4
 """Rank of the bilinear model: measured daylight seen by three channels needs four components above the noise."""
@@ -181,7 +182,9 @@ def diagnose(
     Parameters
     ----------
     obs
-        Observations (values on a 0…1 scale, NaN where missing), at least ``rank + 2`` frames.
+        Observations (values on a 0…1 scale, NaN where missing), at least ``rank + 2`` frames; for rendered output
+        (``primaries="srgb"``) at least :data:`SHORT_HISTORY_FRAMES`, a shorter history than ``rank + 2`` being
+        judged for its light alone (:func:`_short_history`).
     sensitivities
         Camera sensitivities on the grid (61 × 3).
     rank
@@ -213,12 +216,61 @@ def diagnose(
     """
     margins = {**NONE_MARGIN, **(margins or {})}
     f, p, _ = obs.values.shape
-    if f < rank + 2:
-        raise ValueError(f"diagnosis needs at least {rank + 2} frames, got {f}")
+    if f < min_frames(primaries, rank):
+        raise ValueError(f"diagnosis needs at least {rank + 2} frames, got {f}" + short_history_hint(primaries, rank))
     if p < 3:
         raise ValueError(f"diagnosis needs at least 3 patches, got {p}")
     with dark_level_set(history_dark_level(obs.values, white_level)):
+        if f < rank + 2:
+            return _short_history(obs, sensitivities, rank, reestimate, primaries)
         return _diagnose(obs, sensitivities, rank, reestimate, margins, learn_noise, from_images, primaries)
+
+
+SHORT_HISTORY_FRAMES = 2
+"""Fewest frames of rendered output (``primaries="srgb"``) whose light is judged as a whole when the history is too
+short for the bilinear effects (:func:`_short_history`)."""
+
+
+def min_frames(primaries: str, rank: int = RANK) -> int:
+    """The fewest frames :func:`diagnose` accepts: ``rank + 2`` for the bilinear effects, or
+    :data:`SHORT_HISTORY_FRAMES` for rendered output, whose whole-history light is judged alone below that."""
+    return SHORT_HISTORY_FRAMES if check_primaries(primaries) == "srgb" else rank + 2
+
+
+def short_history_hint(primaries: str, rank: int) -> str:
+    """What a refused short history can do instead, to follow "needs at least ``rank + 2`` frames"."""
+    if check_primaries(primaries) == "srgb":
+        return f" ({SHORT_HISTORY_FRAMES} of rendered output to judge its light alone)"
+    return (f"; for rendered output (--primaries srgb) {SHORT_HISTORY_FRAMES} frames are enough to judge the "
+            "history's light alone")
+
+
+def _short_history(obs: Observations, css: NDArray[np.float64], rank: int, reestimate: bool,
+                   primaries: str) -> Diagnosis:
+    """A history of rendered output too short for the bilinear effects (fewer than ``rank + 2`` frames) judged for its
+    light alone.
+
+    The bilinear stage fits a rank-``rank`` model of the frames and needs two frames more than its rank to leave any
+    residual to read an effect in (tone curve, clipping, pedestal, patch change, shadow, fluorescence). Whether the
+    history is lit by lamps throughout is a judgement of the scene model's common level, not of residuals
+    (:func:`_lamp_lit_history`), and holds on a few frames (the real MIMO lamp-lit scenes have three to six). Such a
+    history gets that verdict only: ``off_locus_illuminant`` with its frames, or ``none``; a note says the other
+    effects were not judged, and ``residual_base`` / ``residual_extended`` are ``None`` (no bilinear fit)."""
+    f = len(obs.frames)
+    css = np.asarray(css, dtype=float)
+    lamp = _lamp_lit_history(obs, css, [], primaries)
+    found = [lamp] if lamp is not None else []
+    base = Diagnosis("none", None, None, {}, [], None, None, 0.0, info={"score": np.nan})
+    if found:
+        if reestimate:
+            _illuminant_changes(obs, css, found)
+        lamp.residual_base = lamp.residual_extended = None
+    out = _ranked(obs, base, found, reestimate)
+    out.residual_base = out.residual_extended = None
+    out.notes.append(f"only {f} frames: the history's light was judged as a whole; the other effects need at least "
+                     f"{rank + 2} frames")
+    out.info["censoring_level"] = round(dark_level(), 6)
+    return out
 
 
 def _diagnose(obs: Observations, sensitivities: NDArray[np.float64], rank: int, reestimate: bool,

@@ -40,6 +40,37 @@ def test_a_rendered_daylight_history_is_not_off_locus(shared_data):
     assert "off_locus_illuminant" not in [e["effect"] for e in d.effects], d.effects
 
 
+@pytest.mark.parametrize("frames", [[0, 1, 2], [10, 11], [27, 28, 29]])
+def test_a_short_lamp_lit_history_is_judged_for_its_light(shared_data, frames):
+    """Fewer frames than the bilinear effects need (6): rendered output is judged for its light alone — the real MIMO
+    scenes have three to six frames, and three were refused."""
+    obs, css = _rendered("none+lamps", 3001)
+    short = obs.subset(np.array(frames))
+    d = diagnose(short, css, primaries="srgb")
+    assert d.effect == "off_locus_illuminant" and d.parameters["found_by"] == "scene_level"
+    assert d.parameters["frames"] == short.frames
+    assert d.illuminant_change_deg > 1.0  # the scene model's whites follow the lamps away from the daylight-only fit
+    assert d.residual_base is None and d.residual_extended is None  # no bilinear fit on so few frames
+    assert any("judged as a whole" in n for n in d.notes)
+
+
+@pytest.mark.parametrize("frames", [[0, 1, 2], [10, 11], [27, 28, 29]])
+def test_a_short_daylight_history_is_not_off_locus(shared_data, frames):
+    obs, css = _rendered("none+rendered", 3001)
+    d = diagnose(obs.subset(np.array(frames)), css, primaries="srgb")
+    assert d.effect == "none" and d.effects == [] and d.illuminant_change_deg == 0.0
+    assert any("need at least 6 frames" in n for n in d.notes)
+
+
+def test_a_short_history_of_sensor_rgb_is_refused(shared_data):
+    """Sensor RGB has no balance to judge a few frames by: refused, saying what rendered output could do."""
+    obs, css = _rendered("none+lamps", 3001)
+    with pytest.raises(ValueError, match="at least 6 frames, got 3; for rendered output"):
+        diagnose(obs.subset(np.arange(3)), css)
+    with pytest.raises(ValueError, match=r"at least 6 frames, got 1 \(2 of rendered output"):
+        diagnose(obs.subset(np.arange(1)), css, primaries="srgb")
+
+
 def test_sensor_rgb_is_not_judged_by_a_balance(shared_data):
     """Sensor RGB (``primaries="camera"``) has no white balance to judge a whole history by: no scene-level verdict."""
     obs, css = _rendered("none+lamps", 3002)

@@ -91,6 +91,24 @@ def test_generator_is_seeded_and_hides_what_it_says(shared_data):
         hide_effect("dust", "Canon_300D", 0)
 
 
+def test_lamp_frames_minority_and_majority(shared_data):
+    """``lamp_frames``: the default lights a minority of frames as before; ``majority`` two thirds at 35–80 % (the
+    outside check's histories); the lamp-lit frames' light departs from their daylight by the stated share."""
+    a = hide_effect("off_locus_illuminant", "Canon_300D", SEED0, frames=36, patches=8)
+    b = hide_effect("off_locus_illuminant", "Canon_300D", SEED0, frames=36, patches=8, lamp_frames="minority")
+    np.testing.assert_array_equal(a.observations.values, b.observations.values)  # the default is unchanged
+    assert 3 <= len(a.parameters["frames"]) <= 36 // 5 and min(a.parameters["lamp_fraction"]) >= 0.6
+    m = hide_effect("off_locus_illuminant", "Canon_300D", SEED0, frames=36, patches=8, lamp_frames="majority")
+    assert len(m.parameters["frames"]) == 24
+    assert 0.35 <= min(m.parameters["lamp_fraction"]) and max(m.parameters["lamp_fraction"]) <= 0.8
+    day = np.setdiff1d(np.arange(36), m.parameters["frames"])
+    clean = hide_effect("none", "Canon_300D", SEED0, frames=36, patches=8)  # the same daylight run, unlit by lamps
+    np.testing.assert_allclose(m.history.illuminants[day], clean.history.illuminants[day])
+    assert not np.allclose(m.history.illuminants[m.parameters["frames"]], clean.history.illuminants[m.parameters["frames"]])
+    with pytest.raises(ValueError, match="unknown lamp_frames"):
+        hide_effect("off_locus_illuminant", "Canon_300D", SEED0, lamp_frames="most")
+
+
 def test_fitted_parameters_match_the_hidden_ones(shared_data):
     """The tone curve is detected with the noise learned from the history; γ is then estimated with shot noise plus a
     floor (``GAMMA_NOISE_FLOOR``), less tightly than with the project simulator's own noise assumed (within 8 % before

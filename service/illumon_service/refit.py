@@ -401,7 +401,7 @@ def _estimate_rows(h: History, fit: Refitted, late: dict[str, dict]) -> Iterator
     """The estimate rows to write, :data:`~.crud.WRITE_CHUNK` at a time: the fit's (their frames' stored times),
     then those of the frames stored since the read step (``late``)."""
     taken = {int(i): t for vh in h.by_view.values() for i, t in zip(vh.ids, vh.taken_at, strict=True)}
-    for part in fit.estimates.rows(crud.WRITE_CHUNK):
+    for part in fit.estimates.rows(crud.WRITE_CHUNK, json_text=True):
         yield [{"frame_id": int(fid), "camera_id": h.camera_id, "taken_at": taken[int(fid)], "model": fit.version,
                 **est} for fid, est in part if fid not in late]
     rows = list(late.values())

@@ -2,20 +2,24 @@
 
 SQLite under the data dir by default, in WAL mode with ``synchronous=FULL``: a transaction is on disk when ``commit``
 returns, and routes commit before they answer, so a 2xx means committed. Any SQLAlchemy URL (PostgreSQL) works too.
-Arrays are stored as JSON lists (small: 61 samples at most).
+Arrays are stored as JSON lists (small: 61 samples at most), written with :func:`json.dumps` (or given as JSON text,
+:class:`StoredJSON`) and read with orjson (:func:`json_loads`).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import os
+import re
 import secrets
 import threading
 from collections.abc import Callable
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
+import orjson
 from sqlalchemy import (
     JSON,
     DateTime,
@@ -50,6 +54,9 @@ __all__ = [
     "IdempotencyKey",
     "LoginSession",
     "private_sqlite_file",
+    "StoredJSON",
+    "json_dumps",
+    "json_loads",
 ]
 
 T = TypeVar("T")
@@ -76,6 +83,37 @@ def as_utc(value: datetime | None) -> datetime | None:
     if value is None:
         return None
     return value.replace(tzinfo=timezone.utc) if value.tzinfo is None else value.astimezone(timezone.utc)
+
+
+class StoredJSON(str):
+    """JSON text made by the caller, which a JSON column stores as it is (:func:`json_dumps`): a refit's estimate
+    rows carry their arrays so, written straight from the arrays by orjson (:func:`.estimation.batch.json_rows`),
+    where :func:`json.dumps` of their lists took half of a 100k-frame write step."""
+
+    __slots__ = ()
+
+
+def json_dumps(value: Any) -> str:
+    """The engine's JSON serializer: :class:`StoredJSON` as it is, any other value through :func:`json.dumps` (what
+    SQLAlchemy uses by default: ``NaN`` and ``Infinity`` written as such, keys converted to strings)."""
+    return str(value) if type(value) is StoredJSON else json.dumps(value)
+
+
+_LONG_INTEGER = re.compile(r"[0-9]{20}")
+_LONG_INTEGER_BYTES = re.compile(rb"[0-9]{20}")
+
+
+def json_loads(text: str | bytes) -> Any:
+    """The engine's JSON deserializer: :func:`orjson.loads`, which reads every float as :func:`json.loads` does (the
+    correctly rounded value) ~10 × faster; :func:`json.loads` where orjson would refuse the text (``NaN`` and
+    ``Infinity``, which :func:`json.dumps` writes; a lone surrogate) or read it otherwise (an integer of 20 digits or
+    more, ≥ 2⁶⁴, which orjson reads as a float): the values are those :func:`json.loads` gives, whatever was stored."""
+    if (_LONG_INTEGER_BYTES if isinstance(text, (bytes, bytearray, memoryview)) else _LONG_INTEGER).search(text) is None:
+        try:
+            return orjson.loads(text)
+        except orjson.JSONDecodeError:
+            pass
+    return json.loads(bytes(text) if isinstance(text, memoryview) else text)
 
 
 class Base(DeclarativeBase):
@@ -262,10 +300,12 @@ def private_sqlite_file(url: str) -> Path | None:
 
 
 def make_engine(url: str) -> Engine:
-    """An engine for ``url`` with the tables created; SQLite gets WAL, ``synchronous=FULL`` and a busy timeout."""
+    """An engine for ``url`` with the tables created; SQLite gets WAL, ``synchronous=FULL`` and a busy timeout. JSON
+    columns are written by :func:`json_dumps` and read by :func:`json_loads`."""
+    codec = {"json_serializer": json_dumps, "json_deserializer": json_loads}
     if url.startswith("sqlite"):
         private_sqlite_file(url)
-        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30})
+        engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 30}, **codec)
 
         @event.listens_for(engine, "connect")
         def _sqlite_pragmas(dbapi_conn, _record) -> None:  # noqa: ANN001 - DB-API connection
@@ -277,7 +317,7 @@ def make_engine(url: str) -> Engine:
             cur.close()
 
     else:
-        engine = create_engine(url, pool_pre_ping=True)
+        engine = create_engine(url, pool_pre_ping=True, **codec)
     Base.metadata.create_all(engine)
     add_missing_columns(engine)
     add_missing_indexes(engine)

@@ -1,0 +1,97 @@
+"""The engine's JSON codec (issue 29, the refit's rows): orjson reads and writes the values :mod:`json` does.
+
+:func:`~illumon_service.storage.json_loads` gives what :func:`json.loads` gives, for the texts orjson refuses or reads
+otherwise too; :class:`~illumon_service.storage.StoredJSON` is stored as it is and every other value as
+:func:`json.dumps` writes it; :func:`~illumon_service.estimation.batch.json_rows` writes arrays whose texts read back as
+the same floats, and leaves rows holding NaN or infinity to :func:`json.dumps` (orjson would write ``null``)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from illumon_service.estimation.batch import json_rows
+from illumon_service.storage import Frame, StoredJSON, json_dumps, json_loads, make_engine, make_session_factory
+from sqlalchemy import insert, select, text
+
+
+def _same(a: object, b: object) -> bool:
+    """Equal values of equal types, floats bit for bit (NaN equal NaN, -0.0 not 0.0)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return (math.isnan(a) and math.isnan(b)) or (a == b and math.copysign(1, a) == math.copysign(1, b))
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return list(a) == list(b) and all(_same(a[k], b[k]) for k in a)
+    return type(a) is type(b) and a == b
+
+
+def _doubles(n: int) -> np.ndarray:
+    """Finite doubles of every magnitude (random bit patterns), uniform ones, and awkward ones."""
+    rng = np.random.default_rng(0)
+    bits = rng.integers(0, 2**63, n, dtype=np.uint64).view(np.float64)
+    special = [0.0, -0.0, 5e-324, 2.2250738585072014e-308, 1.7976931348623157e308, 1e16, 1e-5, 1e-7, 0.1, 1 / 3,
+               123456789012345678.0, 2.0**53 + 2]
+    return np.concatenate([bits[np.isfinite(bits)], rng.random(n), rng.normal(0, 1e-5, n), special])
+
+
+TEXTS = ["NaN", "[1.5, NaN, Infinity, -Infinity]", '{"a": Infinity}', "1e400", "-1e400", "1" * 30, "-" + "9" * 25,
+         "18446744073709551615", "18446744073709551616", "[0.1, 12345678901234567890123]", '"\\ud800"',
+         '{"a": 1, "a": 2}', "-0", "-0.0", "[]", "{}", "null", "true", '"x\\u00e9"', '{"p": [0.25, null, 1, false]}']
+
+
+@pytest.mark.parametrize("text", TEXTS)
+def test_json_loads_gives_what_json_loads_gives(text: str) -> None:
+    assert _same(json_loads(text), json.loads(text))
+    assert _same(json_loads(text.encode()), json.loads(text))  # PostgreSQL's driver hands bytes over
+    assert _same(json_loads(memoryview(text.encode())), json.loads(text))
+
+
+def test_json_loads_reads_every_float_as_json_does() -> None:
+    x = _doubles(100_000).tolist()
+    for written in (json.dumps(x), json_rows(np.array([x]))[0]):
+        assert _same(json_loads(written), json.loads(written)) and _same(json_loads(written), x)
+
+
+def test_json_dumps_passes_stored_json_and_writes_the_rest_as_json_dumps() -> None:
+    assert json_dumps(StoredJSON("[1.0,2.5]")) == "[1.0,2.5]"
+    for value in ([1.0, float("nan"), float("inf")], {"a": None, 1: [1e-5]}, "[1.0]", 10**30, None):
+        assert json_dumps(value) == json.dumps(value)
+
+
+def test_json_rows_read_back_as_the_floats_written() -> None:
+    a = _doubles(30_000)[: 61 * 1400].reshape(-1, 61)
+    a[3, 5], a[7, 0], a[7, 60] = np.nan, np.inf, -np.inf
+    rows = json_rows(a)
+    for i, (row, values) in enumerate(zip(rows, a.tolist(), strict=True)):
+        if i in (3, 7):  # non-finite: the list, written by json.dumps as before
+            assert type(row) is list and _same(row, values) and json_dumps(row) == json.dumps(values)
+        else:
+            assert type(row) is StoredJSON and _same(json.loads(row), values)
+    assert json_rows(np.empty((0, 3))) == []
+
+
+def test_engine_stores_json_text_as_it_is_and_reads_values_as_json(tmp_path) -> None:
+    """Through SQLite: a StoredJSON column holds its text, a list holds json.dumps's, and both read back."""
+    engine = make_engine(f"sqlite:///{tmp_path}/db.sqlite")
+    sessions = make_session_factory(engine)
+    from datetime import datetime, timezone
+
+    from illumon_service.storage import Camera
+
+    with sessions() as s, s.begin():
+        cam = Camera(name="c", token_hash="0" * 64, sensitivities=[], regions=[], response={})
+        s.add(cam)
+        s.flush()
+        t = datetime(2025, 1, 1, tzinfo=timezone.utc)
+        s.execute(insert(Frame), [{"camera_id": cam.id, "taken_at": t, "patches": StoredJSON('{"a":[0.1,0.2,1e-7]}')},
+                                  {"camera_id": cam.id, "taken_at": t, "patches": {"a": [0.1, float("nan"), 1e-7]}}])
+    with engine.connect() as c:
+        raw = c.execute(text("SELECT patches FROM frames ORDER BY id")).scalars().all()
+    assert raw == ['{"a":[0.1,0.2,1e-7]}', '{"a": [0.1, NaN, 1e-07]}']
+    with sessions() as s:
+        got = s.scalars(select(Frame.patches).order_by(Frame.id)).all()
+    assert _same(got[0], {"a": [0.1, 0.2, 1e-7]}) and _same(got[1], {"a": [0.1, float("nan"), 1e-7]})
+    engine.dispose()

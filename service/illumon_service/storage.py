@@ -11,10 +11,9 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import re
 import secrets
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, TypeVar
@@ -28,9 +27,11 @@ from sqlalchemy import (
     Index,
     Integer,
     String,
+    Table,
     UniqueConstraint,
     create_engine,
     event,
+    insert,
     text,
 )
 from sqlalchemy.engine import Engine
@@ -57,6 +58,8 @@ __all__ = [
     "StoredJSON",
     "json_dumps",
     "json_loads",
+    "orjson_loads",
+    "insert_rows",
 ]
 
 T = TypeVar("T")
@@ -99,21 +102,35 @@ def json_dumps(value: Any) -> str:
     return str(value) if type(value) is StoredJSON else json.dumps(value)
 
 
-_LONG_INTEGER = re.compile(r"[0-9]{20}")
-_LONG_INTEGER_BYTES = re.compile(rb"[0-9]{20}")
+_DIGIT_RUNS = bytes(48 if 48 <= i <= 57 else 32 for i in range(256))
+"""A byte table: every digit to ``0``, every other byte to a space."""
+_LONG_RUN = b"0" * 20
+
+
+def _long_integer(text: str | bytes) -> bool:
+    """Whether ``text`` may hold an integer of 20 digits or more (any run of 20 digits; ~1 µs for 1 KB)."""
+    data = text.encode() if isinstance(text, str) else bytes(text)
+    return _LONG_RUN in data.translate(_DIGIT_RUNS)
+
+
+def orjson_loads(text: str | bytes) -> Any:
+    """:func:`orjson.loads`, or :func:`json.loads` where orjson refuses the text (``NaN`` and ``Infinity``, which
+    :func:`json.dumps` writes; ``1e400``; a lone surrogate). Every value it gives equals :func:`json.loads`'s but an
+    integer ≥ 2⁶⁴, which orjson reads as a float (:func:`json_loads` checks for those)."""
+    try:
+        return orjson.loads(text)
+    except orjson.JSONDecodeError:
+        return json.loads(bytes(text) if isinstance(text, memoryview) else text)
 
 
 def json_loads(text: str | bytes) -> Any:
-    """The engine's JSON deserializer: :func:`orjson.loads`, which reads every float as :func:`json.loads` does (the
-    correctly rounded value) ~10 × faster; :func:`json.loads` where orjson would refuse the text (``NaN`` and
-    ``Infinity``, which :func:`json.dumps` writes; a lone surrogate) or read it otherwise (an integer of 20 digits or
-    more, ≥ 2⁶⁴, which orjson reads as a float): the values are those :func:`json.loads` gives, whatever was stored."""
-    if (_LONG_INTEGER_BYTES if isinstance(text, (bytes, bytearray, memoryview)) else _LONG_INTEGER).search(text) is None:
-        try:
-            return orjson.loads(text)
-        except orjson.JSONDecodeError:
-            pass
-    return json.loads(bytes(text) if isinstance(text, memoryview) else text)
+    """The engine's JSON deserializer: the values :func:`json.loads` gives, whatever was stored, read by orjson
+    (:func:`orjson_loads`: every float correctly rounded, as :func:`json.loads` reads it, ~4 × faster with this
+    check), by :func:`json.loads` itself where the text may hold an integer of 20 digits or more (≥ 2⁶⁴: orjson
+    would read a float)."""
+    if _long_integer(text):
+        return json.loads(bytes(text) if isinstance(text, memoryview) else text)
+    return orjson_loads(text)
 
 
 class Base(DeclarativeBase):
@@ -369,6 +386,37 @@ def add_missing_indexes(engine: Engine) -> list[str]:
                     raise
             added.append(str(index.name))
     return added
+
+
+def insert_rows(session: Session, table: Table, rows: Sequence[Mapping[str, Any]]) -> None:
+    """One executemany INSERT of ``rows`` into ``table`` within the session's transaction, the rows handed to the
+    driver as they are.
+
+    The statement is the one SQLAlchemy Core compiles for the dialect (``insert(table)``), every value converted by
+    its column type's bind processor as SQLAlchemy converts it (datetimes as SQLite's text, JSON through the engine's
+    serializer, psycopg's JSON wrapper), a column at a time, and the rows passed to the driver's ``executemany``
+    (:meth:`~sqlalchemy.engine.Connection.exec_driver_sql`): ``session.execute(insert(table), rows)`` prepares every
+    row's parameters on its own, ~10 µs a row. The rows are dicts with the same keys, which must include every column
+    with a Python-side default (``ValueError`` otherwise: no default is computed here).
+    """
+    if not rows:
+        return
+    conn = session.connection()
+    dialect = conn.dialect
+    keys = list(rows[0])
+    compiled = insert(table).compile(dialect=dialect, column_keys=keys)
+    if compiled.insert_prefetch:
+        raise ValueError(f"insert_rows: no value for {', '.join(c.key for c in compiled.insert_prefetch)}")
+    columns: dict[str, list] = {}
+    for key in keys:
+        values = [r[key] for r in rows]
+        process = table.columns[key].type.dialect_impl(dialect).bind_processor(dialect)
+        columns[key] = values if process is None else [process(v) for v in values]
+    if compiled.positional:
+        params: list = list(zip(*(columns[k] for k in compiled.positiontup or ()), strict=True))
+    else:
+        params = [dict(zip(keys, values, strict=True)) for values in zip(*(columns[k] for k in keys), strict=True)]
+    conn.exec_driver_sql(compiled.string, params)
 
 
 def make_session_factory(engine: Engine) -> sessionmaker[Session]:

@@ -6,11 +6,11 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from datetime import datetime
 
-from sqlalchemy import delete, insert, select, update
+from sqlalchemy import delete, select, update
 from sqlalchemy.engine import Row
 from sqlalchemy.orm import Session
 
-from ..storage import Estimate, Frame, as_utc
+from ..storage import Estimate, Frame, as_utc, insert_rows, utcnow
 
 __all__ = [
     "estimate_non_daylight", "estimate_out", "nearest_estimate", "estimates_between", "latest_estimate",
@@ -128,17 +128,20 @@ def add_estimate(session: Session, **columns: object) -> Estimate:
 
 
 def replace_estimates(session: Session, rows: Iterable[Sequence[dict]]) -> int:
-    """Replace the estimates of the frames of ``rows`` (chunks of rows, each with the estimate's columns, at most
-    :data:`WRITE_CHUNK` a chunk) and clear those frames' reason for having none: per chunk one DELETE, one
-    executemany INSERT (SQLAlchemy Core) and one UPDATE, within the caller's transaction. Returns the rows written."""
+    """Replace the estimates of the frames of ``rows`` (chunks of rows, each with the estimate's columns but
+    ``created_at``, at most :data:`WRITE_CHUNK` a chunk) and clear those frames' reason for having none: per chunk one
+    DELETE, one executemany INSERT (:func:`.storage.insert_rows`; ``created_at`` the chunk's time) and one UPDATE,
+    SQLAlchemy Core statements within the caller's transaction. Returns the rows written."""
+    estimates, frames = Estimate.__table__, Frame.__table__
     written = 0
     for part in rows:
         ids = [int(r["frame_id"]) for r in part]
         if not ids:
             continue
-        session.execute(delete(Estimate).where(Estimate.frame_id.in_(ids)))
-        session.execute(insert(Estimate.__table__), list(part))  # Core: one executemany, no ORM bulk path
-        session.execute(update(Frame).where(Frame.id.in_(ids)).values(not_estimated=None))
+        now = utcnow()
+        session.execute(delete(estimates).where(estimates.c.frame_id.in_(ids)))
+        insert_rows(session, estimates, [{**r, "created_at": now} for r in part])
+        session.execute(update(frames).where(frames.c.id.in_(ids)).values(not_estimated=None))
         written += len(ids)
     return written
 

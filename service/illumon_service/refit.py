@@ -427,8 +427,9 @@ def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit
     estimate with the new models the frames stored since the read step, and record why the others have none.
     Returns the number of estimates written.
 
-    The estimate rows are built :data:`~.crud.WRITE_CHUNK` at a time from the fit's arrays and written in bulk
-    (:func:`.crud.replace_estimates`: SQLAlchemy Core, one executemany INSERT per chunk). The camera row is updated
+    The estimates are converted :data:`~.crud.WRITE_CHUNK` frames at a time from the fit's arrays, a column at a
+    time (their JSON columns written by orjson), and written in bulk (:func:`.crud.replace_estimates`: SQLAlchemy
+    Core statements, one executemany INSERT per chunk). The camera row is updated
     first: on SQLite that takes the write lock before anything is read, on PostgreSQL it locks the row that every
     ingest locks (:func:`.crud.models_for_update`) before storing an estimate, so no ingest commits an estimate of
     the old model after this commit."""
@@ -443,7 +444,7 @@ def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit
                                  for v, p in fit.models.items()})
         late = _late_estimates(crud.frames_not_read(s, h.camera_id, h.read_ids), data_dir, h, fit,
                                ids_of)
-        written = crud.replace_estimates(s, _estimate_rows(h, fit, late))
+        written = crud.replace_estimates(s, _estimate_columns(h, fit, late), camera_id=h.camera_id, model=fit.version)
         # frames the refit used but could not estimate (fewer than two regions seen, a non-finite white), and those
         # it left out: no estimate of the previous model stays behind
         estimated = {int(fid) for fid in fit.estimates.frame_ids()} | {int(fid) for fid in late}
@@ -457,16 +458,21 @@ def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit
     return written
 
 
-def _estimate_rows(h: History, fit: Refitted, late: dict[str, dict]) -> Iterator[list[dict]]:
-    """The estimate rows to write, :data:`~.crud.WRITE_CHUNK` at a time: the fit's (their frames' stored times),
+def _estimate_columns(h: History, fit: Refitted, late: dict[str, dict]) -> Iterator[dict[str, list]]:
+    """The estimates to write but their camera and model, a column at a time, :data:`~.crud.WRITE_CHUNK` frames at a
+    time: the fit's (their frames' stored times; JSON columns as text, :meth:`~.estimation.RefitEstimates.columns`),
     then those of the frames stored since the read step (``late``)."""
-    taken = {int(i): t for vh in h.by_view.values() for i, t in zip(vh.ids, vh.taken_at, strict=True)}
-    for part in fit.estimates.rows(crud.WRITE_CHUNK, json_text=True):
-        yield [{"frame_id": int(fid), "camera_id": h.camera_id, "taken_at": taken[int(fid)], "model": fit.version,
-                **est} for fid, est in part if fid not in late]
+    taken = {i: t for vh in h.by_view.values() for i, t in zip(vh.ids.tolist(), vh.taken_at, strict=True)}
+    for columns in fit.estimates.columns(crud.WRITE_CHUNK, json_text=True):
+        if late and any(fid in late for fid in columns["frame_id"]):
+            keep = [fid not in late for fid in columns["frame_id"]]
+            columns = {k: [v for v, ok in zip(c, keep, strict=True) if ok] for k, c in columns.items()}
+        ids = [int(fid) for fid in columns["frame_id"]]
+        yield {**columns, "frame_id": ids, "taken_at": [taken[i] for i in ids]}
     rows = list(late.values())
     for start in range(0, len(rows), crud.WRITE_CHUNK):
-        yield rows[start : start + crud.WRITE_CHUNK]
+        part = rows[start : start + crud.WRITE_CHUNK]
+        yield {k: [r[k] for r in part] for k in part[0]}
 
 
 _commit_hook: Callable[[], None] | None = None
@@ -487,6 +493,5 @@ def _late_estimates(late: Sequence[Any], data_dir: Path, h: History, fit: Refitt
         est = estimate_frame(data_dir, h.camera_id, row[0], row[1], row[2], ids_of[r.view], r.view, row[3],
                              model_file=fit.models[r.view])
         if est is not None:
-            out[str(r.id)] = {"frame_id": r.id, "camera_id": h.camera_id, "taken_at": r.taken_at,
-                              "model": fit.version, **est}
+            out[str(r.id)] = {"frame_id": r.id, "taken_at": r.taken_at, **est}
     return out

@@ -15,6 +15,7 @@ import secrets
 import threading
 from collections.abc import Callable, Mapping, Sequence
 from datetime import datetime, timezone
+from itertools import repeat
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -59,7 +60,7 @@ __all__ = [
     "json_dumps",
     "json_loads",
     "orjson_loads",
-    "insert_rows",
+    "insert_columns",
 ]
 
 T = TypeVar("T")
@@ -388,35 +389,44 @@ def add_missing_indexes(engine: Engine) -> list[str]:
     return added
 
 
-def insert_rows(session: Session, table: Table, rows: Sequence[Mapping[str, Any]]) -> None:
-    """One executemany INSERT of ``rows`` into ``table`` within the session's transaction, the rows handed to the
-    driver as they are.
+def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequence[Any]],
+                   constants: Mapping[str, Any] | None = None) -> int:
+    """One executemany INSERT into ``table`` of rows given a column at a time, within the session's transaction, the
+    rows handed to the driver as they are; returns the number of rows.
 
-    The statement is the one SQLAlchemy Core compiles for the dialect (``insert(table)``), every value converted by
-    its column type's bind processor as SQLAlchemy converts it (datetimes as SQLite's text, JSON through the engine's
-    serializer, psycopg's JSON wrapper), a column at a time, and the rows passed to the driver's ``executemany``
-    (:meth:`~sqlalchemy.engine.Connection.exec_driver_sql`): ``session.execute(insert(table), rows)`` prepares every
-    row's parameters on its own, ~10 µs a row. The rows are dicts with the same keys, which must include every column
-    with a Python-side default (``ValueError`` otherwise: no default is computed here).
+    ``columns``: each column's values, one per row (lists of one length); ``constants``: columns every row has the
+    same value of. The statement is the one SQLAlchemy Core compiles for the dialect (``insert(table)``), every value
+    converted by its column type's bind processor as SQLAlchemy converts it (datetimes as SQLite's text, JSON through
+    the engine's serializer, psycopg's JSON wrapper), a column at a time and a constant once, and the rows passed to
+    the driver's ``executemany`` (:meth:`~sqlalchemy.engine.Connection.exec_driver_sql`):
+    ``session.execute(insert(table), rows)`` prepares every row's parameters on its own, ~10 µs a row. Every column
+    with a Python-side default must be given (``ValueError`` otherwise: no default is computed here).
     """
-    if not rows:
-        return
+    constants = dict(constants or {})
+    n = len(next(iter(columns.values()))) if columns else 0
+    if not n:
+        return 0
     conn = session.connection()
     dialect = conn.dialect
-    keys = list(rows[0])
+    keys = [*columns, *constants]
     compiled = insert(table).compile(dialect=dialect, column_keys=keys)
     if compiled.insert_prefetch:
-        raise ValueError(f"insert_rows: no value for {', '.join(c.key for c in compiled.insert_prefetch)}")
-    columns: dict[str, list] = {}
-    for key in keys:
-        values = [r[key] for r in rows]
-        process = table.columns[key].type.dialect_impl(dialect).bind_processor(dialect)
-        columns[key] = values if process is None else [process(v) for v in values]
+        raise ValueError(f"insert_columns: no value for {', '.join(c.key for c in compiled.insert_prefetch)}")
+    processors = {k: table.columns[k].type.dialect_impl(dialect).bind_processor(dialect) for k in keys}
+    values: dict[str, Any] = {}
+    for key, column in columns.items():
+        process = processors[key]
+        values[key] = column if process is None else [process(v) for v in column]
+    for key, value in constants.items():
+        values[key] = repeat(value if processors[key] is None else processors[key](value), n)
     if compiled.positional:
-        params: list = list(zip(*(columns[k] for k in compiled.positiontup or ()), strict=True))
+        params: list = list(zip(*(values[k] for k in compiled.positiontup or ()), strict=False))
     else:
-        params = [dict(zip(keys, values, strict=True)) for values in zip(*(columns[k] for k in keys), strict=True)]
+        params = [dict(zip(keys, row, strict=True)) for row in zip(*(values[k] for k in keys), strict=False)]
+    if len(params) != n or any(len(c) != n for c in columns.values()):
+        raise ValueError("insert_columns: columns of different lengths")
     conn.exec_driver_sql(compiled.string, params)
+    return n
 
 
 def make_session_factory(engine: Engine) -> sessionmaker[Session]:

@@ -95,3 +95,39 @@ def test_engine_stores_json_text_as_it_is_and_reads_values_as_json(tmp_path) -> 
         got = s.scalars(select(Frame.patches).order_by(Frame.id)).all()
     assert _same(got[0], {"a": [0.1, 0.2, 1e-7]}) and _same(got[1], {"a": [0.1, float("nan"), 1e-7]})
     engine.dispose()
+
+
+def test_insert_columns_stores_what_a_core_insert_stores(tmp_path) -> None:
+    """storage.insert_columns (values converted a column at a time, the driver's executemany) stores the rows that
+    SQLAlchemy's executemany INSERT of the same rows stores: datetimes, floats, JSON (NaN, null), text."""
+    import sqlite3
+    from datetime import datetime, timedelta, timezone
+
+    from illumon_service.storage import Camera, Estimate, insert_columns
+
+    t0 = datetime(2025, 1, 1, 12, tzinfo=timezone.utc)
+    rows = [{"frame_id": i + 1, "taken_at": t0 + timedelta(seconds=1.5 * i), "cct_k": 5000.0 + i,
+             "duv": -0.0 if i == 2 else 0.001, "xy": [0.31, float("nan")], "white_rgb": StoredJSON("[0.5,1.0,0.25]"),
+             "gains_rgb": [2.0, float("inf"), 4.0], "confidence": 0.5, "spectrum": [1e-7] * 61,
+             "intervals": None if i % 2 else {"cct_lo": 4000.0, "gain_lo": [1.0, None, 2.0]}, "source": "refit:model"}
+            for i in range(5)]
+    constants = {"camera_id": 1, "model": "v1", "created_at": t0}
+    stored = []
+    for name in ("core", "columns"):
+        engine = make_engine(f"sqlite:///{tmp_path}/{name}.sqlite")
+        sessions = make_session_factory(engine)
+        with sessions() as s, s.begin():
+            s.add(Camera(name="c", token_hash="0" * 64, sensitivities=[], regions=[], response={}))
+            s.flush()
+            s.execute(insert(Frame), [{"camera_id": 1, "taken_at": t0, "patches": {}} for _ in rows])
+            if name == "core":
+                s.execute(insert(Estimate.__table__), [{**r, **constants} for r in rows])
+            else:
+                assert insert_columns(s, Estimate.__table__, {k: [r[k] for r in rows] for k in rows[0]}, constants) == 5
+                with pytest.raises(ValueError):
+                    insert_columns(s, Estimate.__table__, {"frame_id": [9], "camera_id": [1]})  # created_at missing
+        engine.dispose()
+        con = sqlite3.connect(f"{tmp_path}/{name}.sqlite")
+        stored.append(con.execute("SELECT * FROM estimates ORDER BY frame_id").fetchall())
+        con.close()
+    assert stored[0] == stored[1] and len(stored[0]) == 5

@@ -205,8 +205,8 @@ def test_refit_stores_values_equal_to_the_lists_json_dumps_wrote(tmp_path, monke
         return summary, reasons, raw, api, page
 
     new = stored("new")
-    rows = RefitEstimates.rows
-    monkeypatch.setattr(RefitEstimates, "rows", lambda self, chunk, json_text=False: rows(self, chunk))
+    columns = RefitEstimates.columns
+    monkeypatch.setattr(RefitEstimates, "columns", lambda self, chunk, json_text=False: columns(self, chunk))
     old = stored("old")
     assert new[0] == old[0] and new[1] == old[1] and len(new[2]) == len(old[2]) > 40
     # written otherwise (orjson's text, json.dumps's) but for the frames older than max_frames, estimated one by one

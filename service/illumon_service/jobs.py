@@ -255,9 +255,11 @@ def usable_cpus() -> int:
         return os.cpu_count() or 1
 
 
-def worker_environ() -> dict[str, object]:
-    """The environment :func:`run_batch`'s ``LocalCluster`` workers are started with: Dask's
-    (``distributed.nanny.pre-spawn-environ``: one BLAS and OpenMP thread) but its ``MALLOC_TRIM_THRESHOLD_``.
+def worker_config() -> dict[str, object]:
+    """The Dask configuration :func:`run_batch` starts its ``LocalCluster`` with: the workers' environment Dask's
+    (``distributed.nanny.pre-spawn-environ``: one BLAS and OpenMP thread) but its ``MALLOC_TRIM_THRESHOLD_``, and no
+    statistical profiler in the workers (it samples the task's stack every 10 ms for a dashboard the cluster does not
+    start).
 
     Dask sets that glibc threshold to 64 KiB to hand freed memory back to the system at once; set at all, it also
     turns off glibc's adaptive mmap threshold, so every array above 128 KiB a refit makes is mapped and unmapped anew
@@ -270,7 +272,7 @@ def worker_environ() -> dict[str, object]:
 
     env = dict(dask.config.get("distributed.nanny.pre-spawn-environ"))
     env.pop("MALLOC_TRIM_THRESHOLD_", None)
-    return env
+    return {"distributed.nanny.pre-spawn-environ": env, "distributed.worker.profile.enabled": False}
 
 
 _ENGINES: dict[str, sessionmaker[Session]] = {}
@@ -305,7 +307,7 @@ def run_batch(
     (nothing but the id and settings is pickled). The speed-up over serial is bounded by the CPUs left free by other
     work: on a 2-core machine whose other processes keep one core busy, two workers share the remaining core and a
     fleet refit is no faster than serial (the same holds for two plain ``multiprocessing`` processes). The
-    ``LocalCluster``'s workers start with :func:`worker_environ` (without Dask's ``MALLOC_TRIM_THRESHOLD_``).
+    ``LocalCluster``'s workers start with :func:`worker_config` (without Dask's ``MALLOC_TRIM_THRESHOLD_``).
     """
     from tqdm import tqdm
 
@@ -343,7 +345,7 @@ def run_batch(
     if dask_scheduler:
         client = Client(dask_scheduler)
     else:
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": worker_environ()}):
+        with dask.config.set(worker_config()):
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
         client = Client(cluster)
     try:

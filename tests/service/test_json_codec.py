@@ -97,37 +97,75 @@ def test_engine_stores_json_text_as_it_is_and_reads_values_as_json(tmp_path) -> 
     engine.dispose()
 
 
-def test_insert_columns_stores_what_a_core_insert_stores(tmp_path) -> None:
-    """storage.insert_columns (values converted a column at a time, the driver's executemany) stores the rows that
-    SQLAlchemy's executemany INSERT of the same rows stores: datetimes, floats, JSON (NaN, null), text."""
-    import sqlite3
+def _estimate_rows(n: int, non_finite: bool) -> tuple[list[dict], dict]:
+    """Estimate rows with datetimes, -0.0, JSON text given, JSON null, NaN and infinity in JSON (``non_finite``:
+    PostgreSQL refuses them, whoever writes them); and constants."""
     from datetime import datetime, timedelta, timezone
-
-    from illumon_service.storage import Camera, Estimate, insert_columns
 
     t0 = datetime(2025, 1, 1, 12, tzinfo=timezone.utc)
     rows = [{"frame_id": i + 1, "taken_at": t0 + timedelta(seconds=1.5 * i), "cct_k": 5000.0 + i,
-             "duv": -0.0 if i == 2 else 0.001, "xy": [0.31, float("nan")], "white_rgb": StoredJSON("[0.5,1.0,0.25]"),
-             "gains_rgb": [2.0, float("inf"), 4.0], "confidence": 0.5, "spectrum": [1e-7] * 61,
+             "duv": -0.0 if i == 2 else 0.001, "xy": [0.31, float("nan") if non_finite else 1e-5],
+             "white_rgb": StoredJSON("[0.5,1.0,0.25]"), "gains_rgb": [2.0, float("inf") if non_finite else 3.0, 4.0],
+             "confidence": 0.5, "spectrum": [1e-7] * 61,
              "intervals": None if i % 2 else {"cct_lo": 4000.0, "gain_lo": [1.0, None, 2.0]}, "source": "refit:model"}
-            for i in range(5)]
-    constants = {"camera_id": 1, "model": "v1", "created_at": t0}
+            for i in range(n)]
+    return rows, {"camera_id": 1, "model": "v1", "created_at": t0}
+
+
+def _stored_estimates(url: str, columns: bool, non_finite: bool = True) -> list[tuple]:
+    """The rows of :func:`_estimate_rows` inserted by SQLAlchemy's executemany or by insert_columns, read back."""
+    from illumon_service.storage import Camera, Estimate, insert_columns
+
+    rows, constants = _estimate_rows(5, non_finite)
+    engine = make_engine(url)
+    sessions = make_session_factory(engine)
+    with sessions() as s, s.begin():
+        s.add(Camera(name="c", token_hash="0" * 64, sensitivities=[], regions=[], response={}))
+        s.flush()
+        s.execute(insert(Frame), [{"camera_id": 1, "taken_at": constants["created_at"], "patches": {}} for _ in rows])
+        if columns:
+            assert insert_columns(s, Estimate.__table__, {k: [r[k] for r in rows] for k in rows[0]}, constants) == 5
+            with pytest.raises(ValueError):
+                insert_columns(s, Estimate.__table__, {"frame_id": [9], "camera_id": [1]})  # created_at missing
+        else:
+            s.execute(insert(Estimate.__table__), [{**r, **constants} for r in rows])
+    with sessions() as s:
+        got = [tuple(r) for r in s.execute(select(Estimate.__table__).order_by(Estimate.frame_id)).all()]
+    engine.dispose()
+    return got
+
+
+def test_insert_columns_stores_what_a_core_insert_stores(tmp_path) -> None:
+    """storage.insert_columns (values converted a column at a time, the driver's executemany) stores the rows that
+    SQLAlchemy's executemany INSERT of the same rows stores, text for text on SQLite."""
+    import sqlite3
+
     stored = []
     for name in ("core", "columns"):
-        engine = make_engine(f"sqlite:///{tmp_path}/{name}.sqlite")
-        sessions = make_session_factory(engine)
-        with sessions() as s, s.begin():
-            s.add(Camera(name="c", token_hash="0" * 64, sensitivities=[], regions=[], response={}))
-            s.flush()
-            s.execute(insert(Frame), [{"camera_id": 1, "taken_at": t0, "patches": {}} for _ in rows])
-            if name == "core":
-                s.execute(insert(Estimate.__table__), [{**r, **constants} for r in rows])
-            else:
-                assert insert_columns(s, Estimate.__table__, {k: [r[k] for r in rows] for k in rows[0]}, constants) == 5
-                with pytest.raises(ValueError):
-                    insert_columns(s, Estimate.__table__, {"frame_id": [9], "camera_id": [1]})  # created_at missing
-        engine.dispose()
+        got = _stored_estimates(f"sqlite:///{tmp_path}/{name}.sqlite", name == "columns")
         con = sqlite3.connect(f"{tmp_path}/{name}.sqlite")
-        stored.append(con.execute("SELECT * FROM estimates ORDER BY frame_id").fetchall())
+        stored.append((con.execute("SELECT * FROM estimates ORDER BY frame_id").fetchall(), got))
         con.close()
-    assert stored[0] == stored[1] and len(stored[0]) == 5
+    assert stored[0][0] == stored[1][0] and len(stored[0][0]) == 5
+    assert all(_same(list(a), list(b)) for a, b in zip(stored[0][1], stored[1][1], strict=True))
+
+
+def test_insert_columns_on_postgresql(pg_url) -> None:  # noqa: F811 - the fixture imported below
+    """The same on PostgreSQL (psycopg's JSON wrapper, the engine's serializer, typed parameters): the rows read back
+    equal, the JSON text given stored as it is."""
+    from sqlalchemy import create_engine
+
+    reset = create_engine(pg_url)
+    got = []
+    for columns in (False, True):
+        with reset.begin() as c:
+            c.execute(text("DROP SCHEMA public CASCADE; CREATE SCHEMA public"))
+        got.append(_stored_estimates(pg_url, columns, non_finite=False))
+        with reset.connect() as c:
+            raw = c.execute(text("SELECT white_rgb::text FROM estimates ORDER BY frame_id")).scalars().all()
+        assert raw == ["[0.5,1.0,0.25]"] * 5
+    reset.dispose()
+    assert len(got[0]) == 5 and all(_same(list(a), list(b)) for a, b in zip(got[0], got[1], strict=True))
+
+
+from test_faults import pg_url  # noqa: E402, F401 - a throwaway PostgreSQL cluster, or skip

@@ -255,6 +255,26 @@ def usable_cpus() -> int:
         return os.cpu_count() or 1
 
 
+def worker_config() -> dict[str, object]:
+    """The Dask configuration :func:`run_batch` starts its ``LocalCluster`` with: the workers' environment Dask's
+    (``distributed.nanny.pre-spawn-environ``: one BLAS and OpenMP thread) but its ``MALLOC_TRIM_THRESHOLD_``, and no
+    statistical profiler in the workers (it samples the task's stack every 10 ms for a dashboard the cluster does not
+    start).
+
+    Dask sets that glibc threshold to 64 KiB to hand freed memory back to the system at once; set at all, it also
+    turns off glibc's adaptive mmap threshold, so every array above 128 KiB a refit makes is mapped and unmapped anew
+    and its pages faulted in again: a 1 000-frame refit made ~1 700 page faults in a plain process and ~260 000 with
+    the variable or in a Dask worker, where it ran 1.4–2 × slower (``docs/benchmarks.md``). Without it the workers
+    allocate as the service's own process does (arrays above glibc's adaptive threshold, at most 32 MiB, are still
+    unmapped when freed). A variable set in the calling process's environment is still inherited."""
+    import dask
+    import distributed  # noqa: F401 - its configuration's defaults
+
+    env = dict(dask.config.get("distributed.nanny.pre-spawn-environ"))
+    env.pop("MALLOC_TRIM_THRESHOLD_", None)
+    return {"distributed.nanny.pre-spawn-environ": env, "distributed.worker.profile.enabled": False}
+
+
 _ENGINES: dict[str, sessionmaker[Session]] = {}
 _ENGINES_LOCK = threading.Lock()
 
@@ -286,7 +306,8 @@ def run_batch(
     Each task is a camera id; the worker reads that camera's history itself through one engine per worker process
     (nothing but the id and settings is pickled). The speed-up over serial is bounded by the CPUs left free by other
     work: on a 2-core machine whose other processes keep one core busy, two workers share the remaining core and a
-    fleet refit is no faster than serial (the same holds for two plain ``multiprocessing`` processes).
+    fleet refit is no faster than serial (the same holds for two plain ``multiprocessing`` processes). The
+    ``LocalCluster``'s workers start with :func:`worker_config` (without Dask's ``MALLOC_TRIM_THRESHOLD_``).
     """
     from tqdm import tqdm
 
@@ -317,13 +338,15 @@ def run_batch(
                     raise
                 results.append({"camera_id": cid, "error": str(exc)})
         return results
+    import dask
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
     if dask_scheduler:
         client = Client(dask_scheduler)
     else:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
+        with dask.config.set(worker_config()):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
         client = Client(cluster)
     try:
         futures = [client.submit(_refit_worker, url, cid, *args, pure=False) for cid in ids]

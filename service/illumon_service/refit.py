@@ -9,6 +9,7 @@ switch to the new models in one transaction.
 from __future__ import annotations
 
 import gc
+import json
 import logging
 import time
 import uuid
@@ -16,8 +17,9 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime
+from itertools import chain
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from illumon.observations import Observations
@@ -29,11 +31,11 @@ from . import crud
 from .estimation import (
     RefitEstimates,
     RefitInputError,
-    build_observations,
     calibration_frames,
     camera_primaries,
     check_response,
     estimate_frame,
+    history_arrays,
     history_row,
     refit_estimates,
     remove_old_models,
@@ -41,7 +43,8 @@ from .estimation import (
     versioned_model_path,
     view_model_key,
 )
-from .limits import frame_problem
+from .limits import MAX_VALUE, frame_problem
+from .storage import as_utc, orjson_loads
 
 __all__ = ["refit_camera", "read_history", "fit_views", "check_refit", "write_refit", "History", "ViewHistory",
            "Refitted", "MAX_DROPPED_LISTED", "READ_CHUNK"]
@@ -189,15 +192,14 @@ class _ViewRows:
         self.values: list[NDArray[np.float64]] = []
         self.sd: list[NDArray[np.float64]] = []
 
-    def add(self, rows: Sequence[Row], matrix: list | None) -> None:
-        hist = [history_row(r, matrix) for r in rows]
-        obs = build_observations(hist, self.region_ids)
-        self.ids += [r.id for r in rows]
-        self.taken_at += [r.taken_at for r in rows]
-        self.times += [h[1] for h in hist]
-        self.used += np.isfinite(obs.values).any(axis=2).sum(axis=1).tolist()  # stored values are finite (limits)
-        self.values.append(obs.values)
-        self.sd.append(obs.sd if obs.sd is not None else np.full_like(obs.values, np.nan))
+    def add(self, frames: Sequence[_Stored], matrix: list | None) -> None:
+        values, sd = history_arrays(frames, self.region_ids, matrix)
+        self.ids += [f.id for f in frames]
+        self.taken_at += [f.taken_at for f in frames]
+        self.times += [as_utc(f.taken_at).isoformat() for f in frames]  # history_row's times
+        self.used += np.isfinite(values).any(axis=2).sum(axis=1).tolist()  # stored values are finite (limits)
+        self.values.append(values)
+        self.sd.append(sd)
 
     def finish(self) -> ViewHistory:
         """Oldest first."""
@@ -252,17 +254,75 @@ class Refitted:
     view_warnings: list[str]
 
 
-def _usable(rows: Sequence[Row]) -> tuple[list[Row], list[dict]]:
-    """The frames a refit can use and those it leaves out (``{"frame_id", "reason"}``): frames of an unknown view (a
-    view change) or measured before any region existed carry no region values and are passed over."""
-    rows = [r for r in rows if r.patches and (r.registration or {}).get("state") != "view_change"]
+class _Stored(NamedTuple):
+    """A stored frame as the read step uses it: the columns of :func:`.crud.history_chunks`, JSON decoded (of
+    ``registration`` only whether its state is ``view_change`` is read)."""
+
+    id: int
+    taken_at: datetime
+    patches: Any
+    applied_gains: Any
+    exposure: float | None
+    view: str | None
+    registration: Any
+    patch_sd: Any
+
+
+def _decoded(row: Row, loads: Callable[[str], Any]) -> _Stored:
+    """``row`` of :func:`.crud.history_chunks` (its JSON columns as text) with its JSON decoded by ``loads``."""
+    return _Stored(row[0], row[1], None if row[2] is None else loads(row[2]),
+                   None if row[3] is None else loads(row[3]), row[4], row[5],
+                   None if row[6] is None else loads(row[6]), None if row[7] is None else loads(row[7]))
+
+
+_ZERO3 = (0.0, 0.0, 0.0)
+
+
+def _plainly_valid(frames: Sequence[_Stored]) -> list[bool]:
+    """Which of ``frames`` :func:`~.limits.frame_problem` accepts, found for all of them at once where it is plain:
+    region means and standard errors as dicts whose values are ``None`` or three numbers (``float`` or ``int``, not
+    ``bool``), every number within 0…:data:`~.limits.MAX_VALUE` (NaN and ±inf are not), applied gains and exposure
+    accepted by :func:`~.limits.frame_problem`. ``False`` for every other frame, and for every frame when a value of
+    any is not three numbers: it is judged by :func:`~.limits.frame_problem` itself then, so a frame is never
+    accepted here that it would leave out, and a reason is always the function's."""
+    sure = [type(f.patches) is dict and (f.patch_sd is None or type(f.patch_sd) is dict)
+            and ((f.applied_gains is None and f.exposure is None)
+                 or frame_problem(None, None, f.applied_gains, f.exposure) is None)
+            for f in frames]
+    counts = [len(f.patches) + len(f.patch_sd or ()) if ok else 0 for f, ok in zip(frames, sure, strict=True)]
+    flat = [_ZERO3 if v is None else v for f, ok in zip(frames, sure, strict=True) if ok
+            for d in (f.patches, f.patch_sd or {}) for v in d.values()]
+    try:
+        if set(map(len, flat)) - {3} or set(map(type, chain.from_iterable(flat))) - {float, int}:
+            return [False] * len(frames)
+        a = np.fromiter(chain.from_iterable(flat), dtype=float, count=3 * len(flat)).reshape(-1, 3)
+    except (TypeError, OverflowError):  # a value without a length; an integer beyond a float's range
+        return [False] * len(frames)
+    bad = ~((a >= 0.0) & (a <= MAX_VALUE)).all(axis=1)
+    owner = np.repeat(np.arange(len(frames)), counts)
+    bad_frames = np.bincount(owner[bad], minlength=len(frames)) > 0
+    return [ok and not b for ok, b in zip(sure, bad_frames.tolist(), strict=True)]
+
+
+def _usable(rows: Sequence[Row]) -> tuple[list[_Stored], list[dict]]:
+    """The frames of ``rows`` (:func:`.crud.history_chunks`) a refit can use, decoded, and those it leaves out
+    (``{"frame_id", "reason"}``): frames of an unknown view (a view change) or measured before any region existed
+    carry no region values and are passed over. JSON is read by orjson (:func:`~.storage.orjson_loads`); a frame not
+    plainly valid (:func:`_plainly_valid`) is read again by :func:`json.loads` and judged by
+    :func:`~.limits.frame_problem`, so that whatever was stored, the frames used, their values and the reasons given
+    are those of the stored rows as :func:`json.loads` reads them."""
+    kept = [(f, r) for f, r in ((_decoded(r, orjson_loads), r) for r in rows)
+            if f.patches and (f.registration or {}).get("state") != "view_change"]
+    plain = _plainly_valid([f for f, _ in kept])
     usable, dropped = [], []
-    for r in rows:
-        problem = frame_problem(r.patches, r.patch_sd, r.applied_gains, r.exposure)
-        if problem is None:
-            usable.append(r)
-        else:
-            dropped.append({"frame_id": r.id, "reason": problem})
+    for (f, r), ok in zip(kept, plain, strict=True):
+        if not ok:
+            f = _decoded(r, json.loads)
+            problem = frame_problem(f.patches, f.patch_sd, f.applied_gains, f.exposure)
+            if problem is not None:
+                dropped.append({"frame_id": f.id, "reason": problem})
+                continue
+        usable.append(f)
     return usable, dropped
 
 
@@ -367,8 +427,9 @@ def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit
     estimate with the new models the frames stored since the read step, and record why the others have none.
     Returns the number of estimates written.
 
-    The estimate rows are built :data:`~.crud.WRITE_CHUNK` at a time from the fit's arrays and written in bulk
-    (:func:`.crud.replace_estimates`: SQLAlchemy Core, one executemany INSERT per chunk). The camera row is updated
+    The estimates are converted :data:`~.crud.WRITE_CHUNK` frames at a time from the fit's arrays, a column at a
+    time (their JSON columns written by orjson), and written in bulk (:func:`.crud.replace_estimates`: SQLAlchemy
+    Core statements, one executemany INSERT per chunk). The camera row is updated
     first: on SQLite that takes the write lock before anything is read, on PostgreSQL it locks the row that every
     ingest locks (:func:`.crud.models_for_update`) before storing an estimate, so no ingest commits an estimate of
     the old model after this commit."""
@@ -381,9 +442,9 @@ def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit
             return 0
         crud.use_models(s, cam, {view_model_key(v): {"file": p.name, "version": fit.version}
                                  for v, p in fit.models.items()})
-        late = _late_estimates(crud.frames_not_read(s, h.camera_id, set(h.read_ids.tolist())), data_dir, h, fit,
+        late = _late_estimates(crud.frames_not_read(s, h.camera_id, h.read_ids), data_dir, h, fit,
                                ids_of)
-        written = crud.replace_estimates(s, _estimate_rows(h, fit, late))
+        written = crud.replace_estimates(s, _estimate_columns(h, fit, late), camera_id=h.camera_id, model=fit.version)
         # frames the refit used but could not estimate (fewer than two regions seen, a non-finite white), and those
         # it left out: no estimate of the previous model stays behind
         estimated = {int(fid) for fid in fit.estimates.frame_ids()} | {int(fid) for fid in late}
@@ -397,16 +458,21 @@ def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit
     return written
 
 
-def _estimate_rows(h: History, fit: Refitted, late: dict[str, dict]) -> Iterator[list[dict]]:
-    """The estimate rows to write, :data:`~.crud.WRITE_CHUNK` at a time: the fit's (their frames' stored times),
+def _estimate_columns(h: History, fit: Refitted, late: dict[str, dict]) -> Iterator[dict[str, list]]:
+    """The estimates to write but their camera and model, a column at a time, :data:`~.crud.WRITE_CHUNK` frames at a
+    time: the fit's (their frames' stored times; JSON columns as text, :meth:`~.estimation.RefitEstimates.columns`),
     then those of the frames stored since the read step (``late``)."""
-    taken = {int(i): t for vh in h.by_view.values() for i, t in zip(vh.ids, vh.taken_at, strict=True)}
-    for part in fit.estimates.rows(crud.WRITE_CHUNK):
-        yield [{"frame_id": int(fid), "camera_id": h.camera_id, "taken_at": taken[int(fid)], "model": fit.version,
-                **est} for fid, est in part if fid not in late]
+    taken = {i: t for vh in h.by_view.values() for i, t in zip(vh.ids.tolist(), vh.taken_at, strict=True)}
+    for columns in fit.estimates.columns(crud.WRITE_CHUNK, json_text=True):
+        if late and any(fid in late for fid in columns["frame_id"]):
+            keep = [fid not in late for fid in columns["frame_id"]]
+            columns = {k: [v for v, ok in zip(c, keep, strict=True) if ok] for k, c in columns.items()}
+        ids = [int(fid) for fid in columns["frame_id"]]
+        yield {**columns, "frame_id": ids, "taken_at": [taken[i] for i in ids]}
     rows = list(late.values())
     for start in range(0, len(rows), crud.WRITE_CHUNK):
-        yield rows[start : start + crud.WRITE_CHUNK]
+        part = rows[start : start + crud.WRITE_CHUNK]
+        yield {k: [r[k] for r in part] for k in part[0]}
 
 
 _commit_hook: Callable[[], None] | None = None
@@ -427,6 +493,5 @@ def _late_estimates(late: Sequence[Any], data_dir: Path, h: History, fit: Refitt
         est = estimate_frame(data_dir, h.camera_id, row[0], row[1], row[2], ids_of[r.view], r.view, row[3],
                              model_file=fit.models[r.view])
         if est is not None:
-            out[str(r.id)] = {"frame_id": r.id, "camera_id": h.camera_id, "taken_at": r.taken_at,
-                              "model": fit.version, **est}
+            out[str(r.id)] = {"frame_id": r.id, "taken_at": r.taken_at, **est}
     return out

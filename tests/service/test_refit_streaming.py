@@ -142,3 +142,77 @@ def test_the_objects_set_aside_return_to_the_collector_after_the_refit():
         assert gc.get_freeze_count() >= 1000 and kept
         raise RuntimeError
     assert gc.get_freeze_count() == 0
+
+
+def test_estimate_rows_as_json_text_read_back_as_the_rows():
+    """``RefitEstimates.rows(…, json_text=True)`` (what a refit writes): the JSON columns as JSON text that reads back
+    as the rows' values (``json.loads``), a row with a non-finite value as its list, the other columns unchanged."""
+    import json
+
+    from illumon.retrieval.common import RetrievalResult
+    from illumon_service.estimation.batch import RefitEstimates
+    from illumon_service.storage import StoredJSON
+
+    rng = np.random.default_rng(1)
+    n = 12
+    res = RetrievalResult(frames=[f"f{i}" for i in range(n)], patches=IDS, spectra=rng.random((n, 61)),
+                          xy=rng.random((n, 2)), cct=rng.uniform(3000, 9000, n), duv=rng.normal(0, 0.003, n),
+                          white=rng.random((n, 3)), gains=rng.random((n, 3)), exposures=np.ones(n),
+                          reflectances=np.full((8, 61), np.nan), method="model",
+                          info={"gain_lo": rng.random((n, 3)), "gain_hi": rng.random((n, 3))})
+    res.spectra[2, 7] = np.nan
+    res.gains[5, 1] = np.inf
+    extra = {"cct_lo": rng.uniform(2000, 3000, n), "cct_hi": rng.uniform(9000, 20000, n), "confidence": rng.random(n)}
+    extra["cct_hi"][3] = np.inf
+    est = RefitEstimates()
+    est.add(res, extra["confidence"], np.ones(n, bool), "refit:model", extra)
+    est.add(res, extra["confidence"], np.arange(n) % 2 == 0, "refit:plain")
+    plain = [r for c in est.rows(5) for r in c]
+    text = [r for c in est.rows(5, json_text=True) for r in c]
+    assert [fid for fid, _ in text] == [fid for fid, _ in plain]
+    assert isinstance(text[0][1]["spectrum"], StoredJSON) and isinstance(text[2][1]["spectrum"], list)
+    assert isinstance(text[0][1]["intervals"], StoredJSON) and text[1][1]["intervals"] is not None
+    for (_, t), (_, p) in zip(text, plain, strict=True):
+        assert list(t) == list(p)
+        for k in ("xy", "white_rgb", "gains_rgb", "spectrum", "intervals"):
+            if isinstance(t[k], StoredJSON):
+                t[k] = json.loads(t[k])
+            else:  # a row with NaN or infinity, or no intervals: as before
+                assert t[k] is None or not np.isfinite(t[k]).all()
+        np.testing.assert_equal(t, p)
+
+
+def test_refit_stores_values_equal_to_the_lists_json_dumps_wrote(tmp_path, monkeypatch):
+    """A refit writing its estimates' arrays as orjson text reads back — raw with ``json.loads``, and as the JSON API
+    and the status page give them (``estimate_out``, ``camera_history``) — equal to the refit that wrote them as lists
+    through ``json.dumps`` (before issue 29's rows change); its reasons and summary are the same."""
+    import json
+    import sqlite3
+
+    from illumon_service.estimation.batch import RefitEstimates
+
+    def stored(name: str) -> tuple:
+        summary, _, reasons = _refit(tmp_path, name)
+        url = f"sqlite:///{tmp_path}/{name}.sqlite"
+        con = sqlite3.connect(f"{tmp_path}/{name}.sqlite")
+        raw = con.execute("SELECT frame_id, taken_at, cct_k, duv, xy, white_rgb, gains_rgb, confidence, spectrum, "
+                          "intervals, source FROM estimates ORDER BY frame_id").fetchall()
+        con.close()
+        sessions = make_session_factory(make_engine(url))
+        with sessions() as s:
+            api = [crud.estimate_out(e) for e in crud.estimates_between(s, 1, None, None, 10_000)]
+            page = crud.camera_history(s, 1, 10_000)
+        return summary, reasons, raw, api, page
+
+    new = stored("new")
+    columns = RefitEstimates.columns
+    monkeypatch.setattr(RefitEstimates, "columns", lambda self, chunk, json_text=False: columns(self, chunk))
+    old = stored("old")
+    assert new[0] == old[0] and new[1] == old[1] and len(new[2]) == len(old[2]) > 40
+    # written otherwise (orjson's text, json.dumps's) but for the frames older than max_frames, estimated one by one
+    assert sum(a[4] != b[4] for a, b in zip(new[2], old[2], strict=True)) > 40
+    for a, b in zip(new[2], old[2], strict=True):
+        parse = [json.loads(v) if j in (4, 5, 6, 8, 9) and v is not None else v for j, v in enumerate(a)]
+        np.testing.assert_equal(parse, [json.loads(v) if j in (4, 5, 6, 8, 9) and v is not None else v
+                                        for j, v in enumerate(b)])
+    assert json.dumps(new[3]) == json.dumps(old[3]) and json.dumps(new[4]) == json.dumps(old[4])

@@ -3,14 +3,14 @@ the status page and the ingest answer all use, so they cannot disagree."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from datetime import datetime
 
-from sqlalchemy import delete, insert, select, update
+from sqlalchemy import delete, select, update
 from sqlalchemy.engine import Row
 from sqlalchemy.orm import Session
 
-from ..storage import Estimate, Frame, as_utc
+from ..storage import Estimate, Frame, as_utc, insert_columns, utcnow
 
 __all__ = [
     "estimate_non_daylight", "estimate_out", "nearest_estimate", "estimates_between", "latest_estimate",
@@ -127,19 +127,24 @@ def add_estimate(session: Session, **columns: object) -> Estimate:
     return row
 
 
-def replace_estimates(session: Session, rows: Iterable[Sequence[dict]]) -> int:
-    """Replace the estimates of the frames of ``rows`` (chunks of rows, each with the estimate's columns, at most
-    :data:`WRITE_CHUNK` a chunk) and clear those frames' reason for having none: per chunk one DELETE, one
-    executemany INSERT (SQLAlchemy Core) and one UPDATE, within the caller's transaction. Returns the rows written."""
+def replace_estimates(session: Session, chunks: Iterable[Mapping[str, Sequence]], **constants: object) -> int:
+    """Replace the estimates of the frames of ``chunks`` and clear those frames' reason for having none; returns the
+    rows written. Each chunk holds the estimate's columns a column at a time (``frame_id`` among them; at most
+    :data:`WRITE_CHUNK` rows), ``constants`` the columns every row has the same value of (``camera_id``, ``model``),
+    and ``created_at`` is the chunk's time. Per chunk one DELETE, one executemany INSERT
+    (:func:`.storage.insert_columns`) and one UPDATE (of the frames that had a reason), SQLAlchemy Core statements
+    within the caller's transaction."""
+    estimates, frames = Estimate.__table__, Frame.__table__
     written = 0
-    for part in rows:
-        ids = [int(r["frame_id"]) for r in part]
+    for columns in chunks:
+        ids = [int(i) for i in columns["frame_id"]]
         if not ids:
             continue
-        session.execute(delete(Estimate).where(Estimate.frame_id.in_(ids)))
-        session.execute(insert(Estimate.__table__), list(part))  # Core: one executemany, no ORM bulk path
-        session.execute(update(Frame).where(Frame.id.in_(ids)).values(not_estimated=None))
-        written += len(ids)
+        session.execute(delete(estimates).where(estimates.c.frame_id.in_(ids)))
+        written += insert_columns(session, estimates, {**columns, "frame_id": ids},
+                                  {**constants, "created_at": utcnow()})
+        session.execute(update(frames).where(frames.c.id.in_(ids), frames.c.not_estimated.is_not(None))
+                        .values(not_estimated=None))  # rows already without a reason are not rewritten
     return written
 
 

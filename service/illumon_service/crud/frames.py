@@ -3,10 +3,11 @@ the counts of frames without an estimate, and the public form of a stored frame 
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Collection, Iterator, Sequence
 from datetime import datetime
 
-from sqlalchemy import delete, func, select, true
+import numpy as np
+from sqlalchemy import Text, cast, delete, func, select
 from sqlalchemy.engine import Row
 from sqlalchemy.orm import Session
 
@@ -130,19 +131,34 @@ _HISTORY = (Frame.id, Frame.taken_at, Frame.patches, Frame.applied_gains, Frame.
             Frame.registration, Frame.patch_sd)
 """The columns of a frame a refit reads."""
 
+_HISTORY_TEXT = tuple(cast(c, Text).label(c.key) if c.key in ("patches", "applied_gains", "registration", "patch_sd")
+                      else c for c in _HISTORY)
+"""The same columns, the JSON ones as their stored text (the caller decodes them)."""
+
 
 def history_chunks(session: Session, camera_id: int, limit: int, chunk: int) -> Iterator[Sequence[Row]]:
-    """The camera's ``limit`` most recent frames (the columns a refit reads), newest first, ``chunk`` rows at a time
-    (one query whose rows are fetched as they are used), so that a refit never holds the whole history as rows."""
-    q = select(*_HISTORY).where(Frame.camera_id == camera_id).order_by(*_NEWEST_FIRST).limit(limit)
+    """The camera's ``limit`` most recent frames (the columns a refit reads, its JSON columns as their stored text:
+    ``patches``, ``applied_gains``, ``registration``, ``patch_sd``), newest first, ``chunk`` rows at a time (one
+    query whose rows are fetched as they are used), so that a refit never holds the whole history as rows."""
+    q = select(*_HISTORY_TEXT).where(Frame.camera_id == camera_id).order_by(*_NEWEST_FIRST).limit(limit)
     yield from session.execute(q.execution_options(yield_per=chunk)).partitions()
 
 
-def frames_not_read(session: Session, camera_id: int, read_ids: set[int]) -> Sequence[Row]:
-    """The camera's frames other than ``read_ids`` (the columns a refit reads): those stored since it read."""
-    return session.execute(
-        select(*_HISTORY).where(Frame.camera_id == camera_id, Frame.id.not_in(read_ids) if read_ids else true())
-    ).all()
+def frames_not_read(session: Session, camera_id: int, read_ids: Collection[int]) -> list[Row]:
+    """The camera's frames other than ``read_ids`` (the columns a refit reads), in id order: those stored since it
+    read. The camera's frame ids are read from the (camera, time) index and the others fetched by key, rather than
+    one statement naming every id read."""
+    ids = np.array(session.scalars(select(Frame.id).where(Frame.camera_id == camera_id)).all(), dtype=np.int64)
+    others = np.setdiff1d(ids, np.fromiter(read_ids, dtype=np.int64, count=len(read_ids))).tolist()
+    out: list[Row] = []
+    for start in range(0, len(others), ID_CHUNK):
+        out += session.execute(select(*_HISTORY).where(Frame.id.in_(others[start : start + ID_CHUNK]))
+                               .order_by(Frame.id)).all()
+    return out
+
+
+ID_CHUNK = 900
+"""Ids bound per statement when fetching frames by id (under old SQLite versions' limit of 999 parameters)."""
 
 
 def not_estimated_counts(session: Session, camera_id: int, frames: int | None = None) -> dict[str, int]:

@@ -31,6 +31,7 @@ from .history import (
     build_observations,
     calibration_frames,
     camera_primaries,
+    history_arrays,
     history_row,
     seen_patches,
     sensitivities_array,
@@ -50,7 +51,7 @@ from .response import RESPONSE_CHECK_FRAMES, check_response
 __all__ = [
     "RefitEstimates", "RefitInputError", "fit_model", "refit_estimates", "retrieve",
     "GRID_WAVELENGTHS", "estimate_frame", "json_safe",
-    "CALIBRATION_PREFIX", "build_observations", "calibration_frames", "camera_primaries", "history_row",
+    "CALIBRATION_PREFIX", "build_observations", "calibration_frames", "camera_primaries", "history_arrays", "history_row",
     "seen_patches", "sensitivities_array", "undo_camera_gains", "undo_camera_gains_sd",
     "current_model", "model_available", "model_path", "remove_old_models", "versioned_model_path", "view_model_key",
     "RESPONSE_CHECK_FRAMES", "check_response",

@@ -1,0 +1,171 @@
+"""The engine's JSON codec (issue 29, the refit's rows): orjson reads and writes the values :mod:`json` does.
+
+:func:`~illumon_service.storage.json_loads` gives what :func:`json.loads` gives, for the texts orjson refuses or reads
+otherwise too; :class:`~illumon_service.storage.StoredJSON` is stored as it is and every other value as
+:func:`json.dumps` writes it; :func:`~illumon_service.estimation.batch.json_rows` writes arrays whose texts read back as
+the same floats, and leaves rows holding NaN or infinity to :func:`json.dumps` (orjson would write ``null``)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from illumon_service.estimation.batch import json_rows
+from illumon_service.storage import Frame, StoredJSON, json_dumps, json_loads, make_engine, make_session_factory
+from sqlalchemy import insert, select, text
+
+
+def _same(a: object, b: object) -> bool:
+    """Equal values of equal types, floats bit for bit (NaN equal NaN, -0.0 not 0.0)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return (math.isnan(a) and math.isnan(b)) or (a == b and math.copysign(1, a) == math.copysign(1, b))
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return list(a) == list(b) and all(_same(a[k], b[k]) for k in a)
+    return type(a) is type(b) and a == b
+
+
+def _doubles(n: int) -> np.ndarray:
+    """Finite doubles of every magnitude (random bit patterns), uniform ones, and awkward ones."""
+    rng = np.random.default_rng(0)
+    bits = rng.integers(0, 2**63, n, dtype=np.uint64).view(np.float64)
+    special = [0.0, -0.0, 5e-324, 2.2250738585072014e-308, 1.7976931348623157e308, 1e16, 1e-5, 1e-7, 0.1, 1 / 3,
+               123456789012345678.0, 2.0**53 + 2]
+    return np.concatenate([bits[np.isfinite(bits)], rng.random(n), rng.normal(0, 1e-5, n), special])
+
+
+TEXTS = ["NaN", "[1.5, NaN, Infinity, -Infinity]", '{"a": Infinity}', "1e400", "-1e400", "1" * 30, "-" + "9" * 25,
+         "18446744073709551615", "18446744073709551616", "[0.1, 12345678901234567890123]", '"\\ud800"',
+         '{"a": 1, "a": 2}', "-0", "-0.0", "[]", "{}", "null", "true", '"x\\u00e9"', '{"p": [0.25, null, 1, false]}']
+
+
+@pytest.mark.parametrize("text", TEXTS)
+def test_json_loads_gives_what_json_loads_gives(text: str) -> None:
+    assert _same(json_loads(text), json.loads(text))
+    assert _same(json_loads(text.encode()), json.loads(text))  # PostgreSQL's driver hands bytes over
+    assert _same(json_loads(memoryview(text.encode())), json.loads(text))
+
+
+def test_json_loads_reads_every_float_as_json_does() -> None:
+    x = _doubles(100_000).tolist()
+    for written in (json.dumps(x), json_rows(np.array([x]))[0]):
+        assert _same(json_loads(written), json.loads(written)) and _same(json_loads(written), x)
+
+
+def test_json_dumps_passes_stored_json_and_writes_the_rest_as_json_dumps() -> None:
+    assert json_dumps(StoredJSON("[1.0,2.5]")) == "[1.0,2.5]"
+    for value in ([1.0, float("nan"), float("inf")], {"a": None, 1: [1e-5]}, "[1.0]", 10**30, None):
+        assert json_dumps(value) == json.dumps(value)
+
+
+def test_json_rows_read_back_as_the_floats_written() -> None:
+    a = _doubles(30_000)[: 61 * 1400].reshape(-1, 61)
+    a[3, 5], a[7, 0], a[7, 60] = np.nan, np.inf, -np.inf
+    rows = json_rows(a)
+    for i, (row, values) in enumerate(zip(rows, a.tolist(), strict=True)):
+        if i in (3, 7):  # non-finite: the list, written by json.dumps as before
+            assert type(row) is list and _same(row, values) and json_dumps(row) == json.dumps(values)
+        else:
+            assert type(row) is StoredJSON and _same(json.loads(row), values)
+    assert json_rows(np.empty((0, 3))) == []
+
+
+def test_engine_stores_json_text_as_it_is_and_reads_values_as_json(tmp_path) -> None:
+    """Through SQLite: a StoredJSON column holds its text, a list holds json.dumps's, and both read back."""
+    engine = make_engine(f"sqlite:///{tmp_path}/db.sqlite")
+    sessions = make_session_factory(engine)
+    from datetime import datetime, timezone
+
+    from illumon_service.storage import Camera
+
+    with sessions() as s, s.begin():
+        cam = Camera(name="c", token_hash="0" * 64, sensitivities=[], regions=[], response={})
+        s.add(cam)
+        s.flush()
+        t = datetime(2025, 1, 1, tzinfo=timezone.utc)
+        s.execute(insert(Frame), [{"camera_id": cam.id, "taken_at": t, "patches": StoredJSON('{"a":[0.1,0.2,1e-7]}')},
+                                  {"camera_id": cam.id, "taken_at": t, "patches": {"a": [0.1, float("nan"), 1e-7]}}])
+    with engine.connect() as c:
+        raw = c.execute(text("SELECT patches FROM frames ORDER BY id")).scalars().all()
+    assert raw == ['{"a":[0.1,0.2,1e-7]}', '{"a": [0.1, NaN, 1e-07]}']
+    with sessions() as s:
+        got = s.scalars(select(Frame.patches).order_by(Frame.id)).all()
+    assert _same(got[0], {"a": [0.1, 0.2, 1e-7]}) and _same(got[1], {"a": [0.1, float("nan"), 1e-7]})
+    engine.dispose()
+
+
+def _estimate_rows(n: int, non_finite: bool) -> tuple[list[dict], dict]:
+    """Estimate rows with datetimes, -0.0, JSON text given, JSON null, NaN and infinity in JSON (``non_finite``:
+    PostgreSQL refuses them, whoever writes them); and constants."""
+    from datetime import datetime, timedelta, timezone
+
+    t0 = datetime(2025, 1, 1, 12, tzinfo=timezone.utc)
+    rows = [{"frame_id": i + 1, "taken_at": t0 + timedelta(seconds=1.5 * i), "cct_k": 5000.0 + i,
+             "duv": -0.0 if i == 2 else 0.001, "xy": [0.31, float("nan") if non_finite else 1e-5],
+             "white_rgb": StoredJSON("[0.5,1.0,0.25]"), "gains_rgb": [2.0, float("inf") if non_finite else 3.0, 4.0],
+             "confidence": 0.5, "spectrum": [1e-7] * 61,
+             "intervals": None if i % 2 else {"cct_lo": 4000.0, "gain_lo": [1.0, None, 2.0]}, "source": "refit:model"}
+            for i in range(n)]
+    return rows, {"camera_id": 1, "model": "v1", "created_at": t0}
+
+
+def _stored_estimates(url: str, columns: bool, non_finite: bool = True) -> list[tuple]:
+    """The rows of :func:`_estimate_rows` inserted by SQLAlchemy's executemany or by insert_columns, read back."""
+    from illumon_service.storage import Camera, Estimate, insert_columns
+
+    rows, constants = _estimate_rows(5, non_finite)
+    engine = make_engine(url)
+    sessions = make_session_factory(engine)
+    with sessions() as s, s.begin():
+        s.add(Camera(name="c", token_hash="0" * 64, sensitivities=[], regions=[], response={}))
+        s.flush()
+        s.execute(insert(Frame), [{"camera_id": 1, "taken_at": constants["created_at"], "patches": {}} for _ in rows])
+        if columns:
+            assert insert_columns(s, Estimate.__table__, {k: [r[k] for r in rows] for k in rows[0]}, constants) == 5
+            with pytest.raises(ValueError):
+                insert_columns(s, Estimate.__table__, {"frame_id": [9], "camera_id": [1]})  # created_at missing
+        else:
+            s.execute(insert(Estimate.__table__), [{**r, **constants} for r in rows])
+    with sessions() as s:
+        got = [tuple(r) for r in s.execute(select(Estimate.__table__).order_by(Estimate.frame_id)).all()]
+    engine.dispose()
+    return got
+
+
+def test_insert_columns_stores_what_a_core_insert_stores(tmp_path) -> None:
+    """storage.insert_columns (values converted a column at a time, the driver's executemany) stores the rows that
+    SQLAlchemy's executemany INSERT of the same rows stores, text for text on SQLite."""
+    import sqlite3
+
+    stored = []
+    for name in ("core", "columns"):
+        got = _stored_estimates(f"sqlite:///{tmp_path}/{name}.sqlite", name == "columns")
+        con = sqlite3.connect(f"{tmp_path}/{name}.sqlite")
+        stored.append((con.execute("SELECT * FROM estimates ORDER BY frame_id").fetchall(), got))
+        con.close()
+    assert stored[0][0] == stored[1][0] and len(stored[0][0]) == 5
+    assert all(_same(list(a), list(b)) for a, b in zip(stored[0][1], stored[1][1], strict=True))
+
+
+def test_insert_columns_on_postgresql(pg_url) -> None:  # noqa: F811 - the fixture imported below
+    """The same on PostgreSQL (psycopg's JSON wrapper, the engine's serializer, typed parameters): the rows read back
+    equal, the JSON text given stored as it is."""
+    from sqlalchemy import create_engine
+
+    reset = create_engine(pg_url)
+    got = []
+    for columns in (False, True):
+        with reset.begin() as c:
+            c.execute(text("DROP SCHEMA public CASCADE; CREATE SCHEMA public"))
+        got.append(_stored_estimates(pg_url, columns, non_finite=False))
+        with reset.connect() as c:
+            raw = c.execute(text("SELECT white_rgb::text FROM estimates ORDER BY frame_id")).scalars().all()
+        assert raw == ["[0.5,1.0,0.25]"] * 5
+    reset.dispose()
+    assert len(got[0]) == 5 and all(_same(list(a), list(b)) for a, b in zip(got[0], got[1], strict=True))
+
+
+from test_faults import pg_url  # noqa: E402, F401 - a throwaway PostgreSQL cluster, or skip

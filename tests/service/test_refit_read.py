@@ -1,0 +1,159 @@
+"""The refit's read step a chunk at a time (issue 29, the refit's rows): stored JSON decoded by orjson, the frames'
+ranges checked at once and their arrays built at once give what reading every row with ``json.loads``, judging it
+with ``frame_problem`` and building its observations through ``history_row`` gave — the same frames, reasons and
+values bit for bit, whatever was stored."""
+
+from __future__ import annotations
+
+import json
+import math
+from datetime import datetime, timedelta
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from illumon_service.estimation import build_observations, history_arrays, history_row
+from illumon_service.limits import frame_problem
+from illumon_service.refit import _usable
+
+T0 = datetime(2025, 6, 1)
+IDS = [f"p{j}" for j in range(6)]
+
+
+def _same(a: object, b: object) -> bool:
+    """Equal values of equal types, floats bit for bit (NaN equal NaN)."""
+    if isinstance(a, float) and isinstance(b, float):
+        return (math.isnan(a) and math.isnan(b)) or (a == b and math.copysign(1, a) == math.copysign(1, b))
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return list(a) == list(b) and all(_same(a[k], b[k]) for k in a)
+    return type(a) is type(b) and a == b
+
+
+def _frames(n: int, seed: int) -> list[SimpleNamespace]:
+    """Stored frames with missing regions, an extra region, integer values, standard errors (some missing), applied
+    gains and exposures alone and together."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        patches = {}
+        for p in IDS:
+            if rng.random() < 0.15:
+                continue  # no key
+            patches[p] = None if rng.random() < 0.1 else rng.uniform(0, 2, 3).tolist()
+        if i % 7 == 0:
+            patches["extra"] = rng.uniform(0, 2, 3).tolist()
+        if i % 11 == 0:
+            patches[IDS[0]] = [0, 1, 2]
+        sd = None
+        if i % 2:
+            sd = {p: (None if rng.random() < 0.2 else rng.uniform(0, 0.05, 3).tolist()) for p in IDS if rng.random() < 0.9}
+        gains = rng.uniform(0.3, 3, 3).tolist() if i % 3 == 0 else ([2, 1, 1] if i % 13 == 1 else None)
+        exposure = float(rng.uniform(0.01, 50)) if i % 5 < 2 else None
+        out.append(SimpleNamespace(id=i + 1, taken_at=T0 + timedelta(minutes=i), patches=patches, applied_gains=gains,
+                                   exposure=exposure, patch_sd=sd))
+    return out
+
+
+@pytest.mark.parametrize("matrix", [None, [[1.6, -0.4, -0.2], [-0.3, 1.5, -0.2], [0.0, -0.5, 1.5]]])
+def test_history_arrays_equal_the_observations_of_history_rows(matrix) -> None:
+    frames = _frames(400, 1)
+    values, sd = history_arrays(frames, IDS, matrix)
+    ref = build_observations([history_row(f, matrix) for f in frames], IDS)
+    assert values.dtype == ref.values.dtype and np.array_equal(values.view(np.uint64), ref.values.view(np.uint64))
+    assert ref.sd is not None and np.array_equal(sd.view(np.uint64), ref.sd.view(np.uint64))
+    assert np.isfinite(sd).sum() > 500 and np.isfinite(values).sum() > 1500
+    values, sd = history_arrays([f for f in frames if not f.patch_sd], IDS, matrix)
+    assert values.size and np.isnan(sd).all()
+    assert history_arrays([], IDS, matrix)[0].shape == (0, len(IDS), 3)
+
+
+def _row(i: int, patches: str, gains: str | None = None, exposure: float | None = None,
+         registration: str | None = None, sd: str | None = None) -> tuple:
+    """A row of ``crud.history_chunks``: id, time, patches, gains, exposure, view, registration, standard errors."""
+    return (i, T0 + timedelta(minutes=i), patches, gains, exposure, None, registration, sd)
+
+
+GOOD = '{"p0": [0.1, 0.2, 0.3], "p1": null, "p2": [0.5, 1.5, 2.0]}'
+ODD = [  # (patches, gains, exposure, registration, standard errors)
+    (GOOD, None, None, None, None),
+    ('{"p0": [0, 1, 2], "p1": [0.0, 0.5, 1]}', None, None, None, None),  # integers are numbers
+    ('{"p0": [0.1, 0.2, 2.5]}', None, None, None, None),
+    ('{"p0": [-0.1, 0.2, 0.3]}', None, None, None, None),
+    ('{"p0": [NaN, 0.2, 0.3]}', None, None, None, None),  # json.dumps's NaN: orjson refuses it
+    ('{"p0": [Infinity, 0.2, 0.3]}', None, None, None, None),
+    ('{"p0": [1e400, 0.2, 0.3]}', None, None, None, None),
+    ('{"p0": [true, 0.2, 0.3]}', None, None, None, None),
+    ('{"p0": [false, false, false]}', None, None, None, None),
+    ('{"p0": ["0.1", 0.2, 0.3]}', None, None, None, None),
+    ('{"p0": "abc"}', None, None, None, None),
+    ('{"p0": {"a": 1, "b": 2, "c": 3}}', None, None, None, None),
+    ('{"p0": [0.1, 0.2]}', None, None, None, None),
+    ('{"p0": [0.1, 0.2, 0.3, 0.4]}', None, None, None, None),
+    ('{"p0": 0.5}', None, None, None, None),
+    ('{"p0": [0.1, null, 0.3]}', None, None, None, None),
+    ('{"p0": [[0.1], [0.2], [0.3]]}', None, None, None, None),
+    ('{"p0": [1, 0, 123456789012345678901234]}', None, None, None, None),  # orjson: a float; json: the integer
+    ('{"p0": [1, 0, 18446744073709551615]}', None, None, None, None),
+    ('{"extra": [0.1, 5.0, 0.2], "p0": [0.1, 0.2, 0.3]}', None, None, None, None),  # a region no longer defined
+    ("{}", None, None, None, None),
+    ("null", None, None, None, None),
+    (GOOD, None, None, '{"state": "view_change"}', None),
+    (GOOD, None, None, '{"state": "ok", "shift": [1, 123456789012345678901234]}', None),
+    (GOOD, "[1.5, 1.0, 0.8]", 0.5, None, None),
+    (GOOD, "[100, 1, 1]", None, None, None),
+    (GOOD, '["1.5", "1", "1"]', None, None, None),
+    (GOOD, "[true, 1, 1]", None, None, None),
+    (GOOD, "[1.5, 1.0]", None, None, None),
+    (GOOD, None, 0.0, None, None),
+    (GOOD, None, 1e7, None, None),
+    (GOOD, None, None, None, '{"p0": [0.01, 0.02, 0.03], "p2": null}'),
+    (GOOD, None, None, None, '{"p0": [0.01, 3.0, 0.03]}'),
+    (GOOD, None, None, None, '{"p0": [0.01, NaN, 0.03]}'),
+    (GOOD, None, None, None, '{"p0": [0.01, "x", 0.03]}'),
+    (GOOD, None, None, None, "{}"),
+]
+
+
+def _reference(rows: list[tuple]) -> tuple[list, list[dict]]:
+    """The read step before issue 29's rows change: every row decoded by json.loads, filtered and judged one by one."""
+    usable, dropped = [], []
+    for r in rows:
+        d = [None if v is None else json.loads(v) for v in (r[2], r[3], r[6], r[7])]
+        if not d[0] or (d[2] or {}).get("state") == "view_change":
+            continue
+        problem = frame_problem(d[0], d[3], d[1], r[4])
+        if problem is None:
+            usable.append((r[0], r[1], d[0], d[1], r[4], r[5], d[2], d[3]))
+        else:
+            dropped.append({"frame_id": r[0], "reason": problem})
+    return usable, dropped
+
+
+def _used(f: tuple) -> list:
+    """What the refit uses of a frame it reads: region means, applied gains, exposure, view, standard errors (of its
+    registration only whether it is a view change)."""
+    return [f[2], f[3], f[4], f[5], f[7]]
+
+
+@pytest.mark.parametrize("odd", range(len(ODD)))
+def test_usable_frames_and_reasons_equal_those_of_json_loads_row_by_row(odd: int) -> None:
+    """Each odd row among plain ones (one chunk): the frames used, their decoded columns and the reasons given are
+    those of reading every row with json.loads and judging it with frame_problem."""
+    rows = [_row(i, GOOD) for i in range(5)] + [_row(5, *ODD[odd])] + [_row(i, GOOD, "[1.2, 1, 0.9]") for i in (6, 7)]
+    want_usable, want_dropped = _reference(rows)
+    got_usable, got_dropped = _usable(rows)
+    assert got_dropped == want_dropped
+    assert [f.id for f in got_usable] == [u[0] for u in want_usable]
+    for f, u in zip(got_usable, want_usable, strict=True):
+        assert _same(_used(f), _used(u)) and f.taken_at == u[1]
+
+
+def test_usable_frames_of_a_whole_odd_chunk() -> None:
+    rows = [_row(i, *odd) for i, odd in enumerate(ODD)]
+    want_usable, want_dropped = _reference(rows)
+    got_usable, got_dropped = _usable(rows)
+    assert got_dropped == want_dropped and len(want_dropped) > 20
+    assert [f.id for f in got_usable] == [u[0] for u in want_usable]
+    assert all(_same(_used(f), _used(u)) for f, u in zip(got_usable, want_usable, strict=True))

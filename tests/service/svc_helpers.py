@@ -8,6 +8,7 @@ encoded sRGB 8-bit PNG. Tests that need the measured data skip when ``illumon.si
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from datetime import datetime, timedelta, timezone
 
@@ -24,6 +25,18 @@ ADMIN = "admin-test-token"
 N_FRAMES = 12
 SIZE = (320, 240)  # width, height
 T0 = datetime(2025, 6, 1, 6, 0, tzinfo=timezone.utc)
+
+
+def same_value(a: object, b: object) -> bool:
+    """Equal values of equal types, floats bit for bit (NaN equal to NaN, -0.0 not 0.0), through lists and dicts (keys
+    in the same order): what a stored JSON value must read back as."""
+    if isinstance(a, float) and isinstance(b, float):
+        return (math.isnan(a) and math.isnan(b)) or (a == b and math.copysign(1, a) == math.copysign(1, b))
+    if isinstance(a, list) and isinstance(b, list):
+        return len(a) == len(b) and all(same_value(x, y) for x, y in zip(a, b, strict=True))
+    if isinstance(a, dict) and isinstance(b, dict):
+        return list(a) == list(b) and all(same_value(a[k], b[k]) for k in a)
+    return type(a) is type(b) and a == b
 
 
 def admin_headers() -> dict[str, str]:

@@ -8,24 +8,13 @@ the same floats, and leaves rows holding NaN or infinity to :func:`json.dumps` (
 from __future__ import annotations
 
 import json
-import math
 
 import numpy as np
 import pytest
 from illumon_service.estimation.batch import json_rows
 from illumon_service.storage import Frame, StoredJSON, json_dumps, json_loads, make_engine, make_session_factory
 from sqlalchemy import insert, select, text
-
-
-def _same(a: object, b: object) -> bool:
-    """Equal values of equal types, floats bit for bit (NaN equal NaN, -0.0 not 0.0)."""
-    if isinstance(a, float) and isinstance(b, float):
-        return (math.isnan(a) and math.isnan(b)) or (a == b and math.copysign(1, a) == math.copysign(1, b))
-    if isinstance(a, list) and isinstance(b, list):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
-    if isinstance(a, dict) and isinstance(b, dict):
-        return list(a) == list(b) and all(_same(a[k], b[k]) for k in a)
-    return type(a) is type(b) and a == b
+from svc_helpers import same_value
 
 
 def _doubles(n: int) -> np.ndarray:
@@ -44,15 +33,15 @@ TEXTS = ["NaN", "[1.5, NaN, Infinity, -Infinity]", '{"a": Infinity}', "1e400", "
 
 @pytest.mark.parametrize("text", TEXTS)
 def test_json_loads_gives_what_json_loads_gives(text: str) -> None:
-    assert _same(json_loads(text), json.loads(text))
-    assert _same(json_loads(text.encode()), json.loads(text))  # PostgreSQL's driver hands bytes over
-    assert _same(json_loads(memoryview(text.encode())), json.loads(text))
+    assert same_value(json_loads(text), json.loads(text))
+    assert same_value(json_loads(text.encode()), json.loads(text))  # PostgreSQL's driver hands bytes over
+    assert same_value(json_loads(memoryview(text.encode())), json.loads(text))
 
 
 def test_json_loads_reads_every_float_as_json_does() -> None:
     x = _doubles(100_000).tolist()
     for written in (json.dumps(x), json_rows(np.array([x]))[0]):
-        assert _same(json_loads(written), json.loads(written)) and _same(json_loads(written), x)
+        assert same_value(json_loads(written), json.loads(written)) and same_value(json_loads(written), x)
 
 
 def test_json_dumps_passes_stored_json_and_writes_the_rest_as_json_dumps() -> None:
@@ -67,9 +56,9 @@ def test_json_rows_read_back_as_the_floats_written() -> None:
     rows = json_rows(a)
     for i, (row, values) in enumerate(zip(rows, a.tolist(), strict=True)):
         if i in (3, 7):  # non-finite: the list, written by json.dumps as before
-            assert type(row) is list and _same(row, values) and json_dumps(row) == json.dumps(values)
+            assert type(row) is list and same_value(row, values) and json_dumps(row) == json.dumps(values)
         else:
-            assert type(row) is StoredJSON and _same(json.loads(row), values)
+            assert type(row) is StoredJSON and same_value(json.loads(row), values)
     assert json_rows(np.empty((0, 3))) == []
 
 
@@ -93,7 +82,7 @@ def test_engine_stores_json_text_as_it_is_and_reads_values_as_json(tmp_path) -> 
     assert raw == ['{"a":[0.1,0.2,1e-7]}', '{"a": [0.1, NaN, 1e-07]}']
     with sessions() as s:
         got = s.scalars(select(Frame.patches).order_by(Frame.id)).all()
-    assert _same(got[0], {"a": [0.1, 0.2, 1e-7]}) and _same(got[1], {"a": [0.1, float("nan"), 1e-7]})
+    assert same_value(got[0], {"a": [0.1, 0.2, 1e-7]}) and same_value(got[1], {"a": [0.1, float("nan"), 1e-7]})
     engine.dispose()
 
 
@@ -147,7 +136,7 @@ def test_insert_columns_stores_what_a_core_insert_stores(tmp_path) -> None:
         stored.append((con.execute("SELECT * FROM estimates ORDER BY frame_id").fetchall(), got))
         con.close()
     assert stored[0][0] == stored[1][0] and len(stored[0][0]) == 5
-    assert all(_same(list(a), list(b)) for a, b in zip(stored[0][1], stored[1][1], strict=True))
+    assert all(same_value(list(a), list(b)) for a, b in zip(stored[0][1], stored[1][1], strict=True))
 
 
 def test_insert_columns_on_postgresql(pg_url) -> None:  # noqa: F811 - the fixture imported below
@@ -165,7 +154,7 @@ def test_insert_columns_on_postgresql(pg_url) -> None:  # noqa: F811 - the fixtu
             raw = c.execute(text("SELECT white_rgb::text FROM estimates ORDER BY frame_id")).scalars().all()
         assert raw == ["[0.5,1.0,0.25]"] * 5
     reset.dispose()
-    assert len(got[0]) == 5 and all(_same(list(a), list(b)) for a, b in zip(got[0], got[1], strict=True))
+    assert len(got[0]) == 5 and all(same_value(list(a), list(b)) for a, b in zip(got[0], got[1], strict=True))
 
 
 from test_faults import pg_url  # noqa: E402, F401 - a throwaway PostgreSQL cluster, or skip

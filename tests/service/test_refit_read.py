@@ -6,7 +6,6 @@ values bit for bit, whatever was stored."""
 from __future__ import annotations
 
 import json
-import math
 from datetime import datetime, timedelta
 from types import SimpleNamespace
 
@@ -15,20 +14,10 @@ import pytest
 from illumon_service.estimation import build_observations, history_arrays, history_row
 from illumon_service.limits import frame_problem
 from illumon_service.refit import _usable
+from svc_helpers import same_value
 
 T0 = datetime(2025, 6, 1)
 IDS = [f"p{j}" for j in range(6)]
-
-
-def _same(a: object, b: object) -> bool:
-    """Equal values of equal types, floats bit for bit (NaN equal NaN)."""
-    if isinstance(a, float) and isinstance(b, float):
-        return (math.isnan(a) and math.isnan(b)) or (a == b and math.copysign(1, a) == math.copysign(1, b))
-    if isinstance(a, list) and isinstance(b, list):
-        return len(a) == len(b) and all(_same(x, y) for x, y in zip(a, b, strict=True))
-    if isinstance(a, dict) and isinstance(b, dict):
-        return list(a) == list(b) and all(_same(a[k], b[k]) for k in a)
-    return type(a) is type(b) and a == b
 
 
 def _frames(n: int, seed: int) -> list[SimpleNamespace]:
@@ -147,7 +136,7 @@ def test_usable_frames_and_reasons_equal_those_of_json_loads_row_by_row(odd: int
     assert got_dropped == want_dropped
     assert [f.id for f in got_usable] == [u[0] for u in want_usable]
     for f, u in zip(got_usable, want_usable, strict=True):
-        assert _same(_used(f), _used(u)) and f.taken_at == u[1]
+        assert same_value(_used(f), _used(u)) and f.taken_at == u[1]
 
 
 def test_usable_frames_of_a_whole_odd_chunk() -> None:
@@ -156,4 +145,4 @@ def test_usable_frames_of_a_whole_odd_chunk() -> None:
     got_usable, got_dropped = _usable(rows)
     assert got_dropped == want_dropped and len(want_dropped) > 20
     assert [f.id for f in got_usable] == [u[0] for u in want_usable]
-    assert all(_same(_used(f), _used(u)) for f, u in zip(got_usable, want_usable, strict=True))
+    assert all(same_value(_used(f), _used(u)) for f, u in zip(got_usable, want_usable, strict=True))

@@ -16,6 +16,9 @@ Sets (all *development* data: ``../shared/data/real/README.md`` says the scoring
   frames' light) and a white balance: the daylight preset (gains that make CIE D65 grey through the camera, taken
   from the matrix fit) or automatic (each frame divided by its own gray-world over the whole image, a phone's AWB);
   ``--primaries srgb``. Real scenes and light; the pipeline simulated.
+* ``sony-isp-ideal`` (only with ``--ideal-awb``): the same pipeline with a perfect automatic white balance, each frame
+  divided by its own greys — doing nothing is exact, so the row shows what illumon without a reference costs a
+  camera that needs no correction.
 
 Patch values are measured with the service's own calibration code (OpenCV's ``cv2.mcc`` finds the chart; robust
 means of the central half of each patch, clipped pixels left out). Errors are angular, in the camera's output RGB,
@@ -134,9 +137,10 @@ def _srgb_d65_chart() -> NDArray[np.float64]:
     return (refl * e) @ c / w
 
 
-def isp_sets(raw: RealSet) -> list[RealSet]:
+def isp_sets(raw: RealSet, modes: tuple[str, ...] = ("preset", "auto")) -> list[RealSet]:
     """``raw`` through a simulated camera pipeline: colour matrix to linear sRGB and a preset or automatic white
-    balance (module docstring)."""
+    balance (module docstring); ``"ideal"`` in ``modes`` adds a camera whose automatic white balance is perfect (each
+    frame divided by its own greys: doing nothing is exact)."""
     target = _srgb_d65_chart()
     idx = [ALL.index(p) for p in SCENE]
     grey = raw.truth
@@ -151,11 +155,12 @@ def isp_sets(raw: RealSet) -> list[RealSet]:
     # know its D65 gains; here they are estimated from the set, which is the only place the sensor is known).
     preset = 1.0 / np.exp(np.mean(np.log(grey / grey[:, 1:2]), axis=0))
     out = []
-    for mode in ("preset", "auto"):
+    for mode in modes:
         vals = np.empty_like(raw.values)
         means = np.empty((len(raw.frames), 3))
         for f in range(len(raw.frames)):
-            gains = preset if mode == "preset" else 1.0 / (raw.image_means[f] / raw.image_means[f, 1])
+            gains = {"preset": preset, "auto": 1.0 / (raw.image_means[f] / raw.image_means[f, 1]),
+                     "ideal": 1.0 / (grey[f] / grey[f, 1])}[mode]
             vals[f] = np.clip((raw.values[f] * gains) @ m, 0.0, None)  # a pipeline clips out-of-gamut values at 0
             means[f] = (raw.image_means[f] * gains) @ m
         scale = 0.9 / np.nanmax(vals)
@@ -242,13 +247,17 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--dump", help="also write each set as the CLI's files (OBSERVATIONS.csv, KNOWN.csv) under this folder")
     ap.add_argument("--primaries", choices=["camera", "srgb"],
                     help="run every set with these primaries instead of its own (what the option buys)")
+    ap.add_argument("--ideal-awb", action="store_true",
+                    help="add sony-isp-ideal: the ISP output with a perfect automatic white balance (each frame "
+                         "balanced by its own greys), what illumon without a reference costs on a camera that needs "
+                         "no correction")
     args = ap.parse_args(argv)
     data = shared_data()
     if not (data / "real" / "sony-dolp").is_dir():
         print(f"real.py: skipped: {data / 'real' / 'sony-dolp'} is absent (../shared/data or $ILLUMON_SHARED_DATA)")
         return 0
     raw = sony_raw(data)
-    sets = [raw, *isp_sets(raw)]
+    sets = [raw, *isp_sets(raw, ("preset", "auto", "ideal") if args.ideal_awb else ("preset", "auto"))]
     rows, report = [], {"split": "development (../shared/data/real: sony-dolp); scoring photographs are held by outside checks",
                         "sets": {}}
     if args.dump:

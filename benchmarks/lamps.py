@@ -24,8 +24,9 @@ the ``sony-dolp`` chart sets — ``sony-raw`` with the mean measured camera's se
 with the clipped sRGB functions and ``--primaries srgb``. They have 3 frames, fewer than the bilinear effects need
 (6): the diagnosis refuses sensor RGB that short and judges rendered output for its light alone
 (:func:`illumon.diagnosis.fit._short_history`, as it does the 3-frame scene ``spdif``); the column also gives the
-whole-history lamp check itself (:func:`illumon.diagnosis.fit._lamp_lit_history`, rendered output only). ``--split development`` runs the development
-scenes only, ``--split score`` the held-out ones (looked at once, after every choice).
+whole-history lamp check itself (:func:`illumon.diagnosis.fit._lamp_lit_history`, rendered output only).
+``--split development`` runs the development scenes only, ``--split score`` the held-out ones (looked at once,
+after every choice).
 
 ``python benchmarks/lamps.py`` prints the table and writes ``benchmarks/results/lamps.json``.
 

@@ -141,3 +141,26 @@ def test_pedestal_hidden_by_auto_exposure_is_found_by_the_spectral_model(shared_
     assert d.effect == "black_offset" and d.parameters.get("found_by") == "spectral"
     assert min(d.parameters["offsets"]) > 0.0
     np.testing.assert_allclose(d.parameters["offsets"], _pedestal(h), atol=0.05)
+
+
+@pytest.mark.parametrize(("i", "effect"), [(117, "patch_change"), (76, "shadow")])
+def test_channel_a_colour_matrix_clips_at_0_is_censored(shared_data, i, effect):
+    """A colour matrix takes a saturated surface's channel below 0 in some frames: its pixels clip at 0 and the
+    region's robust mean is a few stray codes (1e-5 of white, not 0), weighed with a learned read noise far below a
+    code. Measured as values (the censoring at 0 alone), the clean history reads as ``effect`` of that patch
+    (ΔBIC −205, −277); censored below the history's censoring level like the tone and offset tests' values, it is
+    clean."""
+    h = _img_dev("none", i)
+    assert h.parameters["matrix"] is not None and np.min(h.noiseless) < 0
+    f = h.observations.values.shape[0]
+    y = h.observations.values.reshape(f, -1)
+    margin = NONE_MARGIN[effect]
+
+    def score() -> float:
+        _, cands, _ = bilinear_stage(y, 4, NONE_MARGIN["clipping"], True, dnoise.CODEC_NOISE, True)
+        return next(c.score for c in cands if c.effect == effect)
+
+    with dnoise.dark_level_set(1e-9):  # the failure: only values at 0 censored
+        assert score() < -margin
+    assert score() > -margin
+    assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"

@@ -164,3 +164,21 @@ def test_channel_a_colour_matrix_clips_at_0_is_censored(shared_data, i, effect):
         assert score() < -margin
     assert score() > -margin
     assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"
+
+
+@pytest.mark.parametrize("i", [68, 187])
+def test_linear_8bit_noise_is_not_a_tone_curve_from_one_start(shared_data, i, monkeypatch):
+    """Clean linear 8-bit histories (JPEG quality 86…92): learned from linear light's noise alone, the linear hypothesis
+    keeps shot noise while the tone hypotheses reach the output-domain noise the codec cap allows, and the same noise
+    described twice reads as a tone curve (ΔBIC −62, −60). Every hypothesis also started from the output-domain noise
+    alone (:data:`illumon.diagnosis.noise.OUTPUT_NOISE_START`), the curve is gone."""
+    h = _img_dev("none", i)
+    assert h.parameters["declared_tone"] is None and h.parameters["jpeg"]
+    f = h.observations.values.shape[0]
+    y = h.observations.values.reshape(f, -1)
+    margin = NONE_MARGIN["nonlinear_response"]
+    with monkeypatch.context() as m:
+        m.setattr(dnoise, "OUTPUT_NOISE_START", False)
+        assert tone_stage(y, 4, codec_cap=dnoise.CODEC_NOISE)[0].score < -margin  # the failure
+    assert tone_stage(y, 4, codec_cap=dnoise.CODEC_NOISE)[0].score > -margin
+    assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"

@@ -207,21 +207,9 @@ def pedestal_allowed(y: NDArray[np.float64], present: NDArray[np.bool_], b: NDAr
 def _bilinear_base(y: NDArray[np.float64], rank: int, learn_noise: bool,
                    codec_cap: float = 0.0) -> tuple[nz.NoiseLevel, NDArray[np.float64], bl.LowRankFit]:
     """The bilinear stage's noise (learned or default; with an output-domain variance up to ``codec_cap``), weights
-    and rank-``rank`` base fit.
-
-    Values measured from images (``codec_cap`` > 0) at or below the censoring level (:func:`.noise.dark_level`) are
-    censored in the base and so in every extension, as the tone and offset tests and the spectral stage censor them
-    in their own fits. Such a value is a region mean of pixels partly or mostly clipped at 0 — a colour matrix takes a
-    saturated surface's channel below 0 (the mean of the few pixels left with a code is 1e-5, not 0), black
-    subtraction clips the dark pixels at high gain — so it says only that the signal is about there or below, with a
-    bias that its learned read noise, far below a code, weighs as tens of σ. *Hidden assumption* (issue 28, branch
-    ``diag-clean``): that a region mean above 0 is a mean of unclipped pixels. Clean development histories of the
-    image-based simulator with a colour matrix read as a patch change (ΔBIC −205) or a shadow (−277) of the patch
-    whose blue crossed 0; region means given at full precision (``codec_cap`` = 0) keep the censoring at 0 alone.
-    """
+    and rank-``rank`` base fit."""
     if learn_noise:
-        dark = nz.dark_level() if codec_cap > 0 else 0.0
-        noise = nz.estimate_noise(y, rank, codec_cap=codec_cap, dark=dark)
+        noise = nz.estimate_noise(y, rank, codec_cap=codec_cap)
     else:
         noise = nz.NoiseLevel(DEFAULT_NOISE.shot, DEFAULT_NOISE.read, 0.0, np.zeros(y.shape, dtype=bool))
     w = noise.weights(y)
@@ -257,6 +245,23 @@ def _noise_record(noise: nz.NoiseLevel) -> dict:
     """The learned noise as the stage records it."""
     return {"shot": noise.shot, "read": noise.read, "step": noise.step, "codec": noise.codec,
             "censored": int(noise.censored.sum())}
+
+
+def _dark_censored(y: NDArray[np.float64], codec_cap: float) -> NDArray[np.bool_]:
+    """Values of ``y`` the patch-change and shadow tests censor: for values measured from images (``codec_cap`` > 0)
+    those at or below the censoring level (:func:`.noise.dark_level`), as the tone and offset tests and the spectral
+    stage censor them in their own fits; otherwise none (values at 0 are censored by the noise itself).
+
+    Such a value is a region mean of pixels partly or mostly clipped at 0 — a colour matrix takes a saturated
+    surface's channel below 0 in the frames whose light makes it so, and the service's robust mean of the few pixels
+    left with a code is 1e-5 of white, not 0 — so it says only that the signal is about there or below, with a bias
+    the learned noise weighs as tens of σ. *Hidden assumption* (issue 28, branch ``diag-clean``): that a region mean
+    above 0 is a mean of unclipped pixels. Clean development histories of the image-based simulator with a colour
+    matrix read as a patch change (ΔBIC −205, −50) or a shadow (−277) of the patch whose channel crossed 0. Region
+    means given at full precision (the project's simulator, raw pipelines) keep every value."""
+    if codec_cap <= 0:
+        return np.zeros(y.shape, dtype=bool)
+    return np.isfinite(y) & (y <= nz.dark_level())
 
 
 def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_noise: bool = True,
@@ -362,8 +367,9 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     if ingest is not None and ingest.score < cands[-1].score:
         cands[-1] = ingest
 
-    # patch change and shadow; when clipping is supported, on the unclipped values only
-    w_patch = w
+    # patch change and shadow, on the values measured from images above the censoring level (the tone and offset
+    # tests censor them too; :func:`_dark_censored`), and when clipping is supported on the unclipped values only
+    w_patch = np.where(_dark_censored(y, codec_cap), 0.0, w)
     if "clipping" in fits and cands[-1].score < -clip_margin:
         w_patch = np.where(fits["clipping"]["censored"], 0.0, w)
     cands += _patch_candidates(y, w_patch, base, rank, n, rms0, fits)

@@ -174,8 +174,30 @@ def fit_learned_noise(x: NDArray[np.float64], present: NDArray[np.bool_], rank: 
     ``codec_cap`` > 0 an output-domain variance ``c ≤ codec_cap`` is learned too, carried into ``x``'s light by
     ``slope2`` (the squared derivative of ``x`` by the output value; 1 when ``x`` is the output): a codec's error,
     returned as ``codec``."""
-    read2 = read**2
-    c_out = 0.0
+    starts = [(shot, read**2, 0.0)]
+    if codec_cap > 0 and OUTPUT_NOISE_START:
+        starts.append((1e-14, 1e-14, codec_cap))
+    runs = [_learn_noise(x, present, rank, U, *start, floor=floor, updates=updates, iters=iters, huber=huber,
+                         extra=extra, slope2=slope2, codec_cap=codec_cap) for start in starts]
+    return min(runs, key=lambda r: r.nll)
+
+
+OUTPUT_NOISE_START = True
+"""Whether :func:`fit_learned_noise` with an output-domain variance (``codec_cap`` > 0: values measured from images)
+also starts from that variance alone, at its cap, beside linear light's noise (:data:`illumon.camera.DEFAULT_NOISE`),
+and keeps the start of higher likelihood. The reweighted updates are a fixed-point iteration, not a maximiser: they
+stay in the basin they start in. *Hidden assumption* (issue 28, branch ``diag-clean``): that one start finds the
+noise of every hypothesis. From linear light's start the linear hypothesis of clean linear 8-bit histories (JPEG
+or PNG, development seeds of the image-based simulator) kept shot noise while the tone hypotheses, whose values the
+curve's slope reweights, reached the output-domain noise: tone curves at ΔBIC −60…−85 that are the same noise
+described twice (the linear hypothesis from the second start: −12…+7)."""
+
+
+def _learn_noise(x: NDArray[np.float64], present: NDArray[np.bool_], rank: int, U: NDArray[np.float64] | None,
+                 shot: float, read2: float, c_out: float, *, floor: float, updates: int, iters: int,
+                 huber: float | None, extra: NDArray[np.float64] | float, slope2: NDArray[np.float64] | float,
+                 codec_cap: float) -> LearnedNoise:
+    """:func:`fit_learned_noise` from one start (``shot``, ``read2``, output-domain variance ``c_out``)."""
 
     def weights() -> NDArray[np.float64]:
         return np.where(present, noise_weights(x, shot, np.sqrt(read2), extra + c_out * slope2), 0.0)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from illumon.diagnosis import noise as dnoise
+from illumon.diagnosis import stages
 from illumon.diagnosis.fit import NONE_MARGIN, diagnose
 from illumon.diagnosis.stages import bilinear_stage, tone_stage
 from illumon.simulation.effects import EFFECTS
@@ -141,3 +142,55 @@ def test_pedestal_hidden_by_auto_exposure_is_found_by_the_spectral_model(shared_
     assert d.effect == "black_offset" and d.parameters.get("found_by") == "spectral"
     assert min(d.parameters["offsets"]) > 0.0
     np.testing.assert_allclose(d.parameters["offsets"], _pedestal(h), atol=0.05)
+
+
+@pytest.mark.parametrize(("i", "effect"), [(117, "patch_change"), (76, "shadow")])
+def test_channel_a_colour_matrix_clips_at_0_is_censored(shared_data, i, effect, monkeypatch):
+    """A colour matrix takes a saturated surface's channel below 0 in some frames: its pixels clip at 0 and the
+    region's robust mean is a few stray codes (1e-5 of white, not 0), weighed with a learned noise far below a code.
+    Measured as values (the censoring at 0 alone), the clean history reads as ``effect`` of that patch (ΔBIC −205,
+    −277); censored at black (:data:`illumon.diagnosis.stages.BLACK_CODE`), it is clean."""
+    h = _img_dev("none", i)
+    assert h.parameters["matrix"] is not None and np.min(h.noiseless) < 0
+    f = h.observations.values.shape[0]
+    y = h.observations.values.reshape(f, -1)
+    margin = NONE_MARGIN[effect]
+
+    def score() -> float:
+        _, cands, _ = bilinear_stage(y, 4, NONE_MARGIN["clipping"], True, dnoise.CODEC_NOISE, True)
+        return next(c.score for c in cands if c.effect == effect)
+
+    with monkeypatch.context() as m:
+        m.setattr(stages, "BLACK_CODE", 0.0)  # the failure: only values at 0 censored
+        assert score() < -margin
+    assert score() > -margin
+    assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"
+
+
+@pytest.mark.parametrize("i", [68, 187])
+def test_linear_8bit_noise_is_not_a_tone_curve_from_one_start(shared_data, i, monkeypatch):
+    """Clean linear 8-bit histories (JPEG quality 86…92): learned from linear light's noise alone, the linear hypothesis
+    keeps shot noise while the tone hypotheses reach the output-domain noise the codec cap allows, and the same noise
+    described twice reads as a tone curve (ΔBIC −62, −60). Every hypothesis also started from the output-domain noise
+    alone (:data:`illumon.diagnosis.noise.OUTPUT_NOISE_START`), the curve is gone."""
+    h = _img_dev("none", i)
+    assert h.parameters["declared_tone"] is None and h.parameters["jpeg"]
+    f = h.observations.values.shape[0]
+    y = h.observations.values.reshape(f, -1)
+    margin = NONE_MARGIN["nonlinear_response"]
+    with monkeypatch.context() as m:
+        m.setattr(dnoise, "OUTPUT_NOISE_START", False)
+        assert tone_stage(y, 4, codec_cap=dnoise.CODEC_NOISE)[0].score < -margin  # the failure
+    assert tone_stage(y, 4, codec_cap=dnoise.CODEC_NOISE)[0].score > -margin
+    assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"
+
+
+def test_a_shadow_taking_a_channel_near_black_is_still_named(shared_data, monkeypatch):
+    """A shadow that takes a dark channel to 1…4·10⁻³ of white is in those values: censored up to one 8-bit code it
+    was lost (``none``); at black (a quarter code) it is named, patch and first frame."""
+    h = _img_dev("shadow", 4)
+    with monkeypatch.context() as m:
+        m.setattr(stages, "BLACK_CODE", 1.0 / 255.0)
+        assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"
+    d = diagnose(h.observations, h.sensitivities, reestimate=False)
+    assert (d.effect, d.patch_index, d.frame_index) == ("shadow", h.patch, h.frame)

@@ -26,7 +26,7 @@ def run_diagnosis(observations_path: str, obs, sensitivities, *, reestimate: boo
     f, p = len(obs.frames), len(obs.patches)
     if f < min_frames(primaries):
         raise ValueError(f"{observations_path}: only {f} frame(s); diagnosis needs at least {RANK + 2}"
-                         + short_history_hint(primaries, RANK))
+                         + short_history_hint(primaries))
     if p < 3:
         raise ValueError(f"{observations_path}: only {p} patch(es); diagnosis needs at least 3")
     if (obs.present.sum(axis=1) < 2).any():

@@ -217,7 +217,7 @@ def diagnose(
     margins = {**NONE_MARGIN, **(margins or {})}
     f, p, _ = obs.values.shape
     if f < min_frames(primaries, rank):
-        raise ValueError(f"diagnosis needs at least {rank + 2} frames, got {f}" + short_history_hint(primaries, rank))
+        raise ValueError(f"diagnosis needs at least {rank + 2} frames, got {f}" + short_history_hint(primaries))
     if p < 3:
         raise ValueError(f"diagnosis needs at least 3 patches, got {p}")
     with dark_level_set(history_dark_level(obs.values, white_level)):
@@ -237,7 +237,7 @@ def min_frames(primaries: str, rank: int = RANK) -> int:
     return SHORT_HISTORY_FRAMES if check_primaries(primaries) == "srgb" else rank + 2
 
 
-def short_history_hint(primaries: str, rank: int) -> str:
+def short_history_hint(primaries: str) -> str:
     """What a refused short history can do instead, to follow "needs at least ``rank + 2`` frames"."""
     if check_primaries(primaries) == "srgb":
         return f" ({SHORT_HISTORY_FRAMES} of rendered output to judge its light alone)"
@@ -261,12 +261,10 @@ def _short_history(obs: Observations, css: NDArray[np.float64], rank: int, reest
     lamp = _lamp_lit_history(obs, css, [], primaries)
     found = [lamp] if lamp is not None else []
     base = Diagnosis("none", None, None, {}, [], None, None, 0.0, info={"score": np.nan})
-    if found:
-        if reestimate:
-            _illuminant_changes(obs, css, found)
-        lamp.residual_base = lamp.residual_extended = None
+    if found and reestimate:
+        _illuminant_changes(obs, css, found)
     out = _ranked(obs, base, found, reestimate)
-    out.residual_base = out.residual_extended = None
+    out.residual_base = out.residual_extended = None  # the lamp verdict's too, when it is the one reported
     out.notes.append(f"only {f} frames: the history's light was judged as a whole; the other effects need at least "
                      f"{rank + 2} frames")
     out.info["censoring_level"] = round(dark_level(), 6)

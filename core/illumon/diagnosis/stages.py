@@ -379,7 +379,7 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     # clipping is supported on the unclipped values only
     w_patch = np.where(_dark_censored(y, codec_cap), 0.0, w)
     if "clipping" in fits and cands[-1].score < -clip_margin:
-        w_patch = np.where(fits["clipping"]["censored"], 0.0, w)
+        w_patch = np.where(fits["clipping"]["censored"], 0.0, w_patch)
     cands += _patch_candidates(y, w_patch, base, rank, n, rms0, fits)
     return base, cands, {"fits": fits, "rms_base": rms0, "noise": fits["noise"], "dark_level": fits["dark_level"]}
 

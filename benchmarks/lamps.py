@@ -101,14 +101,16 @@ def load_scene(folder: Path, scene: str):
 
 
 def run(obs, primaries: str):
-    """illumon's whites and ``non_daylight`` (no sensitivities, no reference)."""
+    """illumon's whites, ``non_daylight`` and ``confidence`` (no sensitivities, no reference)."""
     from illumon.model import fit_scene_model
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         model = fit_scene_model(obs, None, primaries=primaries)
     res, extra = model.history_estimate
-    return np.asarray(res.white, dtype=float), np.asarray(extra.get("non_daylight", np.zeros(len(res.white))))
+    n = len(res.white)
+    return (np.asarray(res.white, dtype=float), np.asarray(extra.get("non_daylight", np.zeros(n))),
+            np.asarray(extra.get("confidence", np.full(n, np.nan)), dtype=float))
 
 
 def diagnosis_row(obs, css: NDArray, primaries: str) -> dict:
@@ -228,7 +230,8 @@ def main(argv: list[str] | None = None) -> int:
     report = {"development": list(DEVELOPMENT), "score": list(SCORE), "primaries": args.primaries, "scenes": {},
               "daylight_sets": {}}
     print(f"development scenes: {', '.join(DEVELOPMENT)}; score (held out): {', '.join(SCORE)}; primaries {args.primaries}")
-    print(f"{'scene':<8} {'split':<12} {'illumon °':>9} {'gray-world °':>12} {'ratio':>6}  non_daylight per frame")
+    print(f"{'scene':<8} {'split':<12} {'illumon °':>9} {'gray-world °':>12} {'ratio':>6}  conf / <1°  "
+          "non_daylight per frame")
     scenes = {"development": DEVELOPMENT, "score": SCORE, "all": DEVELOPMENT + SCORE}[args.split]
     report["split_run"] = args.split
     if args.split != "development":
@@ -238,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
     css = np.clip(srgb_sensitivities(), 0.0, None)  # what outside checkers pass for a camera nobody measured
     for scene in scenes:
         obs, truth = load_scene(folder, scene)
-        white, nd = run(obs, args.primaries)
+        white, nd, conf = run(obs, args.primaries)
         gw = np.nanmean(np.asarray(obs.values), axis=1)
         e, eg = angular(white, truth), angular(gw, truth)
         split = "development" if scene in DEVELOPMENT else "score"
@@ -247,9 +250,11 @@ def main(argv: list[str] | None = None) -> int:
             "median_deg": float(np.median(e)), "gray_world_median_deg": float(np.median(eg)),
             "ratio": float(np.median(e) / np.median(eg)), "non_daylight": nd.tolist(),
             "flagged_fraction": float(np.mean(nd >= 0.5)),
+            "confidence": conf.tolist(), "within_1deg": float(np.mean(e < 1.0)),
         }
         r = report["scenes"][scene]
         print(f"{scene:<8} {split:<12} {r['median_deg']:9.2f} {r['gray_world_median_deg']:12.2f} {r['ratio']:6.2f}  "
+              f"{np.mean(conf):4.2f} / {r['within_1deg']:4.2f}  "
               + " ".join(f"{f}:{v:.2f}" for f, v in zip(obs.frames, nd, strict=True)))
         if args.diagnose:
             r["diagnosis"] = {prim: diagnosis_row(obs, css, prim) for prim in ("camera", "srgb")}
@@ -266,7 +271,7 @@ def main(argv: list[str] | None = None) -> int:
         for s in [raw, *isp_sets(raw)]:
             from real import _observations
 
-            white, nd = run(_observations(s, []), s.primaries)
+            white, nd, _ = run(_observations(s, []), s.primaries)
             e = angular(white, s.truth)
             report["daylight_sets"][s.name] = {"non_daylight": nd.tolist(), "median_deg": float(np.median(e)),
                                                "flagged_fraction": float(np.mean(nd >= 0.5))}

@@ -61,6 +61,7 @@ __all__ = [
     "lamp_population",
     "history_lamps",
     "apply_lamps",
+    "log_chroma_confidence",
     "non_daylight_column",
 ]
 
@@ -620,6 +621,39 @@ def _unbalanced_offset(model, means: NDArray[np.float64]) -> tuple[NDArray[np.fl
     return a, np.array([sd, sd])
 
 
+def log_chroma_confidence(white: NDArray[np.float64], var: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The probability that each camera white (F × 3) is within 1° of the truth, when its error is Gaussian in log r/g
+    and log b/g with variances ``var`` (2,), independent.
+
+    The angle is that of the RGB vectors, so the log-chromaticity errors go through the Jacobian of the white's unit
+    vector (``J``, 3 × 2): near grey a log r/g error δ turns the white by ``√(2/9)·δ`` ≈ 0.47 δ radians, and the two
+    log ratios turn it along directions 120° apart, so equal variances σ² give the angle the variances σ²/3 and σ²/9
+    along its principal directions — not 2σ² in all, with which they were once equated (0.05–0.09 stated on lamp-lit
+    histories where 37–50 % of frames were within 1°: ``benchmarks/lamps.py``, ``benchmarks/unmeasured.py``
+    ``none+lamps``). The probability is that of that 2-D Gaussian inside the 1° circle, integrated over the direction:
+    ``P = (1 / 2π√(λ₁λ₂)) ∫ (1 − exp(−ρ² q(θ) / 2)) / q(θ) dθ`` with ``q(θ) = cos²θ / λ₁ + sin²θ / λ₂``."""
+    w = np.asarray(white, dtype=float)
+    sd = np.sqrt(np.clip(np.asarray(var, dtype=float), 0.0, None))
+    norm_w = np.linalg.norm(w, axis=1, keepdims=True)
+    u = w / np.where(norm_w > 0, norm_w, 1.0)
+    cols = []
+    for c in (0, 2):  # d u / d log(w_c / w_g) = (I − u uᵀ) u_c e_c
+        d = -u * u[:, c:c + 1] ** 2
+        d[:, c] += u[:, c]
+        cols.append(d)
+    jac = np.stack(cols, axis=-1) * sd[None, None, :]  # F × 3 × 2
+    lam = np.clip(np.linalg.eigvalsh(np.einsum("fci,fcj->fij", jac, jac)), 1e-30, None)  # F × 2, rad²
+    theta = (np.arange(_CIRCLE_STEPS) + 0.5) * (2 * math.pi / _CIRCLE_STEPS)
+    q = np.cos(theta)[None] ** 2 / lam[:, :1] + np.sin(theta)[None] ** 2 / lam[:, 1:]
+    inner = -np.expm1(-0.5 * math.radians(1.0) ** 2 * q) / q
+    return np.clip(inner.mean(axis=1) / np.sqrt(lam[:, 0] * lam[:, 1]), 0.0, 1.0)
+
+
+_CIRCLE_STEPS = 256
+"""Directions :func:`log_chroma_confidence` integrates over (the integrand is smooth and periodic: the midpoint rule
+converges geometrically)."""
+
+
 def _unbalanced_whites(model, lp: LampPosterior, result, extra: dict) -> bool:
     """A history lit only by lamps (:mod:`.level`): every frame's white is its scene average less the history's
     offset (the daylight fit cannot follow lights off its locus, and no daylight frame pins the scene), its
@@ -631,9 +665,9 @@ def _unbalanced_whites(model, lp: LampPosterior, result, extra: dict) -> bool:
     ok = np.all(np.isfinite(lp.white), axis=1)
     result.white[ok] = lp.white[ok]
     result.gains[ok] = 1.0 / lp.white[ok]
-    var = float(np.sum(np.asarray(model.lamps["offset_sd"]) ** 2)) + 2 * FRAME_SD**2
-    extra["confidence"][ok] = 1.0 - math.exp(-(math.radians(1.0) ** 2) / var)
-    half = 1.959963984540054 * math.sqrt(var / 2) * result.gains[ok]
+    var = np.asarray(model.lamps["offset_sd"], dtype=float) ** 2 + FRAME_SD**2  # log r/g, log b/g
+    extra["confidence"][ok] = log_chroma_confidence(result.white[ok], var)
+    half = 1.959963984540054 * math.sqrt(float(np.mean(var))) * result.gains[ok]
     result.info["gain_lo"][ok] = result.gains[ok] - half
     result.info["gain_hi"][ok] = result.gains[ok] + half
     return True
@@ -675,9 +709,9 @@ def apply_lamps(model, obs, result, extra: dict) -> None:
     white = spectral
     result.white[lamp] = white[lamp]
     result.gains[lamp] = 1.0 / white[lamp]
-    var = float(np.sum(np.asarray(lamps["offset_sd"]) ** 2)) + 2 * FRAME_SD**2  # angular variance (rad² ≈ log²)
-    extra["confidence"][lamp] = 1.0 - math.exp(-(math.radians(1.0) ** 2) / var)
-    half = 1.959963984540054 * math.sqrt(var / 2) * result.gains[lamp]
+    var = np.asarray(lamps["offset_sd"], dtype=float) ** 2 + FRAME_SD**2  # log r/g, log b/g
+    extra["confidence"][lamp] = log_chroma_confidence(result.white[lamp], var)
+    half = 1.959963984540054 * math.sqrt(float(np.mean(var))) * result.gains[lamp]
     result.info["gain_lo"][lamp] = result.gains[lamp] - half
     result.info["gain_hi"][lamp] = result.gains[lamp] + half
 

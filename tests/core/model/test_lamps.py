@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from illumon.camera import angular_error_deg
 from illumon.model import SceneModel, fit_scene_model
-from illumon.model.lamps import lamp_posterior, non_daylight_column
+from illumon.model.lamps import lamp_posterior, log_chroma_confidence, non_daylight_column
 from illumon.retrieval import retrieve_illuminants
 from illumon.simulation import measured_daylight_history
 from illumon.simulation.effects import hide_effect
@@ -219,3 +219,18 @@ def test_a_table_over_points_that_share_a_coordinate_is_built():
     u = np.stack([np.linspace(-0.1, 0.2, 40), np.full(40, 0.05)], axis=1)
     dens = lamps._mixture_density(u.min(axis=0), u.max(axis=0), len(u), centres, logw, 0.03, per_node=0.5)
     assert np.allclose(dens(u), lamps._exact_loglik(u, centres, logw, 0.03), atol=1e-3)
+
+
+@pytest.mark.parametrize("white", [(1.0, 1.0, 1.0), (1.6, 1.0, 0.45), (0.7, 1.0, 1.5)])
+@pytest.mark.parametrize("sd", [(0.02, 0.02), (0.04, 0.015)])
+def test_log_chroma_confidence_is_the_probability_of_being_within_one_degree(white, sd):
+    """The confidence of a white whose log r/g and log b/g errors are Gaussian is the fraction of such whites within 1°
+    (Monte Carlo, 40 000 draws): the angle's variance is the log ratios' through the unit vector's Jacobian — near
+    grey (4/9)·σ², where equating it with 2σ² stated 0.07 for σ = 0.02 instead of 0.33."""
+    rng = np.random.default_rng(3)
+    w = np.asarray(white, dtype=float)
+    d = rng.normal(0.0, sd, size=(40_000, 2))
+    drawn = w * np.exp(np.column_stack([d[:, 0], np.zeros(len(d)), d[:, 1]]))
+    within = np.mean(angular_error_deg(drawn, np.broadcast_to(w, drawn.shape)) < 1.0)
+    stated = log_chroma_confidence(w[None], np.asarray(sd) ** 2)[0]
+    assert abs(stated - within) < 0.02, (stated, within)

@@ -248,7 +248,16 @@ class _JointObjective:
         return _reflectance_posterior(self.operators(th), self.yz, self.w2 / noise**2, self.lam, self.mu)
 
     def __call__(self, th: NDArray[np.float64], noise: float = 1.0) -> tuple[float, NDArray[np.float64]]:
-        am = self.operators(th)
+        return self.cost(self.operators(th), th, noise)
+
+    def costs(self, thetas: list[NDArray[np.float64]]) -> list[tuple[float, NDArray[np.float64]]]:
+        """``self(th)`` of several ``θ`` of every frame, their operators from one evaluation of the daylight weights."""
+        am = self.operators(np.concatenate(thetas)).reshape(len(thetas), *thetas[0].shape[:1], 3, -1)
+        return [self.cost(a, th) for a, th in zip(am, thetas, strict=True)]
+
+    def cost(self, am: NDArray[np.float64], th: NDArray[np.float64], noise: float = 1.0
+             ) -> tuple[float, NDArray[np.float64]]:
+        """``self(th)`` given its operators ``am``."""
         w2 = self.w2 / noise**2
         s, _ = _reflectance_posterior(am, self.yz, w2, self.lam, self.mu)
         r = self.yz - (am.reshape(-1, am.shape[2]) @ s.T).reshape(am.shape[0], 3, -1).transpose(0, 2, 1)
@@ -301,15 +310,15 @@ def _alternate(
     for n_iter in range(1, iterations + 1):  # noqa: B007
         new, _, _ = FrameSolver(css, coef, None, dm, rb, relative_error=rel, absolute_error=absolute,
                                 white=objective.white).solve(y, present, objective.extra_var)
-        c_new, s_new = objective(new)
         cands = [theta + alpha * (new - theta) for alpha in (2.0, 4.0, 8.0)]
         cands += [new + np.array([shift, 0.0, 0.0]) for shift in (-16.0, -4.0, -1.0, 1.0, 4.0, 16.0)]
-        prev = theta
-        theta, best_new, coef = new, c_new, s_new
         for cand in cands:
             cand[:, 0] = np.clip(cand[:, 0], lo_b[0], hi_b[0])
             cand[:, 1] = np.clip(cand[:, 1], lo_b[1], hi_b[1])
-            c_c, s_c = objective(cand)
+        (c_new, s_new), *scored = objective.costs([new, *cands])
+        prev = theta
+        theta, best_new, coef = new, c_new, s_new
+        for cand, (c_c, s_c) in zip(cands, scored, strict=True):
             if c_c < best_new:
                 theta, best_new, coef = cand, c_c, s_c
         change = float(np.max(np.abs(theta[:, 0] - prev[:, 0])))

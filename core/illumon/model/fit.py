@@ -50,8 +50,8 @@ LAMP_ROUNDS = 3
 BORDERLINE = 0.01
 """A lamp round whose frames left out differ from the last round's only by frames whose ``non_daylight`` lies within
 this of :data:`~.lamps.LAMP_PRIOR`, now and in the last judgement, refits nothing (:func:`_refit_without_lamp_frames`).
-A daylight history has many frames near the prior (the benchmark's 2k: 106 within 0.01), and a refit moves them by
-~1e-3, so such frames flip across it from round to round: the 2k history's second refit left out the same 276 frames
+A daylight history has many frames near the prior (the benchmark's 2k: 149 within 0.01), and a refit moves them by a
+few 1e-4, so such frames flip across it from round to round: the 2k history's second refit left out the same 276 frames
 but two (non_daylight 0.2499 ↔ 0.2502), a 1k history's third refit went back to its first set. Each such refit cost a
 whole scene fit and moved the whites by the fit's own spread (issue 29: on 30 benchmark histories of 1k, 2k and 5k
 frames 104 → 60 scene fits, whites moved by at most 0.30°, the mean of their median errors 0.816 → 0.807°). 0

@@ -56,12 +56,20 @@ def identifiability(
     x0 = np.concatenate([theta[sel].ravel(), coef.ravel()])
     steps = np.concatenate([np.tile([10.0, dm.duv_sigma, 0.1], f), np.full(p * nk, 0.1)])
     r0 = pred(x0)
-    jac = np.empty((r0.size, x0.size))
-    for j in range(x0.size):
-        h = 1e-4 * steps[j]
-        xp = x0.copy()
-        xp[j] += h
-        jac[:, j] = (pred(xp) - r0) / h * steps[j]
+    # Forward differences, one column per parameter. A frame's parameters move only that frame's rows and a patch's
+    # coefficients only that patch's rows, so one evaluation steps a parameter of every frame (of every patch) at
+    # once: 1 + 3 + K evaluations instead of one per column, with the same columns (every row is computed on its own).
+    jac = np.zeros((r0.size, x0.size))
+    rows = np.arange(r0.size).reshape(f, p, 3)
+    for cols, owner in ((np.arange(3 * f).reshape(f, 3), rows.reshape(f, -1)),
+                        (3 * f + np.arange(p * nk).reshape(p, nk), rows.transpose(1, 0, 2).reshape(p, -1))):
+        for k in range(cols.shape[1]):
+            col = cols[:, k]
+            h = 1e-4 * steps[col]
+            xp = x0.copy()
+            xp[col] += h
+            d = pred(xp) - r0
+            jac[owner, col[:, None]] = d[owner] / h[:, None] * steps[col][:, None]
     sv = np.linalg.svd(jac, compute_uv=False)
     # Three directions are not fixed by the data of any history: the exposure/reflectance scale (exact gauge) and a
     # common shift of every frame's temperature and Duv (absorbed by reflectance changes, set by the priors).

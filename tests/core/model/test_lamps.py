@@ -234,3 +234,15 @@ def test_log_chroma_confidence_is_the_probability_of_being_within_one_degree(whi
     within = np.mean(angular_error_deg(drawn, np.broadcast_to(w, drawn.shape)) < 1.0)
     stated = log_chroma_confidence(w[None], np.asarray(sd) ** 2)[0]
     assert abs(stated - within) < 0.02, (stated, within)
+
+
+def test_lattice_correlation_equals_scipy_signal_bit_for_bit():
+    """The lamp lattice's FFT correlation without ``scipy.signal`` (start-up time) gives SciPy's values exactly."""
+    from illumon.model.lamps import _correlate_valid
+    from scipy.signal import correlate
+
+    rng = np.random.default_rng(11)
+    for _ in range(60):
+        a = rng.normal(size=tuple(rng.integers(4, 120, 2)))
+        b = rng.normal(size=(rng.integers(2, a.shape[0] + 1), rng.integers(2, a.shape[1] + 1)))
+        assert np.array_equal(_correlate_valid(a, b), correlate(a, b, mode="valid", method="fft"))

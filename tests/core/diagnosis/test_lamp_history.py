@@ -91,3 +91,27 @@ def test_sensor_rgb_is_not_judged_by_a_balance(shared_data):
 def test_history_dark_level(brightest, white, expected):
     v = np.linspace(0.1, 1.0, 500) * brightest
     assert history_dark_level(v, white) == pytest.approx(expected, rel=0.02)
+
+
+@pytest.mark.parametrize(("camera", "seed"), [("Nikon_D3X", 10_501), ("Nikon_D7000_ssf", 10_505)])
+def test_lamps_lighting_most_frames_are_named_from_the_frames_verdicts(camera, seed):
+    """Sensor RGB, measured sensitivities, 24 of 36 frames mixed 35–80 % with a lamp (the outside check's case,
+    ``hide_effect(…, lamp_frames="majority")``; test cameras and seeds): the spectral stage's typical frame is
+    lamp-lit and finds no outlier (1 of 10 development histories named), the scene model's ``non_daylight`` judges
+    each frame against daylight and lamp whites — the effect is named with frames that are lamp-lit
+    (``found_by: frames``); the same camera and seed without a lamp is ``none``."""
+    from illumon.simulation import datasets
+    from illumon.simulation.effects import hide_effect
+
+    css = datasets.load_camera(camera)
+    h = hide_effect("off_locus_illuminant", camera, seed, frames=36, lamp_frames="majority")
+    d = diagnose(h.observations, css, reestimate=False)
+    lamp = [e for e in d.effects if e["effect"] == "off_locus_illuminant"]
+    assert lamp, d.effects
+    par = lamp[0]["parameters"]
+    assert par["found_by"] == "frames"
+    listed = set(par["frame_indices"])
+    assert len(listed) >= 4 and listed <= set(h.parameters["frames"]), (sorted(listed), h.parameters["frames"])
+    assert all(v >= 0.5 for v in par["non_daylight"])
+    clean = hide_effect("none", camera, seed, frames=36)
+    assert diagnose(clean.observations, css, reestimate=False).effects == []

@@ -36,7 +36,7 @@ from ..priors.scene_average import scene_average_evidence
 from ..retrieval.common import censored, grey_world_mired, imaging_operators, white_level
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
-from .intervals import MODEL_ERROR
+from .intervals import MODEL_ERROR, widen_cct_intervals
 from .lamps import LAMP_PRIOR, apply_lamps, history_lamps, lamp_population
 from .level import anchor_common_level, common_level_posterior, mean_log_chroma, scene_reading
 from .scene import SceneModel
@@ -156,7 +156,22 @@ def fit_scene_model(
     if msg:
         model.identifiability.setdefault("warnings", []).append(msg)
         warnings.warn(msg, IdentifiabilityWarning, stacklevel=2)
+        _light_unseen(model)
     return model
+
+
+def _light_unseen(model: SceneModel) -> None:
+    """A history whose light hardly changed colour over a day (:func:`~illumon.camera.balance.self_balance_warning`)
+    was balanced by the camera — or lit by a steady lamp. If the camera balanced itself its output no longer shows the
+    light's colour, so the light's temperature is known only as well as the daylight prior knows it: that prior's
+    spread (``mired_sigma``, 45 MK⁻¹) joins every CCT interval, now and in the model's later estimates
+    (``model_error["balanced_mired"]``). The whites and gains are the output's and keep their intervals. Measured on
+    ``benchmarks/unmeasured.py``'s auto-balanced cases (``--hours``): the CCT intervals held the light's temperature
+    in 22–47 % of frames (RMS error 31–38 MK⁻¹: the estimates read the balanced light, near D65)."""
+    sd = float(model.daylight_model().mired_sigma)
+    model.noise["model_error"] = dict(model.noise.get("model_error", MODEL_ERROR), balanced_mired=sd)
+    if model.history_estimate is not None:
+        widen_cct_intervals(model.history_estimate[0], model.history_estimate[1], sd)
 
 
 def _in_srgb_primaries(sensitivities: NDArray[np.float64] | None, camera_prior_mean: NDArray[np.float64] | None

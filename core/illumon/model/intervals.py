@@ -82,7 +82,8 @@ def assemble_estimates(
     # frame's daylight then moves the camera transform with it, not the whites and gains (the CCT stays uncertain).
     white_cov = frame_cov if camera.get("calibration") in ("grey", "chart") else cov
     # an unmeasured camera's own reading of the light's temperature (a reference pins its white, not its CCT)
-    sm = np.sqrt(np.clip(cov[:, 0, 0], 0, None) + me["mired"] ** 2 + me.get("camera_mired", 0.0) ** 2)
+    sm = np.sqrt(np.clip(cov[:, 0, 0], 0, None) + me["mired"] ** 2 + me.get("camera_mired", 0.0) ** 2
+                 + me.get("balanced_mired", 0.0) ** 2)
     cct_lo = 1e6 / np.clip(shown[:, 0] + Z95 * sm, 1e-3, None)
     cct_hi = 1e6 / np.clip(shown[:, 0] - Z95 * sm, 1e-3, None)
     cct_hi = np.where(shown[:, 0] - Z95 * sm > 0, cct_hi, np.inf)
@@ -139,6 +140,21 @@ def _gain_spread(solver: FrameSolver, mired: NDArray[np.float64], delta: NDArray
     rho = math.radians(1.0)
     confidence = 1.0 - np.exp(-(rho**2) / np.clip(tr, 1e-30, None))  # Rayleigh with σ² = tr/2
     return gains[0], sg, confidence
+
+
+def widen_cct_intervals(result: RetrievalResult, extra: dict, extra_sd: float) -> None:
+    """Add ``extra_sd`` (MK⁻¹) in quadrature to the reciprocal-temperature spread of every frame's 95 % CCT interval,
+    in place (an estimate made before the model learned it: ``model_error["balanced_mired"]``, which
+    :func:`assemble_estimates` adds for later estimates)."""
+    mired = 1e6 / np.asarray(result.cct, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        sm = (1e6 / np.asarray(extra["cct_lo"], dtype=float) - mired) / Z95
+    sm = np.sqrt(np.clip(sm, 0, None) ** 2 + extra_sd**2)
+    lo = 1e6 / np.clip(mired + Z95 * sm, 1e-3, None)
+    hi = np.where(mired - Z95 * sm > 0, 1e6 / np.clip(mired - Z95 * sm, 1e-3, None), np.inf)
+    ok = np.isfinite(extra["cct_lo"])
+    extra["cct_lo"] = np.where(ok, lo, extra["cct_lo"])
+    extra["cct_hi"] = np.where(ok, hi, extra["cct_hi"])
 
 
 def interval_columns(result: RetrievalResult, extra: dict[str, NDArray[np.float64]]) -> dict[str, NDArray[np.float64]]:

@@ -131,16 +131,30 @@ def test_real_photographs_reference_never_hurts(shared_data):
 
 def test_self_balancing_camera_is_named(shared_data):
     """A day (30 frames over 10 hours) from a camera that rebalances every frame: its light looks steady and the fit
-    warns; the same day through a fixed daylight preset does not (``benchmarks/unmeasured.py`` cases)."""
+    warns; the same day through a fixed daylight preset does not (``benchmarks/unmeasured.py`` cases). The balanced
+    output no longer shows the light's colour, so the warned history's CCT intervals take the daylight prior's spread
+    and hold the light's temperature (before: 5 of 30 frames held it, the estimates near D65 whatever the sky);
+    the preset history's intervals stay as narrow as without times."""
     import unmeasured
 
     times = [f"2025-06-01T{7 + i // 3:02d}:{(i % 3) * 20:02d}:00Z" for i in range(30)]
     for case, expect in (("none+awb", True), ("none+rendered", False)):
         obs, _, _ = unmeasured.render("rawsim", "Nikon_D80", case, 5)
+        truth = unmeasured.true_ccts(obs, "Nikon_D80", case, 5)
+        untimed = _fit(obs, "srgb").history_estimate[1]
         obs = Observations(obs.frames, obs.patches, obs.values, times)
         model = _fit(obs, "srgb")
         said = any("white balance is automatic" in w for w in model.identifiability["warnings"])
         assert said == expect, (case, model.identifiability["warnings"])
+        extra = model.history_estimate[1]
+        held = np.mean((extra["cct_lo"] <= truth) & (truth <= extra["cct_hi"]))
+        width = np.median(1e6 / extra["cct_lo"] - 1e6 / extra["cct_hi"])
+        width0 = np.median(1e6 / untimed["cct_lo"] - 1e6 / untimed["cct_hi"])
+        if expect:
+            assert held >= 0.9 and width > 3 * width0, (held, width, width0)
+            assert model.noise["model_error"]["balanced_mired"] == 45.0
+        else:
+            assert abs(width - width0) < 1e-6 * width0 and "balanced_mired" not in model.noise["model_error"]
     short = Observations(obs.frames, obs.patches, obs.values, times[:9] + [""] * 21)  # under six hours: no verdict
     from illumon.camera.balance import self_balance_warning
 

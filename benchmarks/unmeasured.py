@@ -12,8 +12,10 @@ sensitivities are never given to illumon: its prior is the mean of the measured 
 * ``none+rendered``, ``grey+rendered`` — *rendered* output, what IP, surveillance and phone cameras deliver (issue
   26): a daylight-preset white balance and a white-preserving colour matrix to sRGB primaries
   (:func:`illumon.camera.primaries.srgb_matrix_for`), fitted with ``primaries="srgb"``;
-* ``none+awb``, ``grey+awb`` — rendered output whose camera rebalances every frame (gray-world gains on the raw
-  values before the matrix, as an auto white balance does); the truth is the output white *with* those gains;
+* ``chart+rendered`` — rendered output with a ColorChecker in the first frame (the calibration an installer of a
+  processed camera can do);
+* ``none+awb``, ``grey+awb``, ``chart+awb`` — rendered output whose camera rebalances every frame (gray-world gains on
+  the raw values before the matrix, as an auto white balance does); the truth is the output white *with* those gains;
 * ``none+lamps``   — rendered output (daylight preset) of a history lit only by lamps (:func:`rawsim.lamp_run`) over a
   man-made scene of pale surfaces (:func:`rawsim.pale`), as the real lamp-lit scenes of ``benchmarks/lamps.py``:
   goal within 1.5 × gray-world (issue 28).
@@ -62,8 +64,8 @@ from illumon.simulation import (
     simulate_history,  # noqa: E402
 )
 
-CASES = ("grey", "chart+matrix", "none", "none+matrix", "none+rendered", "grey+rendered", "none+awb", "grey+awb",
-         "none+lamps")
+CASES = ("grey", "chart+matrix", "none", "none+matrix", "none+rendered", "grey+rendered", "chart+rendered", "none+awb",
+         "grey+awb", "chart+awb", "none+lamps")
 GOALS = {"grey": (1.0, 3.0), "chart+matrix": (1.0, 3.0), "none": (2.5, None)}
 RENDERED = ("rendered", "awb", "lamps")
 FRAMES, PATCHES = 30, 10

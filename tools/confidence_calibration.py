@@ -20,6 +20,7 @@ camera / grey      ``grey``
 camera / chart     ``chart+matrix``
 camera / none      ``none``                    ``none+matrix``
 srgb / grey        ``grey+rendered``, ``grey+awb``
+srgb / chart       ``chart+rendered``, ``chart+awb``
 srgb / none        ``none+rendered``, ``none+awb``
 =================  ==========================  ==============================
 
@@ -49,6 +50,7 @@ REGIMES = {
     ("camera", "chart"): ("chart+matrix",),
     ("camera", "none"): ("none",),
     ("srgb", "grey"): ("grey+rendered", "grey+awb"),
+    ("srgb", "chart"): ("chart+rendered", "chart+awb"),
     ("srgb", "none"): ("none+rendered", "none+awb"),
 }
 RENDERED = ("rendered", "awb", "lamps")

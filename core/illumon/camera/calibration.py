@@ -82,7 +82,7 @@ every 7th Granada spectrum). The history's common level adds its own, larger unc
 
 STATED_WHITE_SPREAD = {("camera", "grey"): (2.26, 0.004), ("camera", "chart"): (3.37, 0.005),
                        ("camera", "none"): (2.26, 0.008), ("srgb", "grey"): (2.65, 0.020),
-                       ("srgb", "none"): (1.02, 0.0067)}
+                       ("srgb", "chart"): (2.09, 0.019), ("srgb", "none"): (1.02, 0.0067)}
 """What a camera nobody measured states about its camera white, per ``(primaries, calibration)``: ``(a, s)`` — the
 Laplace posterior's spread scaled by ``a`` (it leaves out how the camera, the priors and the scene depart from the
 model) plus the camera's own spread ``s`` (log r/g, b/g) — in its gain intervals and ``confidence``. Chosen on the
@@ -91,7 +91,8 @@ tools/confidence_calibration.py dev.json``: 14 development cameras × 2 seeds ×
 which the mean stated confidence equals the fraction of frames within 1°, the one with the largest likelihood of which
 frames were. They replace, in the intervals only, the physical spreads above — :data:`CAMERA_WHITE_SD` ``none``
 (0.11) is the measured cameras' spread *before* the scene's average colour moved the channel scales and stated 0.01
-where 15 % of frames were within 1°; a grey card's 0.005 stated 0.99 where 96 % were. The priors, the lamp test and the
+where 15 % of frames were within 1°; a grey card's 0.005 stated 0.99 where 96 % were; a chart on rendered output
+(``chart+rendered``, ``chart+awb``, added 2026-11-26) stated 0.46–0.49 where 25–38 % were. The priors, the lamp test and the
 estimates keep the physical values (``camera["white_sd_log"]``); measured cameras and unlisted regimes keep theirs
 with ``a = 1``."""
 

@@ -348,22 +348,28 @@ def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[D
     idx = sorted(int(i) for i in frames)
     if len(idx) < MIN_OFF_LOCUS_FRAMES:
         return None
-    shares: list[float | None] = [None] * len(idx)
-    day = np.setdiff1d(np.arange(len(obs.frames)), idx)
-    if day.size >= 2:
-        try:
-            shares = lamp_shares(refined_spectral_base(obs, css), idx, sigma=daylight_reflectances(obs, css, idx))
-        except (ValueError, np.linalg.LinAlgError):
-            pass
     score = -2.0 * float(np.log(min(p, 1 - 1e-12) / max(1.0 - p, 1e-12)))
     params = {"frame_indices": idx, "frames": [obs.frames[i] for i in idx],
               "non_daylight": [round(float(nd[i]), 3) for i in idx], "history_non_daylight": round(p, 4),
-              "lamp_share": [None if v is None else round(float(v), 2) for v in shares], "found_by": "scene_level"}
+              "lamp_share": _lamp_share_column(obs, css, idx), "found_by": "scene_level"}
     if spectral is not None:
         params["spectral_frames"] = list(spectral.parameters.get("frames", []))
     return Diagnosis("off_locus_illuminant", None, None, params, [], 0.0, 0.0, None,
                      info={"score": score, "rms_base": 0.0,
                            "lamp_whites": np.asarray(model.history_estimate[0].white, dtype=float)})
+
+
+def _lamp_share_column(obs: Observations, css: NDArray[np.float64], idx: list[int]) -> list[float | None]:
+    """``lamp_share`` of the lamp-lit frames ``idx`` (rounded), re-fitted as in the spectral stage
+    (:func:`.spectral.lamp_shares`, reflectances learned from the other frames) where at least two of those remain,
+    else ``None`` each (not estimable)."""
+    shares: list[float | None] = [None] * len(idx)
+    if len(obs.frames) - len(idx) >= 2:
+        try:
+            shares = lamp_shares(refined_spectral_base(obs, css), idx, sigma=daylight_reflectances(obs, css, idx))
+        except (ValueError, np.linalg.LinAlgError):
+            pass
+    return [None if v is None else round(float(v), 2) for v in shares]
 
 
 LAMP_FRAMES_SHARE = 0.1
@@ -387,17 +393,11 @@ def _lamp_lit_frames(obs: Observations, css: NDArray[np.float64], nd: NDArray[np
     idx = [int(i) for i in np.flatnonzero(nd >= 0.5)]
     if len(idx) < max(MIN_OFF_LOCUS_FRAMES, int(np.ceil(LAMP_FRAMES_SHARE * len(obs.frames)))):
         return None
-    shares: list[float | None] = [None] * len(idx)
-    if len(obs.frames) - len(idx) >= 2:
-        try:
-            shares = lamp_shares(refined_spectral_base(obs, css), idx, sigma=daylight_reflectances(obs, css, idx))
-        except (ValueError, np.linalg.LinAlgError):
-            pass
     odds = np.clip(nd[idx], 1e-12, 1 - 1e-12)
     score = -2.0 * float(np.sum(np.log(odds / (1.0 - odds))))
     params = {"frame_indices": idx, "frames": [obs.frames[i] for i in idx],
               "non_daylight": [round(float(nd[i]), 3) for i in idx],
-              "lamp_share": [None if v is None else round(float(v), 2) for v in shares], "found_by": "frames"}
+              "lamp_share": _lamp_share_column(obs, css, idx), "found_by": "frames"}
     return Diagnosis("off_locus_illuminant", None, obs.frames[idx[0]], params, [], 0.0, 0.0, None,
                      frame_index=idx[0], info={"score": score, "rms_base": 0.0})
 

@@ -677,15 +677,20 @@ def _unbalanced_whites(model, lp: LampPosterior, result, extra: dict) -> bool:
     if unbalanced <= 0.5 or "level" not in model.noise:
         return False
     extra["non_daylight"] = np.maximum(extra["non_daylight"], unbalanced)
-    ok = np.all(np.isfinite(lp.white), axis=1)
-    result.white[ok] = lp.white[ok]
-    result.gains[ok] = 1.0 / lp.white[ok]
-    var = np.asarray(model.lamps["offset_sd"], dtype=float) ** 2 + FRAME_SD**2  # log r/g, log b/g
-    extra["confidence"][ok] = log_chroma_confidence(result.white[ok], var)
-    half = 1.959963984540054 * math.sqrt(float(np.mean(var))) * result.gains[ok]
-    result.info["gain_lo"][ok] = result.gains[ok] - half
-    result.info["gain_hi"][ok] = result.gains[ok] + half
+    _set_lamp_whites(result, extra, np.all(np.isfinite(lp.white), axis=1), lp.white, model.lamps["offset_sd"])
     return True
+
+
+def _set_lamp_whites(result, extra: dict, mask: NDArray[np.bool_], white: NDArray[np.float64], offset_sd) -> None:
+    """``white`` (and its gains) for the frames ``mask`` of ``result`` in place, with their ``confidence`` and 95 %
+    gain intervals from the offset's spread ``offset_sd`` (log r/g, log b/g) and :data:`FRAME_SD`."""
+    result.white[mask] = white[mask]
+    result.gains[mask] = 1.0 / white[mask]
+    var = np.asarray(offset_sd, dtype=float) ** 2 + FRAME_SD**2  # log r/g, log b/g
+    extra["confidence"][mask] = log_chroma_confidence(result.white[mask], var)
+    half = 1.959963984540054 * math.sqrt(float(np.mean(var))) * result.gains[mask]
+    result.info["gain_lo"][mask] = result.gains[mask] - half
+    result.info["gain_hi"][mask] = result.gains[mask] + half
 
 
 def apply_lamps(model, obs, result, extra: dict) -> None:
@@ -721,15 +726,7 @@ def apply_lamps(model, obs, result, extra: dict) -> None:
     lamp = lamp & np.all(np.isfinite(spectral), axis=1)
     if not lamp.any():
         return
-    white = spectral
-    result.white[lamp] = white[lamp]
-    result.gains[lamp] = 1.0 / white[lamp]
-    var = np.asarray(lamps["offset_sd"], dtype=float) ** 2 + FRAME_SD**2  # log r/g, log b/g
-    extra["confidence"][lamp] = log_chroma_confidence(result.white[lamp], var)
-    half = 1.959963984540054 * math.sqrt(float(np.mean(var))) * result.gains[lamp]
-    result.info["gain_lo"][lamp] = result.gains[lamp] - half
-    result.info["gain_hi"][lamp] = result.gains[lamp] + half
-
+    _set_lamp_whites(result, extra, lamp, spectral, lamps["offset_sd"])
 
 
 def non_daylight_column(obs, sensitivities: NDArray[np.float64], daylight: CIEDaylight | None = None) -> NDArray[np.float64]:

@@ -4,6 +4,7 @@ data-only Jacobian of the joint problem (Marguier & Süsstrunk's model with the 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -28,6 +29,29 @@ def spread_subsample(mired: NDArray[np.float64], n: int) -> NDArray[np.int64]:
     return np.unique(pick)
 
 
+def _whitened_prediction(css: NDArray[np.float64], dm: CIEDaylight, rb: ReflectanceBasis,
+                         theta: NDArray[np.float64], coef: NDArray[np.float64], w2: NDArray[np.float64]
+                         ) -> tuple[Callable[[NDArray[np.float64]], NDArray[np.float64]], NDArray[np.float64],
+                                    NDArray[np.float64]]:
+    """The joint model's whitened prediction of the frames ``theta`` (F × 3) and patches ``coef`` (P × K) as a
+    function of their stacked parameters ``x`` (every frame's ``(mired, δ, log k)``, then every patch's
+    coefficients), the parameters' current values and the step that scales each to a meaningful change."""
+    k_ops, w_ops = imaging_operators(css, dm.basis, rb)
+    f, p, nk = theta.shape[0], coef.shape[0], rb.size
+    sqrt_w2 = np.sqrt(w2)
+
+    def pred(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        fr = x[: 3 * f].reshape(f, 3)
+        s = x[3 * f :].reshape(p, nk)
+        a = np.asarray(dm.weights(fr[:, :2]))
+        m = np.einsum("fk,kcj->fcj", a, k_ops) / (a @ w_ops)[:, 1, None, None]
+        return (np.exp(fr[:, 2])[:, None, None] * np.einsum("fcj,pj->fpc", m, s) * sqrt_w2).ravel()
+
+    x0 = np.concatenate([theta.ravel(), coef.ravel()])
+    steps = np.concatenate([np.tile([10.0, dm.duv_sigma, 0.1], f), np.full(p * nk, 0.1)])
+    return pred, x0, steps
+
+
 def identifiability(
     y: NDArray[np.float64], present: NDArray[np.bool_], css: NDArray[np.float64], dm: CIEDaylight,
     rb: ReflectanceBasis, theta: NDArray[np.float64], coef: NDArray[np.float64], w2: NDArray[np.float64],
@@ -43,18 +67,8 @@ def identifiability(
     illuminant trade off (condition → ∞); the spread then says the same in physical units.
     """
     sel = spread_subsample(theta[:, 0], max_frames)
-    k_ops, w_ops = imaging_operators(css, dm.basis, rb)
     f, p, nk = sel.size, coef.shape[0], rb.size
-
-    def pred(x: NDArray[np.float64]) -> NDArray[np.float64]:
-        fr = x[: 3 * f].reshape(f, 3)
-        s = x[3 * f :].reshape(p, nk)
-        a = np.asarray(dm.weights(fr[:, :2]))
-        m = np.einsum("fk,kcj->fcj", a, k_ops) / (a @ w_ops)[:, 1, None, None]
-        return (np.exp(fr[:, 2])[:, None, None] * np.einsum("fcj,pj->fpc", m, s) * np.sqrt(w2[sel])).ravel()
-
-    x0 = np.concatenate([theta[sel].ravel(), coef.ravel()])
-    steps = np.concatenate([np.tile([10.0, dm.duv_sigma, 0.1], f), np.full(p * nk, 0.1)])
+    pred, x0, steps = _whitened_prediction(css, dm, rb, theta[sel], coef, w2[sel])
     r0 = pred(x0)
     # Forward differences, one column per parameter. A frame's parameters move only that frame's rows and a patch's
     # coefficients only that patch's rows, so one evaluation steps a parameter of every frame (of every patch) at

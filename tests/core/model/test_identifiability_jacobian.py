@@ -9,26 +9,14 @@ import importlib
 import numpy as np
 from illumon.daylight import CIEDaylight
 from illumon.priors import reflectance_basis
-from illumon.retrieval.common import imaging_operators
 
 ident = importlib.import_module("illumon.model.identifiability")  # the package's attribute is the function
 
 
 def _reference_jacobian(css, dm, rb, theta, coef, w2, max_frames=40):
-    """The Jacobian as the check computed it before: one forward difference per column."""
+    """The Jacobian as the check computed it before: one forward difference per column (the same prediction)."""
     sel = ident.spread_subsample(theta[:, 0], max_frames)
-    k_ops, w_ops = imaging_operators(css, dm.basis, rb)
-    f, p, nk = sel.size, coef.shape[0], rb.size
-
-    def pred(x):
-        fr = x[: 3 * f].reshape(f, 3)
-        s = x[3 * f:].reshape(p, nk)
-        a = np.asarray(dm.weights(fr[:, :2]))
-        m = np.einsum("fk,kcj->fcj", a, k_ops) / (a @ w_ops)[:, 1, None, None]
-        return (np.exp(fr[:, 2])[:, None, None] * np.einsum("fcj,pj->fpc", m, s) * np.sqrt(w2[sel])).ravel()
-
-    x0 = np.concatenate([theta[sel].ravel(), coef.ravel()])
-    steps = np.concatenate([np.tile([10.0, dm.duv_sigma, 0.1], f), np.full(p * nk, 0.1)])
+    pred, x0, steps = ident._whitened_prediction(css, dm, rb, theta[sel], coef, w2[sel])
     r0 = pred(x0)
     jac = np.empty((r0.size, x0.size))
     for j in range(x0.size):

@@ -78,12 +78,19 @@ def prior_mean_without(camera: str) -> np.ndarray:
     return np.mean(cams, axis=0)
 
 
-def render(sim: str, camera: str, case: str, seed: int) -> tuple[Observations, np.ndarray, dict]:
-    """Observations (scene patches + references in frame 0), the true output-space white (F × 3), references."""
+def _light(camera: str, case: str, seed: int) -> tuple[str, np.random.Generator, np.ndarray]:
+    """The split of ``camera``, the history's generator and the light of its frames (F × grid): the first draw of
+    ``seed``, which :func:`render` continues with the scene and the camera."""
     split = "score" if camera in rawsim.SCORE_CAMERAS else "dev"
     rng = np.random.default_rng(seed)
-    css = datasets.load_camera(camera)
     e = rawsim.lamp_run(FRAMES, rng) if case.endswith("lamps") else rawsim.daylight_run(split, FRAMES, rng)
+    return split, rng, e
+
+
+def render(sim: str, camera: str, case: str, seed: int) -> tuple[Observations, np.ndarray, dict]:
+    """Observations (scene patches + references in frame 0), the true output-space white (F × 3), references."""
+    split, rng, e = _light(camera, case, seed)
+    css = datasets.load_camera(camera)
     scene = rawsim.draw_reflectances(split, PATCHES, rng)
     if case.endswith("lamps"):
         scene = rawsim.pale(scene)
@@ -119,13 +126,11 @@ def render(sim: str, camera: str, case: str, seed: int) -> tuple[Observations, n
 
 
 def true_ccts(obs: Observations, camera: str, case: str, seed: int) -> np.ndarray:
-    """Each frame's light's CCT (K), as the history was rendered (the same draws as :func:`render`)."""
+    """Each frame's light's CCT (K), as :func:`render` lit the history (:func:`_light`)."""
     from illumon.daylight.cie import xy_from_spectrum
     from illumon.daylight.ohno2013 import cct_duv_from_xy
 
-    split = "score" if camera in rawsim.SCORE_CAMERAS else "dev"
-    rng = np.random.default_rng(seed)
-    e = rawsim.lamp_run(FRAMES, rng) if case.endswith("lamps") else rawsim.daylight_run(split, FRAMES, rng)
+    e = _light(camera, case, seed)[2]
     return np.asarray(cct_duv_from_xy(xy_from_spectrum(e))[0], dtype=float)
 
 

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 
 from .._blas import single_blas_thread
 from ..camera.balance import self_balance_warning
-from ..camera.calibration import SCENE_AVERAGE_SD, calibrate_scene_model
+from ..camera.calibration import SCENE_AVERAGE_SD, calibrate_scene_model, prior_sensitivities, prior_white_spread
 from ..camera.primaries import SRGB_BALANCE_SD, check_primaries, daylight_prior_for, srgb_sensitivities, to_srgb_primaries
 from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
@@ -191,6 +191,11 @@ def _fit_camera_and_scene(o: Observations, sensitivities: NDArray[np.float64] | 
                           primaries: str, kwargs: dict) -> SceneModel:
     """One scene fit of ``o``: through :func:`~illumon.camera.calibration.calibrate_scene_model` for a camera known
     only up to ``T`` (unmeasured, or with references), else the fixed-camera fit; ``camera`` records which."""
+    if sensitivities is None and not known and primaries == "camera":
+        # sensor RGB nobody measured: the level static patches cannot see is the prior camera's, unless the scene
+        # average says the history is lit by light no daylight through such a camera gives (:mod:`.level`)
+        base = prior_sensitivities() if camera_prior_mean is None else np.asarray(camera_prior_mean, dtype=float)
+        kwargs = {**kwargs, "camera_level": (base, prior_white_spread())}
     if sensitivities is None or known:
         m = calibrate_scene_model(o, sensitivities, known, lambda oo, c: _fit_fixed_camera(oo, c, **kwargs),
                                   prior_mean=camera_prior_mean, primaries=primaries)
@@ -380,13 +385,17 @@ def _fit_fixed_camera(
     iterations: int = 40,
     tol: float = 0.01,
     balance_sd: float | None = None,
+    camera_level: tuple[NDArray[np.float64], float] | None = None,
     estimate: Observations | None = None,
     rows: NDArray[np.intp] | None = None,
 ) -> tuple[SceneModel, NDArray[np.float64]]:
     """:func:`fit_scene_model` for given (effective) sensitivities. Returns the model and every frame's
     ``(mired, δ, log k)`` (F × 3) from the learned reflectances. ``balance_sd``: the output is white-balanced by the
     camera, the history's mean white lies within that spread (log r/g, b/g) of grey — for daylight; a history lit
-    only by lamps is told apart by its scene average (:mod:`.level`).
+    only by lamps is told apart by its scene average (:mod:`.level`). ``camera_level``: sensor RGB of a camera nobody
+    measured, ``(prior sensitivities, spread of their white)``; a history the scene average places among the lamps'
+    whites through that camera rather than the daylights' is anchored there as a lamp-lit one (:mod:`.level`),
+    anything else keeps the fit's level.
 
     ``estimate``: the frames ``model.history_estimate`` (and the returned ``θ``) holds, a history whose frames
     ``rows`` are ``obs`` (the same patches; the training summary and identifiability read those rows); default
@@ -419,14 +428,24 @@ def _fit_fixed_camera(
     theta, coef, n_iter = _alternate(objective, theta, (css, dm, rb, relative_error, absolute_error), y, present,
                                      iterations, tol)
     anchored_sd, level = None, None
-    if balance_sd is not None:
+    if balance_sd is not None or camera_level is not None:
         # the level static patches cannot see (:mod:`.level`): a rendered camera's balance against the scene average;
         # its lamp-lit component's mixed lamps are half the prior's mean daylight (chosen so on the MIMO scenes)
         average = scene_average_evidence(y, present)
         fit_level = mean_log_chroma(dm, css, theta)
-        level = common_level_posterior(fit_level, SCENE_AVERAGE_SD, balance_sd, average,
-                                       scene_reading(dm, css, theta, average, rb), lamp_population(css, dm, 1)[2])
-        theta, coef, anchored_sd = anchor_common_level(objective, theta, css, level)
+        reading = scene_reading(dm, css, theta, average, rb)
+        if balance_sd is not None:
+            level = common_level_posterior(fit_level, SCENE_AVERAGE_SD, balance_sd, average, reading,
+                                           lamp_population(css, dm, 1)[2])
+        else:
+            base, camera_sd = camera_level
+            days, days_logw, lamps, _ = lamp_population(base, dm, 1)
+            level = common_level_posterior(fit_level, SCENE_AVERAGE_SD, camera_sd, average, reading, lamps,
+                                           balanced=(days, days_logw), camera_sd=camera_sd)
+            if level.unbalanced <= 0.5:
+                level = None  # daylight: the prior camera's level (the scene-average transform of the calibration)
+        if level is not None:
+            theta, coef, anchored_sd = anchor_common_level(objective, theta, css, level)
     am = objective.operators(theta)
     resid2 = objective.w2 * (objective.yz - np.einsum("fcj,pj->fpc", am, coef)) ** 2
     dof = max(int(present.sum()) * 3 - 3 * len(sub) - rb.size * len(obs.patches), 1)

@@ -60,15 +60,19 @@ def _gauss(x: NDArray[np.float64], var: float) -> float:
     return float(np.exp(-0.5 * np.sum(x**2) / var) / (2 * math.pi * var))
 
 
-def _log_mixture(x: NDArray[np.float64], centres: NDArray[np.float64], var: float) -> float:
-    """log of the equal-weight Gaussian mixture density (isotropic variance ``var``) over ``centres`` at ``x``."""
+def _log_mixture(x: NDArray[np.float64], centres: NDArray[np.float64], var: float,
+                 logw: NDArray[np.float64] | None = None) -> float:
+    """log of the Gaussian mixture density (isotropic variance ``var``) over ``centres`` at ``x``, with log weights
+    ``logw`` (normalised here; default equal)."""
     d2 = np.sum((centres - x) ** 2, axis=1)
-    return float(np.logaddexp.reduce(-0.5 * d2 / var) - math.log(len(centres)) - math.log(2 * math.pi * var))
+    lw = np.full(len(centres), -math.log(len(centres))) if logw is None else logw - np.logaddexp.reduce(logw)
+    return float(np.logaddexp.reduce(lw - 0.5 * d2 / var) - math.log(2 * math.pi * var))
 
 
 def common_level_posterior(
     fit_level: NDArray[np.float64], fit_sd: float, balance_sd: float, scene: SceneAverage,
-    reading: NDArray[np.float64], lamps: NDArray[np.float64],
+    reading: NDArray[np.float64], lamps: NDArray[np.float64], *,
+    balanced: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None, camera_sd: float = 0.0,
 ) -> CommonLevel:
     """The mean white's posterior under the two-component prior of the module's docstring.
 
@@ -77,21 +81,26 @@ def common_level_posterior(
     ``lamps`` (M × 2, log r/g, b/g), each ± :data:`LAMP_LEVEL_SD`. The more probable one gives the level — balanced:
     with the fit's own level (``fit_level`` ± ``fit_sd``, what the reflectance prior makes of the scene), lamp-lit:
     with the reading instead (the two read the same evidence), under the lamp mixture.
+
+    For sensor RGB of a camera nobody measured (``camera_level`` of :func:`illumon.model.fit_scene_model`'s fixed-camera
+    fit) the balanced component is instead
+    ``balanced`` = (centres N × 2, log weights N): the daylight whites through the prior camera, each ± ``balance_sd``
+    (the measured cameras' spread), and every lamp white carries that spread too (``camera_sd``).
     """
     fit_level = np.asarray(fit_level, dtype=float)
     reading = np.asarray(reading, dtype=float)
     lamps = np.asarray(lamps, dtype=float)
     r2 = scene.sd**2
+    v = LAMP_LEVEL_SD**2 + camera_sd**2
     if not (math.isfinite(r2) and np.all(np.isfinite(reading)) and len(lamps)):
         p_lamp = 0.0
     else:
-        log_a = math.log(1.0 - UNBALANCED_PRIOR) - math.log(2 * math.pi * (balance_sd**2 + r2)) \
-            - 0.5 * float(np.sum(reading**2)) / (balance_sd**2 + r2)
-        log_b = math.log(UNBALANCED_PRIOR) + _log_mixture(reading, lamps, LAMP_LEVEL_SD**2 + r2)
+        centres, logw = (np.zeros((1, 2)), None) if balanced is None else balanced
+        log_a = math.log(1.0 - UNBALANCED_PRIOR) + _log_mixture(reading, centres, balance_sd**2 + r2, logw)
+        log_b = math.log(UNBALANCED_PRIOR) + _log_mixture(reading, lamps, v + r2)
         p_lamp = float(1.0 / (1.0 + math.exp(min(log_a - log_b, 700.0))))
     if p_lamp > 0.5:
         # each lamp's component: the Gaussian product of its prior and the reading, weighted by its evidence
-        v = LAMP_LEVEL_SD**2
         d2 = np.sum((lamps - reading) ** 2, axis=1)
         w = np.exp(-0.5 * (d2 - d2.min()) / (v + r2))
         w /= w.sum()
@@ -155,3 +164,4 @@ def anchor_common_level(objective, theta: NDArray[np.float64], css: NDArray[np.f
     except np.linalg.LinAlgError:
         sd = np.array([dm.mired_sigma, dm.duv_sigma])
     return theta, coef, sd
+

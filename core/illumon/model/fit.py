@@ -38,7 +38,7 @@ from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
 from .intervals import MODEL_ERROR, widen_cct_intervals
 from .lamps import LAMP_PRIOR, apply_lamps, history_lamps, lamp_population
-from .level import anchor_common_level, common_level_posterior, mean_log_chroma, scene_reading
+from .level import anchor_common_level, common_level_posterior, daylight_level, mean_log_chroma, scene_reading
 from .scene import SceneModel
 from .solver import FrameSolver
 
@@ -56,6 +56,18 @@ but two (non_daylight 0.2499 ↔ 0.2502), a 1k history's third refit went back t
 whole scene fit and moved the whites by the fit's own spread (issue 29: on 30 benchmark histories of 1k, 2k and 5k
 frames 104 → 60 scene fits, whites moved by at most 0.30°, the mean of their median errors 0.816 → 0.807°). 0
 restores refitting on every change."""
+
+
+MEASURED_WHITE_SD = 0.02
+"""Spread (log r/g, b/g) of a measured camera's daylight whites in the lamp-lit test of :mod:`.level`: the camera
+is known, the spread is its measurement's."""
+
+FIT_LEVEL_SD = 0.043
+"""Error (log r/g, b/g, RMS) of a measured camera's daylight fit's common level — what the reflectance prior makes of
+the scene: 0.048 / 0.035 on histories of measured surfaces, 0.050 / 0.037 on the same made pale
+(:func:`rawsim.pale`), development cameras × 2 seeds, both simulators (``benchmarks/unmeasured.py``'s ``none`` case
+with the sensitivities given). The scene average's reading was 0.058 / 0.153 off on the first (its stated spread
+0.147) and 0.005 / 0.021 on the second (stated 0.038)."""
 
 
 def _reflectance_posterior(
@@ -200,7 +212,9 @@ def _fit_camera_and_scene(o: Observations, sensitivities: NDArray[np.float64] | 
         m = calibrate_scene_model(o, sensitivities, known, lambda oo, c: _fit_fixed_camera(oo, c, **kwargs),
                                   prior_mean=camera_prior_mean, primaries=primaries)
     else:
-        m, _ = _fit_fixed_camera(o, np.asarray(sensitivities, dtype=float), **kwargs)
+        css = np.asarray(sensitivities, dtype=float)
+        extra = {"camera_level": (css, MEASURED_WHITE_SD)} if primaries == "camera" else {}
+        m, _ = _fit_fixed_camera(o, css, **kwargs, **extra)
         m.camera = {"calibration": "measured"}
     m.camera["primaries"] = primaries
     return m
@@ -443,7 +457,10 @@ def _fit_fixed_camera(
             level = common_level_posterior(fit_level, SCENE_AVERAGE_SD, camera_sd, average, reading, lamps,
                                            balanced=(days, days_logw), camera_sd=camera_sd)
             if level.unbalanced <= 0.5:
-                level = None  # daylight: the prior camera's level (the scene-average transform of the calibration)
+                # daylight: an unmeasured camera keeps the prior camera's level (the calibration's scene-average
+                # transform); a measured one the fit's, joined by the scene average where that is the better evidence
+                level = (daylight_level(fit_level, FIT_LEVEL_SD, average, reading, level.unbalanced)
+                         if camera_sd == MEASURED_WHITE_SD else None)
         if level is not None:
             theta, coef, anchored_sd = anchor_common_level(objective, theta, css, level)
     am = objective.operators(theta)

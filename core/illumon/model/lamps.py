@@ -676,8 +676,15 @@ def _unbalanced_whites(model, lp: LampPosterior, result, extra: dict) -> bool:
     unbalanced = float(model.noise.get("unbalanced", 0.0) or 0.0)
     if unbalanced <= 0.5 or "level" not in model.noise:
         return False
-    extra["non_daylight"] = np.maximum(extra["non_daylight"], unbalanced)
-    _set_lamp_whites(result, extra, np.all(np.isfinite(lp.white), axis=1), lp.white, model.lamps["offset_sd"])
+    lit = np.all(np.isfinite(lp.white), axis=1)
+    camera = getattr(model, "camera", None) or {}
+    if camera.get("calibration") == "measured" and camera.get("primaries", "camera") == "camera":
+        # a measured sensor's daylight whites are known: with the offset the level gives, each frame is judged on its
+        # own (a history lit by lamps most of the time keeps its daylight frames' verdicts and whites)
+        lit &= lp.non_daylight > 0.5
+    else:
+        extra["non_daylight"] = np.maximum(extra["non_daylight"], unbalanced)
+    _set_lamp_whites(result, extra, lit, lp.white, model.lamps["offset_sd"])
     return True
 
 

@@ -167,3 +167,66 @@ def test_simulated_sensor_rgb_lamp_only_history_follows_the_lamps(shared_data, c
     assert np.mean(nd >= 0.5) >= 0.9, nd
     *_, model = fit("none")
     assert "unbalanced" not in model.noise
+
+
+@pytest.mark.parametrize("camera,seed", [("Nikon_D200", 7_000), ("Nikon_D3", 7_000)])
+def test_measured_sensor_lamp_only_history_follows_the_lamps(shared_data, camera, seed):
+    """A *measured* camera's raw history lit only by lamps (``raw+lamps`` with the sensitivities given): its daylight
+    whites are known, so the scene average placing the history among the lamps' whites is decisive; every frame is
+    then judged on its own against that level (before: the daylight fit's whites, 9.6° and 9.8° median against
+    gray-world's 1.3°, frames mostly judged daylight). The same camera's daylight history keeps its fit."""
+    import unmeasured
+    from illumon.camera import angular_error_deg
+    from illumon.model import fit_scene_model
+    from illumon.simulation import datasets
+
+    css = datasets.load_camera(camera)
+
+    def fit(case: str):
+        obs, white, _ = unmeasured.render("illumon", camera, case, seed)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = fit_scene_model(obs, css)
+        res, extra = model.history_estimate
+        grey_world = np.median(angular_error_deg(np.nanmean(np.asarray(obs.values), axis=1), white))
+        return np.median(angular_error_deg(res.white, white)), grey_world, np.asarray(extra["non_daylight"]), model
+
+    err, grey_world, nd, model = fit("raw+lamps")
+    assert model.noise.get("unbalanced", 0.0) > 0.5
+    assert err <= 0.5 * grey_world, (err, grey_world)
+    assert np.mean(nd >= 0.5) >= 0.5, nd
+    *_, model = fit("none")
+    assert "unbalanced" not in model.noise
+
+
+@pytest.mark.parametrize("camera,seed,bound", [("Nikon_D200", 5_001, 1.8), ("Point_Grey_Grasshopper2_14S5C", 5_000, 0.7)])
+def test_measured_sensor_pale_daylight_scene_takes_the_scene_average(shared_data, camera, seed, bound, monkeypatch):
+    """A measured camera's daylight history over a scene of pale surfaces (walls, roads: :func:`rawsim.pale`): the
+    scene average is then better evidence of the common level than the reflectance prior's mean measured surface
+    (:func:`illumon.model.level.daylight_level`), so the whites come near gray-world's; the same scene of measured
+    surfaces keeps the fit's level."""
+    import rawsim
+    import unmeasured
+    from illumon.camera import angular_error_deg
+    from illumon.model import fit_scene_model
+    from illumon.model.fit import FIT_LEVEL_SD
+    from illumon.simulation import datasets
+
+    css = datasets.load_camera(camera)
+
+    def fit():
+        obs, white, _ = unmeasured.render("illumon", camera, "none", seed)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = fit_scene_model(obs, css)
+        v = np.asarray(obs.values)
+        reading_sd = scene_average_evidence(v, np.all(np.isfinite(v), axis=-1)).sd
+        return np.median(angular_error_deg(model.history_estimate[0].white, white)), reading_sd
+
+    _, reading_sd = fit()
+    assert reading_sd > FIT_LEVEL_SD  # measured surfaces: the scene average is the weaker evidence, the fit stands
+    draw = rawsim.draw_reflectances
+    monkeypatch.setattr(rawsim, "draw_reflectances", lambda split, n, rng: rawsim.pale(draw(split, n, rng)))
+    err, reading_sd = fit()
+    assert reading_sd < FIT_LEVEL_SD
+    assert err < bound, err  # the fit's level alone: 2.19° and 1.00° (1.3° median over the development cameras)

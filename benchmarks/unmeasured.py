@@ -22,7 +22,13 @@ sensitivities are never given to illumon: its prior is the mean of the measured 
 * ``raw+lamps``    — the same lamp-lit light and pale scene seen as raw (sensor RGB) output, fitted with the default
   ``primaries="camera"``: every sensor-RGB history had been daylight, so a camera nobody measured was assumed to show
   the daylight whites of the measured cameras, the assumption that sent the real lamp-lit scenes read as sensor RGB
-  6–16° off (``python benchmarks/lamps.py --primaries camera``). Same goal.
+  6–16° off (``python benchmarks/lamps.py --primaries camera``). Same goal;
+* ``pale``         — raw output of a daylight history over pale surfaces (:func:`rawsim.pale`: walls, roads, table
+  tops), no reference (reported, no goal).
+
+``--measured`` gives the camera's own sensitivities to every case without a reference and without rendering (``none``,
+``none+matrix``, ``raw+lamps``, ``pale``; the others are skipped): the measured sensor's figures beside the unmeasured
+one's.
 
 The matrix cases model a fixed colour matrix *without* the camera's own white balance; the real photographs showed
 that a processed camera's output is balanced too (``benchmarks/real.py``), which the rendered cases add.
@@ -69,7 +75,7 @@ from illumon.simulation import (
 )
 
 CASES = ("grey", "chart+matrix", "none", "none+matrix", "none+rendered", "grey+rendered", "chart+rendered", "none+awb",
-         "grey+awb", "chart+awb", "none+lamps", "raw+lamps")
+         "grey+awb", "chart+awb", "none+lamps", "raw+lamps", "pale")
 GOALS = {"grey": (1.0, 3.0), "chart+matrix": (1.0, 3.0), "none": (2.5, None)}
 RENDERED = ("rendered", "awb", "none+lamps")
 FRAMES, PATCHES = 30, 10
@@ -96,7 +102,7 @@ def render(sim: str, camera: str, case: str, seed: int) -> tuple[Observations, n
     split, rng, e = _light(camera, case, seed)
     css = datasets.load_camera(camera)
     scene = rawsim.draw_reflectances(split, PATCHES, rng)
-    if case.endswith("lamps"):
+    if case.endswith("lamps") or case == "pale":
         scene = rawsim.pale(scene)
     known = grey_card_reference() if case.startswith("grey") else colourchecker_references() if case.startswith("chart") else {}
     refl = np.concatenate([scene, np.stack(list(known.values()))]) if known else scene
@@ -138,7 +144,11 @@ def true_ccts(obs: Observations, camera: str, case: str, seed: int) -> np.ndarra
     return np.asarray(cct_duv_from_xy(xy_from_spectrum(e))[0], dtype=float)
 
 
-def run_case(sim: str, camera: str, case: str, seed: int, hours: float = 0.0) -> dict:
+MEASURED_CASES = ("none", "none+matrix", "raw+lamps", "pale")
+"""Cases ``--measured`` runs with the camera's own sensitivities."""
+
+
+def run_case(sim: str, camera: str, case: str, seed: int, hours: float = 0.0, measured: bool = False) -> dict:
     obs, white, known = render(sim, camera, case, seed)
     if hours > 0:  # the frames spread evenly over that many hours (the service's histories carry their times)
         t0 = datetime(2026, 6, 1, 6, 0, tzinfo=timezone.utc)
@@ -146,7 +156,9 @@ def run_case(sim: str, camera: str, case: str, seed: int, hours: float = 0.0) ->
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        if case.endswith(RENDERED):  # the sRGB prior holds no measured camera
+        if measured:
+            model = fit_scene_model(obs, datasets.load_camera(camera))
+        elif case.endswith(RENDERED):  # the sRGB prior holds no measured camera
             model = fit_scene_model(obs, None, known_reflectances=known or None, primaries="srgb")
         else:
             model = fit_scene_model(obs, None, known_reflectances=known or None,
@@ -202,6 +214,8 @@ def main() -> int:
     ap.add_argument("--hours", type=float, default=0.0,
                     help="give the frames times spread over this many hours (default: no times, as the CLI's CSVs "
                          "often have); a day lets a history whose light hardly moved be read as self-balanced")
+    ap.add_argument("--measured", action="store_true",
+                    help=f"give the camera's own sensitivities (cases {', '.join(MEASURED_CASES)} only)")
     args = ap.parse_args()
     if datasets.shared_data_dir() is None:
         print("skipped: measured data (../shared/data) not available")
@@ -210,11 +224,12 @@ def main() -> int:
     seeds = range(1) if args.quick else range(args.seeds)
     cams = cams[:3] if args.quick else cams
     base = 700_000 if args.split == "score" else 7_000
-    cases = [c for c in CASES if c in args.cases.split(",")]
-    rows = [run_case(sim, cam, case, base + 100 * i + s, args.hours)
+    cases = [c for c in CASES if c in args.cases.split(",") and (c in MEASURED_CASES or not args.measured)]
+    rows = [run_case(sim, cam, case, base + 100 * i + s, args.hours, args.measured)
             for sim in ("illumon", "rawsim") for case in cases for i, cam in enumerate(cams) for s in seeds]
     table = summarise(rows)
-    print(f"split {args.split} (cameras {', '.join(cams)}; rawsim's {args.split} surfaces and Granada daylight): "
+    print(("measured sensitivities given; " if args.measured else "sensitivities never given; ") +
+          f"split {args.split} (cameras {', '.join(cams)}; rawsim's {args.split} surfaces and Granada daylight): "
           f"{len(cams)} cameras × {len(list(seeds))} seeds, {FRAMES} frames × {PATCHES} patches")
     print(f"{'simulator':9} {'case':13} {'median':>7} {'p95':>6} {'max':>6} {'gw med':>7} {'gw max':>7} "
           f"{'nothing':>7} {'<1°':>5} {'conf':>5} {'CCT95':>5} {'MK⁻¹':>5} {'s/fit':>6} {'lamp':>5}  goal")

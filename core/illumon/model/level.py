@@ -113,6 +113,11 @@ def common_level_posterior(
     return CommonLevel(mean=fit_level / fit_sd**2 / precision, sd=math.sqrt(1.0 / precision), unbalanced=p_lamp)
 
 
+CONFLICT = 3.0
+"""Standard deviations (RMS over log r/g and b/g) apart beyond which :func:`daylight_level` takes the scene average's
+reading alone rather than its combination with the fit's level."""
+
+
 def daylight_level(fit_level: NDArray[np.float64], fit_sd: float, scene: SceneAverage, reading: NDArray[np.float64],
                    unbalanced: float) -> CommonLevel | None:
     """A measured sensor's daylight history: the fit's level (± ``fit_sd``) joined by the scene average's reading
@@ -129,7 +134,12 @@ def daylight_level(fit_level: NDArray[np.float64], fit_sd: float, scene: SceneAv
     if not (math.isfinite(r2) and r2 < fit_sd**2 and np.all(np.isfinite(reading))):
         return None
     f2 = fit_sd**2
-    mean = (np.asarray(fit_level, dtype=float) / f2 + np.asarray(reading, dtype=float) / r2) / (1.0 / f2 + 1.0 / r2)
+    fit_level, reading = np.asarray(fit_level, dtype=float), np.asarray(reading, dtype=float)
+    if float(np.sum((fit_level - reading) ** 2)) > CONFLICT**2 * 2 * (f2 + r2):
+        # the two disagree beyond their spreads: the fit's level is the one with a known way to fail (light the daylight
+        # model does not hold, whose frames bend the reflectances), the reading stands alone
+        return CommonLevel(mean=reading, sd=scene.sd, unbalanced=unbalanced)
+    mean = (fit_level / f2 + reading / r2) / (1.0 / f2 + 1.0 / r2)
     return CommonLevel(mean=mean, sd=math.sqrt(1.0 / (1.0 / f2 + 1.0 / r2)), unbalanced=unbalanced)
 
 

@@ -414,40 +414,9 @@ def local_reflectance_functions(spacing_nm: float = 15.0, width_nm: float = 10.0
     return np.exp(-0.5 * ((WAVELENGTHS[:, None] - centres[None, :]) / width_nm) ** 2)
 
 
-def _stokes_cone(sensitivities: NDArray[np.float64], centre_nm: float, shift_nm: float | None) -> NDArray[np.float64] | None:
-    """Generators (3 × n, unit columns) of the camera responses to emission at wavelengths ≥ ``centre_nm − shift_nm``
-    (``shift_nm`` a tolerance): the emission colours Stokes' law allows a fluorophore absorbing at ``centre_nm``;
-    ``None`` (any non-negative RGB) when ``shift_nm`` is ``None``."""
-    if shift_nm is None:
-        return None
-    rows = np.asarray(sensitivities, dtype=float)[WAVELENGTHS >= centre_nm - shift_nm]
-    norms = np.linalg.norm(rows, axis=1)
-    rows = rows[norms > 1e-12] / norms[norms > 1e-12, None]
-    return rows.T
-
-
-def _cone_quadratic_gain(h: NDArray[np.float64], b: NDArray[np.float64],
-                         v: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
-    """``max 2 bᵀw − wᵀHw`` over ``w = V x``, ``x ≥ 0`` (the cone of the columns of ``v``), with its maximiser ``w``:
-    non-negative least squares on ``‖Lᵀ V x − L⁻¹ b‖²`` with ``H = L Lᵀ``."""
-    from scipy.optimize import nnls
-
-    evals, evecs = np.linalg.eigh(0.5 * (h + h.T))
-    keep = evals > max(float(evals.max()), 0.0) * 1e-12
-    if not keep.any():
-        return 0.0, np.zeros(b.size)
-    # H = A Aᵀ restricted to its range; 2bᵀw − wᵀHw = ‖c‖² − ‖Aᵀw − c‖² with c = A⁺b on that range
-    a_t = (evecs[:, keep] * np.sqrt(evals[keep])).T  # r × 3
-    c = (evecs[:, keep].T @ b) / np.sqrt(evals[keep])
-    x, rnorm = nnls(a_t @ v, c)
-    w = v @ x
-    return float(c @ c - rnorm**2), w
-
-
 def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | None = None,
-                               local_sd: float = LOCAL_REFLECTANCE_SD,
-                               stokes_nm: float | None = None, channel_free: str | None = None
-                               ) -> tuple[NDArray[np.float64], NDArray[np.int64], NDArray[np.float64]]:
+                               local_sd: float = LOCAL_REFLECTANCE_SD) -> tuple[NDArray[np.float64], NDArray[np.int64],
+                                                                               NDArray[np.float64]]:
     """Per patch, the drop of whitened misfit (units of ``phi``) when the patch adds an emission of unknown colour.
 
     Han et al. (CVPR 2012, eqs. 1–2): the emitted light is a fixed spectrum scaled by the light the fluorophore
@@ -480,20 +449,6 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
         k, nb = lam.shape[0], bumps.shape[1]
         lam = np.block([[lam, np.zeros((k, nb))], [np.zeros((nb, k)), np.eye(nb) / local_sd**2]])
         mu = np.concatenate([mu, np.zeros(nb)])
-    if channel_free is not None:  # experiment: 3 reflectance-like columns with (almost) no prior
-        if channel_free == "diag":
-            white = np.einsum("lc,fl->fc", base.sensitivities, spectra)  # F × 3
-            extra = white[:, :, None] * np.eye(3)[None]  # F × 3 × 3
-        else:
-            shapes = base.sensitivities / np.abs(base.sensitivities).max(0)  # 61 × 3 reflectance functions
-            extra = np.einsum("lc,fl,ld->fcd", base.sensitivities, spectra, shapes)
-        extra = extra / np.abs(extra).max() * np.abs(m).max()
-        m = np.concatenate([m, extra], axis=-1)
-        k = lam.shape[0]
-        lam = np.block([[lam, np.zeros((k, 3))], [np.zeros((3, k)), np.eye(3) * 1e-6]])
-        mu = np.concatenate([mu, np.zeros(3)])
-    centres = [float(WAVELENGTHS[int(np.argmax(b))]) for b in bands]
-    cones = [_stokes_cone(base.sensitivities, c, stokes_nm) for c in centres]
     gains = np.zeros(prob.P)
     best = np.zeros(prob.P, dtype=np.int64)
     share = np.zeros((prob.P, 3))
@@ -509,8 +464,7 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
             g = (w[:, :, None] * q[:, bi, None, None] * eye[None]).reshape(-1, 3)  # 3F × 3, one column per channel
             dg = d.T @ g
             h = g.T @ g - dg.T @ np.linalg.solve(nmat, dg)
-            cone = cones[bi]
-            gain, x = _nonneg_quadratic_gain(h, g.T @ res) if cone is None else _cone_quadratic_gain(h, g.T @ res, cone)
+            gain, x = _nonneg_quadratic_gain(h, g.T @ res)
             if gain / base.phi > gains[p]:
                 gains[p], best[p] = gain / base.phi, bi
                 ok = prob.present[:, p]

@@ -21,6 +21,39 @@ def _frames(scene_chroma: np.ndarray, light_log: np.ndarray, frames: int = 6) ->
     return 0.3 * out
 
 
+def _fit_case(sim: str, camera: str, case: str, seed: int, sensitivities=None, **kwargs):
+    """``benchmarks/unmeasured.py``'s history ``case`` fitted without a reference: (median error of the whites, gray-world's
+    median error, every frame's ``non_daylight``, the model)."""
+    import unmeasured
+    from illumon.camera import angular_error_deg
+    from illumon.model import fit_scene_model
+
+    obs, white, _ = unmeasured.render(sim, camera, case, seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = fit_scene_model(obs, sensitivities, **kwargs)
+    res, extra = model.history_estimate
+    grey_world = np.median(angular_error_deg(np.nanmean(np.asarray(obs.values), axis=1), white))
+    return np.median(angular_error_deg(res.white, white)), grey_world, np.asarray(extra["non_daylight"]), model
+
+
+def _mimo_development(shared_data, primaries: str):
+    """Per development MIMO scene: (median error, gray-world's median error, ``non_daylight``, confidence, errors),
+    fitted without sensitivities or a reference as ``primaries``."""
+    import lamps
+    import real
+
+    folder = shared_data / "real" / "mimo-lab"
+    if not folder.is_dir() or not (shared_data / "real" / "sony-dolp").is_dir():
+        pytest.skip("real photographs (../shared/data/real) not available")
+    for scene in lamps.DEVELOPMENT:
+        obs, truth = lamps.load_scene(folder, scene)
+        white, nd, conf = lamps.run(obs, primaries)
+        errors = real.angular(white, truth)
+        grey_world = np.median(real.angular(np.nanmean(np.asarray(obs.values), axis=1), truth))
+        yield scene, np.median(errors), grey_world, nd, conf, errors
+
+
 def test_scene_average_spread_follows_the_patches():
     """A scene of near-greys pins the gray-world reading to about :data:`SCENE_GREY_SD`; a chart's saturated patches
     leave it several times wider, shrinking with their number."""
@@ -73,16 +106,9 @@ def test_real_lamp_lit_scenes_follow_the_lamps(shared_data):
     import lamps
     import real
 
-    folder = shared_data / "real" / "mimo-lab"
-    if not folder.is_dir() or not (shared_data / "real" / "sony-dolp").is_dir():
-        pytest.skip("real photographs (../shared/data/real) not available")
     stated, within = [], []
-    for scene in lamps.DEVELOPMENT:
-        obs, truth = lamps.load_scene(folder, scene)
-        white, nd, conf = lamps.run(obs, "srgb")
-        errors = real.angular(white, truth)
-        grey_world = np.median(real.angular(np.nanmean(np.asarray(obs.values), axis=1), truth))
-        assert np.median(errors) <= 1.5 * grey_world, (scene, np.median(errors), grey_world)
+    for scene, err, grey_world, nd, conf, errors in _mimo_development(shared_data, "srgb"):
+        assert err <= 1.5 * grey_world, (scene, err, grey_world)
         assert np.all(nd >= 0.5), (scene, nd)
         stated += conf.tolist()
         within += (errors < 1.0).tolist()
@@ -99,23 +125,10 @@ def test_simulated_lamp_only_history_follows_the_lamps(shared_data, camera, seed
     a rendered camera's history lit only by CIE lamps over pale surfaces is read as lamp-lit, its whites within
     1.5 × gray-world (before: 22° median against gray-world's 1.5°); the same camera under daylight keeps its balance
     (its frames' own lamp verdicts are the per-frame test's, :mod:`illumon.model.lamps`)."""
-    import unmeasured
-    from illumon.camera import angular_error_deg
-    from illumon.model import fit_scene_model
-
-    def fit(case: str):
-        obs, white, _ = unmeasured.render("rawsim", camera, case, seed)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            model = fit_scene_model(obs, None, primaries="srgb")
-        res, extra = model.history_estimate
-        grey_world = np.median(angular_error_deg(np.nanmean(np.asarray(obs.values), axis=1), white))
-        return np.median(angular_error_deg(res.white, white)), grey_world, np.asarray(extra["non_daylight"]), model
-
-    err, grey_world, nd, _ = fit("none+lamps")
+    err, grey_world, nd, _ = _fit_case("rawsim", camera, "none+lamps", seed, primaries="srgb")
     assert err <= 1.5 * grey_world, (err, grey_world)
     assert np.all(nd >= 0.5), nd
-    *_, model = fit("none+rendered")
+    *_, model = _fit_case("rawsim", camera, "none+rendered", seed, primaries="srgb")
     assert "unbalanced" not in model.noise  # the daylight history keeps its balance
 
 
@@ -127,15 +140,8 @@ def test_real_lamp_lit_scenes_read_as_sensor_rgb_follow_the_lamps(shared_data):
     import lamps
     import real
 
-    folder = shared_data / "real" / "mimo-lab"
-    if not folder.is_dir() or not (shared_data / "real" / "sony-dolp").is_dir():
-        pytest.skip("real photographs (../shared/data/real) not available")
-    for scene in lamps.DEVELOPMENT:
-        obs, truth = lamps.load_scene(folder, scene)
-        white, nd, _ = lamps.run(obs, "camera")
-        errors = real.angular(white, truth)
-        grey_world = np.median(real.angular(np.nanmean(np.asarray(obs.values), axis=1), truth))
-        assert np.median(errors) <= 1.5 * grey_world, (scene, np.median(errors), grey_world)
+    for scene, err, grey_world, nd, _, _ in _mimo_development(shared_data, "camera"):
+        assert err <= 1.5 * grey_world, (scene, err, grey_world)
         assert np.all(nd >= 0.5), (scene, nd)
     raw = real.sony_raw(shared_data)
     assert raw.primaries == "camera"
@@ -150,22 +156,12 @@ def test_simulated_sensor_rgb_lamp_only_history_follows_the_lamps(shared_data, c
     whites follow the scene average (before: 5.7° and 3.1° median against gray-world's 0.95° and 0.85°); the same
     camera's daylight history (case ``none``) keeps the prior camera's level."""
     import unmeasured
-    from illumon.camera import angular_error_deg
-    from illumon.model import fit_scene_model
 
-    def fit(case: str):
-        obs, white, _ = unmeasured.render("rawsim", camera, case, seed)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            model = fit_scene_model(obs, None, camera_prior_mean=unmeasured.prior_mean_without(camera))
-        res, extra = model.history_estimate
-        grey_world = np.median(angular_error_deg(np.nanmean(np.asarray(obs.values), axis=1), white))
-        return np.median(angular_error_deg(res.white, white)), grey_world, np.asarray(extra["non_daylight"]), model
-
-    err, grey_world, nd, _ = fit("raw+lamps")
+    prior = unmeasured.prior_mean_without(camera)
+    err, grey_world, nd, _ = _fit_case("rawsim", camera, "raw+lamps", seed, camera_prior_mean=prior)
     assert err <= min(1.0, grey_world), (err, grey_world)
     assert np.mean(nd >= 0.5) >= 0.9, nd
-    *_, model = fit("none")
+    *_, model = _fit_case("rawsim", camera, "none", seed, camera_prior_mean=prior)
     assert "unbalanced" not in model.noise
 
 
@@ -175,58 +171,31 @@ def test_measured_sensor_lamp_only_history_follows_the_lamps(shared_data, camera
     whites are known, so the scene average placing the history among the lamps' whites is decisive; every frame is
     then judged on its own against that level (before: the daylight fit's whites, 9.6° and 9.8° median against
     gray-world's 1.3°, frames mostly judged daylight). The same camera's daylight history keeps its fit."""
-    import unmeasured
-    from illumon.camera import angular_error_deg
-    from illumon.model import fit_scene_model
     from illumon.simulation import datasets
 
     css = datasets.load_camera(camera)
-
-    def fit(case: str):
-        obs, white, _ = unmeasured.render("illumon", camera, case, seed)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            model = fit_scene_model(obs, css)
-        res, extra = model.history_estimate
-        grey_world = np.median(angular_error_deg(np.nanmean(np.asarray(obs.values), axis=1), white))
-        return np.median(angular_error_deg(res.white, white)), grey_world, np.asarray(extra["non_daylight"]), model
-
-    err, grey_world, nd, model = fit("raw+lamps")
+    err, grey_world, nd, model = _fit_case("illumon", camera, "raw+lamps", seed, css)
     assert model.noise.get("unbalanced", 0.0) > 0.5
     assert err <= 0.5 * grey_world, (err, grey_world)
     assert np.mean(nd >= 0.5) >= 0.5, nd
-    *_, model = fit("none")
+    *_, model = _fit_case("illumon", camera, "none", seed, css)
     assert "unbalanced" not in model.noise
 
 
 @pytest.mark.parametrize("camera,seed,bound", [("Nikon_D200", 5_001, 1.8), ("Point_Grey_Grasshopper2_14S5C", 5_000, 0.7)])
-def test_measured_sensor_pale_daylight_scene_takes_the_scene_average(shared_data, camera, seed, bound, monkeypatch):
-    """A measured camera's daylight history over a scene of pale surfaces (walls, roads: :func:`rawsim.pale`): the
-    scene average is then better evidence of the common level than the reflectance prior's mean measured surface
-    (:func:`illumon.model.level.daylight_level`), so the whites come near gray-world's; the same scene of measured
-    surfaces keeps the fit's level."""
-    import rawsim
+def test_measured_sensor_pale_daylight_scene_takes_the_scene_average(shared_data, camera, seed, bound):
+    """A measured camera's daylight history over a scene of pale surfaces (``benchmarks/unmeasured.py`` case ``pale``:
+    walls, roads, :func:`rawsim.pale`): the scene average is then better evidence of the common level than the
+    reflectance prior's mean measured surface (:func:`illumon.model.level.daylight_level`), so the whites come near
+    gray-world's; for the same scene of measured surfaces (case ``none``) the reading is the weaker evidence."""
     import unmeasured
-    from illumon.camera import angular_error_deg
-    from illumon.model import fit_scene_model
     from illumon.model.fit import FIT_LEVEL_SD
     from illumon.simulation import datasets
 
-    css = datasets.load_camera(camera)
+    def reading_sd(case: str) -> float:
+        v = np.asarray(unmeasured.render("illumon", camera, case, seed)[0].values)
+        return scene_average_evidence(v, np.all(np.isfinite(v), axis=-1)).sd
 
-    def fit():
-        obs, white, _ = unmeasured.render("illumon", camera, "none", seed)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            model = fit_scene_model(obs, css)
-        v = np.asarray(obs.values)
-        reading_sd = scene_average_evidence(v, np.all(np.isfinite(v), axis=-1)).sd
-        return np.median(angular_error_deg(model.history_estimate[0].white, white)), reading_sd
-
-    _, reading_sd = fit()
-    assert reading_sd > FIT_LEVEL_SD  # measured surfaces: the scene average is the weaker evidence, the fit stands
-    draw = rawsim.draw_reflectances
-    monkeypatch.setattr(rawsim, "draw_reflectances", lambda split, n, rng: rawsim.pale(draw(split, n, rng)))
-    err, reading_sd = fit()
-    assert reading_sd < FIT_LEVEL_SD
+    assert reading_sd("none") > FIT_LEVEL_SD > reading_sd("pale")
+    err, *_ = _fit_case("illumon", camera, "pale", seed, datasets.load_camera(camera))
     assert err < bound, err  # the fit's level alone: 2.19° and 1.00° (1.3° median over the development cameras)

@@ -94,7 +94,8 @@ frames were. They replace, in the intervals only, the physical spreads above —
 where 15 % of frames were within 1°; a grey card's 0.005 stated 0.99 where 96 % were; a chart on rendered output
 (``chart+rendered``, ``chart+awb``, added 2026-11-26) stated 0.46–0.49 where 25–38 % were. The priors, the lamp test and the
 estimates keep the physical values (``camera["white_sd_log"]``); measured cameras and unlisted regimes keep theirs
-with ``a = 1``."""
+with ``a = 1``. ``("camera", "none")``: ``a`` is further scaled by :func:`scene_calibrated_scale` of the scene the
+channel scales were read from (chosen on scenes of measured surfaces, for which the scale is 1)."""
 
 
 CLIPPED = 0.995
@@ -296,7 +297,8 @@ development reflectance sets (the five measured sets) under development Granada 
 (``python tools/scene_average_spread.py``; ``benchmarks/rawsim.py`` splits)."""
 
 
-def _scene_average_transform(scene: Observations, base: NDArray[np.float64], model, theta) -> NDArray[np.float64]:
+def _scene_average_transform(scene: Observations, base: NDArray[np.float64], model, theta
+                             ) -> tuple[NDArray[np.float64], float]:
     """Channel scales for a camera with no reference: the Gaussian posterior combining the camera prior (the mean
     camera, spread :func:`prior_white_spread`) with the scene's average colour (gray-world made Bayesian; Buchsbaum
     1980). That average is expected where :mod:`illumon.priors.scene_average` puts it under each frame's estimated
@@ -309,17 +311,33 @@ def _scene_average_transform(scene: Observations, base: NDArray[np.float64], mod
     present = np.all(np.isfinite(v), axis=-1)
     ok = present.sum(axis=1) >= 2
     if not ok.any():
-        return np.eye(3)
+        return np.eye(3), SCENE_AVERAGE_SD
     observed = _log_chroma(np.nanmean(np.where(np.isfinite(v[ok]), v[ok], np.nan), axis=1))
     light = model.daylight_model().spectra(theta[ok, :2])
     average = scene_average_evidence(v, present)
     expected = _log_chroma(light @ base) + expected_offset(light, base, rb, average)
     shift = np.mean(observed - expected, axis=0)
-    s_cam = prior_white_spread()
     s_scene = min(SCENE_AVERAGE_SD, average.sd)
-    gain = s_cam**2 / (s_cam**2 + s_scene**2)
+    gain = _camera_white_gain(s_scene)
     log_t = gain * shift
-    return np.diag([math.exp(log_t[0]), 1.0, math.exp(log_t[1])])
+    return np.diag([math.exp(log_t[0]), 1.0, math.exp(log_t[1])]), s_scene
+
+
+def _camera_white_gain(s_scene: float) -> float:
+    """The share of the scene average's reading the camera's channel scales take (the camera prior's spread against
+    the reading's ``s_scene``)."""
+    s_cam = prior_white_spread()
+    return s_cam**2 / (s_cam**2 + s_scene**2)
+
+
+def scene_calibrated_scale(s_scene: float) -> float:
+    """How much a camera nobody measured, calibrated by a scene average read to ``s_scene`` (log r/g, b/g), knows its
+    white compared with one calibrated by a scene as varied as the measured surfaces (``SCENE_AVERAGE_SD``, what
+    :data:`STATED_WHITE_SPREAD` ``("camera", "none")`` was chosen on): the ratio of the channel scales' posterior
+    spreads, ``s_cam·s_scene/√(s_cam² + s_scene²)``, 1 for such a scene, ~0.3 for one of pale surfaces."""
+    def post(s: float) -> float:
+        return prior_white_spread() * math.sqrt(1.0 - _camera_white_gain(s))
+    return post(min(SCENE_AVERAGE_SD, s_scene)) / post(SCENE_AVERAGE_SD)
 
 
 def calibrate_scene_model(
@@ -387,10 +405,12 @@ def calibrate_scene_model(
                 break
     if kind == "none" and primaries == "camera":
         # A rendered camera's own white balance already set its channel scales; its prior is in the daylight model.
-        t = _scene_average_transform(scene, base, model, theta)
+        t, s_scene = _scene_average_transform(scene, base, model, theta)
         model, theta = fit(scene, base @ t)
         it = 1
     model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()
+    if kind == "none" and primaries == "camera":
+        model.camera["scene_average_sd"] = s_scene
     _record_camera_uncertainty(model, kind, primaries, measured=sensitivities is not None)
     if ids and primaries == "srgb":
         model.noise["mired_offset"] = _reporting_offset(theta_first, theta)
@@ -435,6 +455,8 @@ def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bo
     model.camera["white_sd_log"] = white_sd
     mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)["measured" if measured else kind]
     scale, stated = (1.0, white_sd) if measured else STATED_WHITE_SPREAD.get((primaries, kind), (1.0, white_sd))
+    if "scene_average_sd" in model.camera:  # the scene average calibrated the channel scales: as well as it read
+        scale *= scene_calibrated_scale(float(model.camera["scene_average_sd"]))
     model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=stated,
                                       camera_mired=mired_sd, laplace_scale=scale)
 

@@ -81,6 +81,9 @@ def test_a_refit_estimating_every_frame_equals_the_fit_of_its_frames(lamp_histor
     np.testing.assert_array_equal(every.coefficients, alone.coefficients)
     res, cols = every.history_estimate
     assert res.frames == obs.frames
+    # the frames the reflectances were fitted on, as frames of the history estimated
+    np.testing.assert_array_equal(every.fit_frames, rows[alone.fit_frames])
+    assert len(alone.fit_frames) == alone.training["frames_used_for_reflectances"]
     a = _arrays(*alone.history_estimate)
     _close(a, {k: v[rows] for k, v in _arrays(res, cols).items()})
 
@@ -130,3 +133,18 @@ def test_frame_solver_linear_equals_the_einsum_reference(lamp_history):
     m = np.random.default_rng(0).normal(size=(200, 3, 3))
     m = m @ m.transpose(0, 2, 1) + 1e-3 * np.eye(3)
     np.testing.assert_allclose(_inv3(m), np.linalg.inv(m), rtol=1e-9, atol=1e-9 * np.abs(np.linalg.inv(m)).max())
+
+
+def test_fit_frames_are_the_reflectance_fits_subsample(lamp_history):
+    """``fit_frames`` (issue 29, the lamp rounds' share): the frames a long history's reflectances were fitted on."""
+    from illumon.model.identifiability import spread_subsample
+    from illumon.retrieval.common import grey_world_mired
+
+    obs, css, _ = lamp_history
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model, _ = _fit_fixed_camera(obs, css, max_fit_frames=10)
+    want = spread_subsample(grey_world_mired(obs, css), 10)
+    assert 0 < len(want) <= 10 < len(obs.frames)
+    np.testing.assert_array_equal(model.fit_frames, want)
+    assert model.training["frames_used_for_reflectances"] == len(want)

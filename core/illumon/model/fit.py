@@ -161,10 +161,12 @@ def fit_scene_model(
         return _fit_camera_and_scene(o, sensitivities, known, camera_prior_mean, primaries, {**kwargs, **extra})
 
     model = fit_once(obs)
+    judged = False
     if not known and sensitivities is not None:  # an unmeasured camera's lamp verdicts are not to be acted on
-        model = _refit_without_lamp_frames(model, obs, fit_once)
+        model, judged = _refit_without_lamp_frames(model, obs, fit_once)
     scene = obs.select_patches([p for p in obs.patches if p not in known]) if known else obs
-    history_lamps(model, scene)
+    if not judged:  # (a model the rounds judged last holds the verdicts of ``obs`` already: the same numbers)
+        history_lamps(model, scene)
     apply_lamps(model, scene, *model.history_estimate)
     res = model.history_estimate[0] if model.history_estimate else None
     msg = self_balance_warning(obs.times, 1e6 / np.asarray(res.cct, dtype=float)) if res is not None else None
@@ -222,7 +224,7 @@ def _fit_camera_and_scene(o: Observations, sensitivities: NDArray[np.float64] | 
 
 
 def _refit_without_lamp_frames(model: SceneModel, obs: Observations,
-                               fit_once: Callable[..., SceneModel]) -> SceneModel:
+                               fit_once: Callable[..., SceneModel]) -> tuple[SceneModel, bool]:
     """Light that is not daylight (:mod:`.lamps`): lamp-lit frames are left out of the reflectance fit when enough
     daylight frames remain to learn every patch; every frame is then judged against the refitted scene (a few rounds:
     frames forced onto daylight bend the reflectances, which can hide other lamp-lit frames). The rounds stop when
@@ -233,7 +235,11 @@ def _refit_without_lamp_frames(model: SceneModel, obs: Observations,
 
     Each refit estimates every frame of ``obs`` once (its training summary read from its daylight frames' rows),
     where it estimated its daylight frames and then every frame again; the previous model's estimate is let go
-    before the refit, so no two estimates of the whole history are held at once."""
+    before the refit, so no two estimates of the whole history are held at once.
+
+    Returns the model and whether its lamp verdicts (``model.lamps``, :func:`~.lamps.history_lamps` of ``obs``) are
+    set already: true when the rounds stopped on judging it, false when the last round refitted it (issue 29: the
+    judgement repeated after the rounds cost ~30 ms of a 2k-frame refit)."""
     lamp = np.zeros(len(obs.frames), dtype=bool)
     judged = np.full(len(obs.frames), np.nan)  # the non_daylight that chose ``lamp``
     for _ in range(LAMP_ROUNDS):
@@ -243,19 +249,19 @@ def _refit_without_lamp_frames(model: SceneModel, obs: Observations,
         nd = history_lamps(model, obs)
         new = nd > (LAMP_PRIOR if np.any(nd > 0.5) else 1.0)
         if not lamp.any() and model.fit_frames is not None and np.mean(nd[model.fit_frames] > 0.5) < MIN_LAMP_SHARE:
-            break  # too few of the frames the reflectances were learned from are lamp-lit to bend them: daylight
+            return model, True  # too few of the frames the reflectances were learned from are lamp-lit: daylight
         day = obs.subset(np.flatnonzero(~new))
         if (np.array_equal(new, lamp) or not new.any() or (~new).sum() < max(2, 0.5 * len(new))
                 or not np.all(day.present.any(axis=0))):
-            break  # nothing (new) to leave out, or a history judged mostly lamp-lit: no daylight to learn from
+            return model, True  # nothing (new) to leave out, or a history judged mostly lamp-lit: no daylight
         moved = new != lamp
         if lamp.any() and np.all(np.abs(np.concatenate([nd[moved], judged[moved]]) - LAMP_PRIOR) <= BORDERLINE):
-            break  # only coin flips moved: the model judged is the refit of an equally good set
+            return model, True  # only coin flips moved: the model judged is the refit of an equally good set
         lamp, judged = new, nd
         model.history_estimate = None  # judged: freed before the refit's estimate of every frame
         rows = np.flatnonzero(~new)
         model = fit_once(day, estimate=obs, rows=rows)
-    return model
+    return model, False
 
 
 class _JointObjective:

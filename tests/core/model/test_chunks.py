@@ -148,3 +148,13 @@ def test_fit_frames_are_the_reflectance_fits_subsample(lamp_history):
     assert 0 < len(want) <= 10 < len(obs.frames)
     np.testing.assert_array_equal(model.fit_frames, want)
     assert model.training["frames_used_for_reflectances"] == len(want)
+
+
+def test_the_fitted_models_lamp_verdicts_are_its_judgement_of_the_history(lamp_history):
+    """The verdicts the lamp rounds stopped on are kept, not judged again (issue 29): they equal a judgement now."""
+    import copy
+
+    obs, _, model = lamp_history
+    again = copy.copy(model)
+    lamps.history_lamps(again, obs)
+    assert again.lamps == model.lamps

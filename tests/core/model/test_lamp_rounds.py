@@ -41,7 +41,8 @@ def _rounds(monkeypatch, obs: Observations, judgements: list[np.ndarray], fit_fr
 
     first = _Model()
     first.fit_frames = fit_frames
-    fit_mod._refit_without_lamp_frames(first, obs, fit_once)
+    _, judged = fit_mod._refit_without_lamp_frames(first, obs, fit_once)
+    assert judged == (len(fits) < fit_mod.LAMP_ROUNDS)  # the model returned was judged unless the last round refitted
     return fits
 
 
@@ -95,3 +96,8 @@ def test_lamp_lit_frames_too_few_of_the_fit_are_not_refitted(monkeypatch, histor
     # of the frames left out is refitted
     third = _judgement({1: 0.8, 2: 0.7})
     assert _rounds(monkeypatch, history, [two, third, third], fit_frames=np.arange(N)) == [N - 2, N - 3]
+
+
+def test_rounds_that_end_on_a_refit_leave_it_unjudged(monkeypatch, history):
+    judgements = [_judgement({k: 0.8 for k in range(1, r + 2)}) for r in range(fit_mod.LAMP_ROUNDS + 1)]
+    assert _rounds(monkeypatch, history, judgements) == [N - 2 - r for r in range(fit_mod.LAMP_ROUNDS)]

@@ -141,21 +141,24 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
         A ΔBIC margin, or ``None`` (the diagnosis: the whole test). Given, only the verdict ``score < −decide`` and,
         when it holds, γ are wanted (the service's tone-response check): the standard curves are scored first and the
         search for the best pure γ stops as soon as the verdict is settled (:data:`DECIDE_NOTE`). The verdict and γ are
-        then the whole test's; the score is that of the curves evaluated so far (no lower than the whole test's), and
-        a verdict of no tone curve carries no γ (NaN: its estimate is skipped).
+        then the whole test's. The score is the best of the hypotheses evaluated: for a supported curve no lower than
+        the whole test's; for none, among them γ = 1 (ΔBIC ``log n``) and :data:`DECIDE_PROBE`, so within what the
+        whole test's search could still find below it. A verdict of no tone curve carries no γ (NaN: its estimate is
+        skipped).
 
     Notes
     -----
     How ``decide`` settles the verdict early (issue 29: the service's tone-response check was 0.24 s of a 2k-frame
     refit, 18 noise-learning fits of which 14 for the pure γ's bounded search, and γ's own estimate). *The curve is
-    supported* once any hypothesis evaluated scores below ``−decide``: exact — the whole test's score is the least
-    over the same standard curves and the same search's points (the bounded search is deterministic and evaluates
-    the same points until it stops), so it is no higher. *It is not* once neither standard curve scores below
-    ``−decide`` and the least value a function convex in log γ through the search's points can take on the whole
-    range (:func:`_convex_floor`) scores no lower: the whole test's score is a value of that function. The bound is
-    used only where the points evaluated are themselves convex (secant slopes increasing), else the search runs to
-    its end as the whole test's does. On the refit benchmark's linear 48-frame checks the search settles after 6 of
-    its 13–14 points; tone-encoded ones are settled by the standard curves alone.
+    supported* once a standard curve or a point of the search scores below ``−decide``: exact — the whole test's
+    score is the least over the same standard curves and the same search's points (the bounded search is
+    deterministic and evaluates the same points until it stops), so it is no higher. *It is not* once neither standard
+    curve scores below ``−decide`` and the least value a function convex in log γ through the pure γs evaluated — the
+    search's, γ = 1 (the linear hypothesis: ``x = y``, slope 1, the same fit and nll) and :data:`DECIDE_PROBE` — can
+    take on the whole range (:func:`_convex_floor`) scores no lower: the whole test's score is a value of that
+    function. The bound is used only where the points are themselves convex (secant slopes increasing), else the
+    search runs on as the whole test's does. On the refit benchmark's 48-frame checks of five 2k-frame histories: 6
+    noise-learning fits per linear check and 4–5 per tone-encoded one, against 15–18 and 11–15 for the whole test.
 
     Returns
     -------
@@ -227,17 +230,23 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
     settled = standard_curves() if decide is not None else None  # deciding: the standard curves first
     bounds = (np.log(MIN_GAMMA), np.log(3.5))
     searched: dict[float, tuple[float, bl.LowRankFit]] = {}  # log γ → (nll, fit) of every γ the search evaluated
+    # deciding, the points the convex floor is drawn through (log γ → (nll, fit)): the search's, and γ = 1 — the
+    # linear hypothesis itself (x = y, slope 1: the same fit, the same nll) — with one γ near it (DECIDE_PROBE)
+    known: dict[float, tuple[float, bl.LowRankFit]] = {0.0: (nll_lin, fit_lin)} if MIN_GAMMA == 1.0 else {}
 
     def search_nll(lg: float) -> float:
         lg = float(lg)
         if lg not in searched:
             searched[lg] = gamma_nll(float(np.exp(lg)))
         if decide is not None:
-            best = min(v[0] for v in searched.values())
-            t = np.array(sorted(searched))
-            floor = _convex_floor(t, np.array([searched[k][0] for k in t]), *bounds)
-            if score_of(best) < -decide or score_of(floor) >= -decide:
-                raise _Settled
+            known[lg] = searched[lg]
+            if score_of(min(v[0] for v in searched.values())) < -decide:
+                raise _Settled  # supported
+            if MIN_GAMMA == 1.0 and DECIDE_PROBE not in known:  # not settled by the first point: the probe
+                known[DECIDE_PROBE] = gamma_nll(float(np.exp(DECIDE_PROBE)))
+            t = np.array(sorted(known))
+            if score_of(_convex_floor(t, np.array([known[k][0] for k in t]), *bounds)) >= -decide:
+                raise _Settled  # not supported
         return searched[lg][0]
 
     verdict_by_curves = settled is not None and settled[0] < -decide
@@ -253,10 +262,12 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
         score_g, fit_g = np.inf, None
     score_s, curve_s, fit_s = settled if settled is not None else standard_curves()
     if decide is not None and min(score_g, score_s) >= -decide:
-        best_g = score_g <= score_s
+        # no tone curve: the best of every pure γ evaluated (γ = 1 among them) or standard curve
+        nll_k, fit_k = min(known.values(), key=lambda v: v[0])  # the search's points among them
+        best_g = score_of(nll_k) <= score_s
+        fit = fit_k if best_g else fit_s
         fits["nonlinear_response"] = {"curve": "gamma" if best_g else curve_s, "gamma": float("nan")}
-        fit = fit_g if best_g else fit_s
-        return Candidate("nonlinear_response", float(min(score_g, score_s)),
+        return Candidate("nonlinear_response", float(min(score_of(nll_k), score_s)),
                          {"curve": "gamma" if best_g else curve_s, "gamma": float("nan")},
                          residual=float(np.sqrt(fit.wrss / max(n - fit.k, 1))))
     # γ itself by maximum likelihood with shot noise and a floor in linear light (σ² = φ·(x + GAMMA_NOISE_FLOOR),
@@ -282,6 +293,14 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
     fits["nonlinear_response"] = {"curve": "gamma", "gamma": g}
     return Candidate("nonlinear_response", score_g, {"curve": "gamma", "gamma": round(g, 4)},
                      residual=float(np.sqrt(fit_g.wrss / max(n - fit_g.k, 1))))
+
+
+DECIDE_PROBE = 0.02
+"""log γ of the one pure γ (≈ 1.02) :func:`tone_candidate` evaluates beside its search when deciding, once the
+search's first point has not settled the verdict: with γ = 1 (the linear hypothesis's own fit) and that point it draws
+a convex floor that settles a linear history after one search point, where the search's own points near γ = 1 came
+after five or six (issue 29). On the refit benchmark's 48-frame checks of five 2k-frame histories, noise-learning fits
+per linear check: 6 with 0.005, 0.01, 0.02 or 0.05, 8–9 with 0.1 (10 without a probe, 15–18 for the whole test)."""
 
 
 class _Settled(Exception):

@@ -30,10 +30,7 @@ def test_planck_locus_matches_colour_blackbody():
 
 def test_locus_table_is_plancks_law_bit_for_bit() -> None:
     """The table's blackbody spectra, computed in one buffer (issue 29), equal the plain expression bit for bit."""
-    import colour
-    import numpy as np
-    from illumon.daylight.ohno2013 import planck_locus
-
+    planck_locus = ohno2013.planck_locus
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     wl = np.asarray(cmfs.wavelengths, dtype=float) * 1e-9
     t = 1e6 / planck_locus().mired

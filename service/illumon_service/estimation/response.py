@@ -33,7 +33,7 @@ def check_response(
     Runs the diagnosis's tone-curve test (:func:`illumon.diagnosis.stages.tone_stage`, the bilinear stage's test:
     the history is fitted as ``y = x^(1/γ)`` of a rank-4 linear model and γ is accepted by ΔBIC, Schwarz 1978) on at
     most ``max_frames`` frames spread evenly over the history. When the tone curve beats the linear model by the
-    diagnosis's own margin (ΔBIC < −15, :data:`illumon.diagnosis.fit.NONE_MARGIN`) — whichever effect the whole
+    diagnosis's own margin (ΔBIC < −25, :data:`illumon.diagnosis.fit.NONE_MARGIN`) — whichever effect the whole
     diagnosis would finally name: an sRGB curve read as linear also fits as a *negative* black offset, often better —
     the declared ``encoding`` does not match what the camera sends: γ > 1 means the values are still tone-encoded
     (a camera sending sRGB declared ``linear``), γ < 1 that they were linearised once too often.
@@ -41,10 +41,12 @@ def check_response(
     Only the tone-curve test runs, not the whole diagnosis: its candidate is the one the whole diagnosis computes, so
     the verdict is the same, at a fifth of the cost (the other extensions and the spectral stage took ~60 % of a
     2k-frame refit). And it runs only until its verdict against that margin is settled (``decide``,
-    :func:`illumon.diagnosis.tone.tone_candidate`: the same verdict and γ, half the time on the refit benchmark's
-    48-frame checks, 0.20 → 0.10 s), so ``tone_score`` is the best score the test reached by then — on the same side
-    of the margin as the whole test's, and no lower than it (the benchmark's linear checks +7.7 → +9.2…14.5, its
-    tone-encoded ones −134…−267 → −95…−176).
+    :func:`illumon.diagnosis.tone.tone_candidate`: the same verdict and γ — on 576 development histories of every
+    effect, with and without the codec's noise — with 6 noise-learning fits of a linear history's check where the
+    whole test made 15–18; the refit benchmark's check 0.24 → 0.10–0.14 s), so ``tone_score`` is the best score the
+    test reached by then, on the same side of the margin as the whole test's: for a tone curve no lower than it (the
+    refit benchmark's tone-encoded checks −134…−267 → −95…−176), for none at most γ = 1's ``log n`` (its linear ones
+    +0.7…+7.9 → +6.8…+7.6).
     The test is camera-agnostic: ``sensitivities`` are not used. ``frames``: history rows
     (:func:`~.history.history_row`) or their observations (:func:`~.history.build_observations`).
 

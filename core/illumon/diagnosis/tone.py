@@ -24,8 +24,8 @@ from . import noise as nz
 from .candidate import Candidate
 
 __all__ = [
-    "GAMMA_NOISE_FLOOR", "TONE_HUBER", "ADAPTIVE_DARK", "DARK_STEP", "MIN_GAMMA", "MAX_DARK_LEVEL", "srgb_decode",
-    "srgb_decode_slope", "bt709_decode", "bt709_decode_slope", "tone_candidate",
+    "GAMMA_NOISE_FLOOR", "TONE_HUBER", "ADAPTIVE_DARK", "DARK_STEP", "MIN_GAMMA", "MAX_DARK_LEVEL", "DECIDE_PROBE",
+    "srgb_decode", "srgb_decode_slope", "bt709_decode", "bt709_decode_slope", "tone_candidate",
 ]
 
 GAMMA_NOISE_FLOOR = 0.025
@@ -63,11 +63,18 @@ tone curve γ̂ ≥ 1.4. The sRGB and BT.709 hypotheses are compressive by const
 MAX_DARK_LEVEL = 0.2
 """Highest censoring level of the tone test (a fifth of white; 8-bit pixels are dithered above it at any ISO)."""
 
+DECIDE_PROBE = 0.02
+"""log γ of the one pure γ (≈ 1.02) :func:`tone_candidate` evaluates beside its search when deciding, once the
+search's first point has not settled the verdict: with γ = 1 (the linear hypothesis's own fit) and that point it draws
+a convex floor that settles a linear history after one search point, where the search's own points near γ = 1 came
+after five or six (issue 29). On the refit benchmark's 48-frame checks of five 2k-frame histories, noise-learning fits
+per linear check: 6 with 0.005, 0.01, 0.02 or 0.05, 8–9 with 0.1 (10 without a probe, 15–18 for the whole test)."""
+
 
 def _convex_floor(t: NDArray[np.float64], h: NDArray[np.float64], lo: float, hi: float) -> float:
     """The least value on ``[lo, hi]`` of any function convex there that takes the values ``h`` at the sorted points
-    ``t`` (strictly inside), or −∞ when there is no such bound: fewer than three points, or points that are not convex
-    themselves (their secant slopes decrease somewhere).
+    ``t`` (within ``[lo, hi]``), or −∞ when there is no such bound: fewer than three points, or points that are not
+    convex themselves (their secant slopes decrease somewhere).
 
     A convex function lies above the extension of every chord beyond the chord's ends, so between two neighbouring
     points it is above the chords on either side extended into the gap (and before the first, after the last point
@@ -140,7 +147,7 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
     decide
         A ΔBIC margin, or ``None`` (the diagnosis: the whole test). Given, only the verdict ``score < −decide`` and,
         when it holds, γ are wanted (the service's tone-response check): the standard curves are scored first and the
-        search for the best pure γ stops as soon as the verdict is settled (:data:`DECIDE_NOTE`). The verdict and γ are
+        search for the best pure γ stops as soon as the verdict is settled (Notes). The verdict and γ are
         then the whole test's. The score is the best of the hypotheses evaluated: for a supported curve no lower than
         the whole test's; for none, among them γ = 1 (ΔBIC ``log n``) and :data:`DECIDE_PROBE`, so within what the
         whole test's search could still find below it. A verdict of no tone curve carries no γ (NaN: its estimate is
@@ -293,14 +300,6 @@ def tone_candidate(y: NDArray[np.float64], noise: nz.NoiseLevel, present: NDArra
     fits["nonlinear_response"] = {"curve": "gamma", "gamma": g}
     return Candidate("nonlinear_response", score_g, {"curve": "gamma", "gamma": round(g, 4)},
                      residual=float(np.sqrt(fit_g.wrss / max(n - fit_g.k, 1))))
-
-
-DECIDE_PROBE = 0.02
-"""log γ of the one pure γ (≈ 1.02) :func:`tone_candidate` evaluates beside its search when deciding, once the
-search's first point has not settled the verdict: with γ = 1 (the linear hypothesis's own fit) and that point it draws
-a convex floor that settles a linear history after one search point, where the search's own points near γ = 1 came
-after five or six (issue 29). On the refit benchmark's 48-frame checks of five 2k-frame histories, noise-learning fits
-per linear check: 6 with 0.005, 0.01, 0.02 or 0.05, 8–9 with 0.1 (10 without a probe, 15–18 for the whole test)."""
 
 
 class _Settled(Exception):

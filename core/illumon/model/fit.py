@@ -354,8 +354,8 @@ def _alternate(
     lo_b, hi_b = dm.bounds()
     n_iter = 0
     for n_iter in range(1, iterations + 1):  # noqa: B007
-        new, _, _ = FrameSolver(css, coef, None, dm, rb, relative_error=rel, absolute_error=absolute,
-                                white=objective.white).solve(y, present, objective.extra_var)
+        new = FrameSolver(css, coef, None, dm, rb, relative_error=rel, absolute_error=absolute,
+                          white=objective.white).solve_theta(y, present, objective.extra_var)
         cands = [theta + alpha * (new - theta) for alpha in (2.0, 4.0, 8.0)]
         cands += [new + np.array([shift, 0.0, 0.0]) for shift in (-16.0, -4.0, -1.0, 1.0, 4.0, 16.0)]
         for cand in cands:

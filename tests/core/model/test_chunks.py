@@ -158,3 +158,19 @@ def test_the_fitted_models_lamp_verdicts_are_its_judgement_of_the_history(lamp_h
     again = copy.copy(model)
     lamps.history_lamps(again, obs)
     assert again.lamps == model.lamps
+
+
+def test_solve_theta_is_solves_theta(lamp_history, monkeypatch):
+    """The alternation's ``solve_theta`` (issue 29) gives :meth:`FrameSolver.solve`'s θ bit for bit, at once and in
+    chunks (each against ``solve`` in the same chunks: a matrix product's rounding may depend on its row count), with
+    and without measured standard errors."""
+    from illumon.model import solver as solver_mod
+
+    obs, _, model = lamp_history
+    y = np.asarray(obs.values) / model.noise["scale"]
+    present = np.all(np.isfinite(y), axis=-1)
+    solver = model.solver()
+    for chunk in (8192, 7):
+        monkeypatch.setattr(solver_mod, "SOLVE_CHUNK", chunk)
+        for ev in (None, obs.extra_variance() / model.noise["scale"] ** 2):
+            np.testing.assert_array_equal(solver.solve_theta(y, present, ev), solver.solve(y, present, ev)[0])

@@ -70,7 +70,7 @@ benchmark's daylight histories of 1k, 2k and 5k frames (seeds 1–10) have 0–4
 the six development cameras, seeds 0–4 at its default 24–40 frames and 0–3 at 300 and 1 000 frames, 78 histories)
 at least 2.3 % (7 of 300), so 2 % changes no lamp history's rounds. On the daylight ones, without the refit the mean
 of the median camera-white errors 0.807 → 0.635° and of the p95s 1.009 → 0.830° (23 of 30 better), 60 → 30 scene
-fits. A history of 50–300 frames now needs two such frames (one of 60 is 1.7 %): ``benchmarks/online.py --quick``'s
+fits. A history of 50 frames or more now needs more than one such frame (one of 60 is 1.7 %): ``online.py --quick``'s
 60-frame morning histories, illumon p95 / max 1.87 / 3.84 → 1.64 / 2.08°, rawsim median 0.59 → 0.61° (p95, max the
 same). Later rounds (frames already left out) are unchanged."""
 

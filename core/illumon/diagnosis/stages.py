@@ -221,7 +221,7 @@ def _bilinear_base(y: NDArray[np.float64], rank: int, learn_noise: bool,
 
 
 def tone_stage(y: NDArray[np.float64], rank: int, learn_noise: bool = True,
-               codec_cap: float = 0.0) -> tuple[Candidate, dict]:
+               codec_cap: float = 0.0, decide: float | None = None) -> tuple[Candidate, dict]:
     """The tone-curve test of :func:`bilinear_stage` alone: its ``nonlinear_response`` candidate, identical to the one
     the whole stage returns (same noise, base fit and extension), without the other extensions and the spectral
     stage (a fifth of a diagnosis' time; the service's tone-response check needs this test only).
@@ -234,6 +234,9 @@ def tone_stage(y: NDArray[np.float64], rank: int, learn_noise: bool = True,
         Rank of the bilinear model.
     learn_noise, codec_cap
         As in :func:`bilinear_stage`.
+    decide
+        A ΔBIC margin when only the verdict ``score < −decide`` (and γ when it holds) is wanted: the test stops once
+        that is settled (:func:`.tone.tone_candidate`), the score is then an upper bound of the whole test's.
 
     Returns
     -------
@@ -242,7 +245,7 @@ def tone_stage(y: NDArray[np.float64], rank: int, learn_noise: bool = True,
     """
     noise, w, base = _bilinear_base(y, rank, learn_noise, codec_cap)
     fits: dict = {"noise": _noise_record(noise)}
-    return tone_candidate(y, noise, w > 0, base, rank, base.n, fits), fits
+    return tone_candidate(y, noise, w > 0, base, rank, base.n, fits, decide), fits
 
 
 def _noise_record(noise: nz.NoiseLevel) -> dict:

@@ -80,6 +80,9 @@ class SceneModel:
         The history's posterior of its scene-average colour (:func:`illumon.model.lamps.history_lamps`), with which
         every estimate adds ``non_daylight`` and follows a lamp's light (:func:`illumon.model.lamps.apply_lamps`);
         ``None`` for a model saved before it.
+    fit_frames
+        After a fixed-camera fit: the frames its reflectances were fitted on, as indices of ``history_estimate``'s
+        frames (the subsample of long histories); not saved, ``None`` on a loaded model.
     """
 
     patches: list[str]
@@ -96,6 +99,7 @@ class SceneModel:
     camera: dict = field(default_factory=lambda: {"calibration": "measured"})
     history_estimate: tuple[RetrievalResult, dict] | None = field(default=None, repr=False, compare=False)
     lamps: dict | None = None
+    fit_frames: NDArray[np.intp] | None = field(default=None, repr=False, compare=False)
 
     # -- serialisation --
     def to_dict(self) -> dict:

@@ -26,3 +26,15 @@ def test_planck_locus_matches_colour_blackbody():
         uv = colour.xy_to_UCS_uv(colour.XYZ_to_xy(xyz))
         i = int(np.argmin(np.abs(loc.mired - mired)))
         assert np.max(np.abs(loc.uv[i] - uv)) < 1e-8, (mired, loc.uv[i], uv)
+
+
+def test_locus_table_is_plancks_law_bit_for_bit() -> None:
+    """The table's blackbody spectra, computed in one buffer (issue 29), equal the plain expression bit for bit (the
+    table computed afresh, so its matrix product runs with the same BLAS threads as the reference's)."""
+    planck_locus = ohno2013.planck_locus.__wrapped__
+    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+    wl = np.asarray(cmfs.wavelengths, dtype=float) * 1e-9
+    t = 1e6 / planck_locus().mired
+    xyz = (1.0 / (wl[None, :] ** 5 * np.expm1(1.4388e-2 / (wl[None, :] * t[:, None])))) @ np.asarray(cmfs.values)
+    den = xyz[:, 0] + 15 * xyz[:, 1] + 3 * xyz[:, 2]
+    np.testing.assert_array_equal(planck_locus().uv, np.stack([4 * xyz[:, 0] / den, 6 * xyz[:, 1] / den], axis=1))

@@ -81,6 +81,9 @@ def test_a_refit_estimating_every_frame_equals_the_fit_of_its_frames(lamp_histor
     np.testing.assert_array_equal(every.coefficients, alone.coefficients)
     res, cols = every.history_estimate
     assert res.frames == obs.frames
+    # the frames the reflectances were fitted on, as frames of the history estimated
+    np.testing.assert_array_equal(every.fit_frames, rows[alone.fit_frames])
+    assert len(alone.fit_frames) == alone.training["frames_used_for_reflectances"]
     a = _arrays(*alone.history_estimate)
     _close(a, {k: v[rows] for k, v in _arrays(res, cols).items()})
 
@@ -130,3 +133,44 @@ def test_frame_solver_linear_equals_the_einsum_reference(lamp_history):
     m = np.random.default_rng(0).normal(size=(200, 3, 3))
     m = m @ m.transpose(0, 2, 1) + 1e-3 * np.eye(3)
     np.testing.assert_allclose(_inv3(m), np.linalg.inv(m), rtol=1e-9, atol=1e-9 * np.abs(np.linalg.inv(m)).max())
+
+
+def test_fit_frames_are_the_reflectance_fits_subsample(lamp_history):
+    """``fit_frames`` (issue 29, the lamp rounds' share): the frames a long history's reflectances were fitted on."""
+    from illumon.model.identifiability import spread_subsample
+    from illumon.retrieval.common import grey_world_mired
+
+    obs, css, _ = lamp_history
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model, _ = _fit_fixed_camera(obs, css, max_fit_frames=10)
+    want = spread_subsample(grey_world_mired(obs, css), 10)
+    assert 0 < len(want) <= 10 < len(obs.frames)
+    np.testing.assert_array_equal(model.fit_frames, want)
+    assert model.training["frames_used_for_reflectances"] == len(want)
+
+
+def test_the_fitted_models_lamp_verdicts_are_its_judgement_of_the_history(lamp_history):
+    """The verdicts the lamp rounds stopped on are kept, not judged again (issue 29): they equal a judgement now."""
+    import copy
+
+    obs, _, model = lamp_history
+    again = copy.copy(model)
+    lamps.history_lamps(again, obs)
+    assert again.lamps == model.lamps
+
+
+def test_solve_theta_is_solves_theta(lamp_history, monkeypatch):
+    """The alternation's ``solve_theta`` (issue 29) gives :meth:`FrameSolver.solve`'s θ bit for bit, at once and in
+    chunks (each against ``solve`` in the same chunks: a matrix product's rounding may depend on its row count), with
+    and without measured standard errors."""
+    from illumon.model import solver as solver_mod
+
+    obs, _, model = lamp_history
+    y = np.asarray(obs.values) / model.noise["scale"]
+    present = np.all(np.isfinite(y), axis=-1)
+    solver = model.solver()
+    for chunk in (8192, 7):
+        monkeypatch.setattr(solver_mod, "SOLVE_CHUNK", chunk)
+        for ev in (None, obs.extra_variance() / model.noise["scale"] ** 2):
+            np.testing.assert_array_equal(solver.solve_theta(y, present, ev), solver.solve(y, present, ev)[0])

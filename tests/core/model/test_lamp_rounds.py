@@ -23,10 +23,13 @@ def history() -> Observations:
 
 class _Model:
     history_estimate = ()
+    fit_frames = None  # the frames its reflectances were fitted on; None: not known, the share is not judged
 
 
-def _rounds(monkeypatch, obs: Observations, judgements: list[np.ndarray]) -> list[int]:
-    """Run the rounds with the given ``non_daylight`` per judgement; the number of frames of each refit."""
+def _rounds(monkeypatch, obs: Observations, judgements: list[np.ndarray], fit_frames: np.ndarray | None = None
+            ) -> list[int]:
+    """Run the rounds with the given ``non_daylight`` per judgement, the first model fitted on ``fit_frames``; the
+    number of frames of each refit."""
     script = iter(judgements)
     monkeypatch.setattr(fit_mod, "history_lamps", lambda model, o: next(script))
     fits: list[int] = []
@@ -36,7 +39,10 @@ def _rounds(monkeypatch, obs: Observations, judgements: list[np.ndarray]) -> lis
         fits.append(len(day.frames))
         return _Model()
 
-    fit_mod._refit_without_lamp_frames(_Model(), obs, fit_once)
+    first = _Model()
+    first.fit_frames = fit_frames
+    _, judged = fit_mod._refit_without_lamp_frames(first, obs, fit_once)
+    assert judged == (len(fits) < fit_mod.LAMP_ROUNDS)  # the model returned was judged unless the last round refitted
     return fits
 
 
@@ -74,3 +80,24 @@ def test_unchanged_rounds_stop_as_before(monkeypatch, history):
     first = _judgement({1: 0.7})
     assert _rounds(monkeypatch, history, [first, first]) == [N - 2]
     assert _rounds(monkeypatch, history, [np.full(N, 0.3)]) == []  # no frame above 0.5: nothing left out
+
+
+def test_lamp_lit_frames_too_few_of_the_fit_are_not_refitted(monkeypatch, history):
+    """Issue 29: the first round leaves frames out only when those judged lamp-lit make up at least
+    ``MIN_LAMP_SHARE`` of the frames the reflectances were fitted on."""
+    one = _judgement({1: LAMP_PRIOR + 0.1})  # frame 0 above 0.5, frame 1 above the prior
+    assert _rounds(monkeypatch, history, [one, one], fit_frames=np.arange(N)) == [N - 2]  # 1 of 40: 2.5 %
+    assert _rounds(monkeypatch, history, [one], fit_frames=np.arange(1, N)) == []  # frame 0 not in the fit
+    monkeypatch.setattr(fit_mod, "MIN_LAMP_SHARE", 0.05)
+    assert _rounds(monkeypatch, history, [one], fit_frames=np.arange(N)) == []  # 2.5 % < 5 %
+    two = _judgement({1: 0.8})
+    assert _rounds(monkeypatch, history, [two, two], fit_frames=np.arange(N)) == [N - 2]  # 5 %
+    # later rounds are judged as before: the refitted model's own fit holds no lamp-lit frame, yet a real change
+    # of the frames left out is refitted
+    third = _judgement({1: 0.8, 2: 0.7})
+    assert _rounds(monkeypatch, history, [two, third, third], fit_frames=np.arange(N)) == [N - 2, N - 3]
+
+
+def test_rounds_that_end_on_a_refit_leave_it_unjudged(monkeypatch, history):
+    judgements = [_judgement({k: 0.8 for k in range(1, r + 2)}) for r in range(fit_mod.LAMP_ROUNDS + 1)]
+    assert _rounds(monkeypatch, history, judgements) == [N - 2 - r for r in range(fit_mod.LAMP_ROUNDS)]

@@ -225,13 +225,13 @@ def _fit_camera_and_scene(o: Observations, sensitivities: NDArray[np.float64] | 
         # sensor RGB nobody measured: the level static patches cannot see is the prior camera's, unless the scene
         # average says the history is lit by light no daylight through such a camera gives (:mod:`.level`)
         base = prior_sensitivities() if camera_prior_mean is None else np.asarray(camera_prior_mean, dtype=float)
-        kwargs = {**kwargs, "camera_level": (base, prior_white_spread())}
+        kwargs = {**kwargs, "camera_level": (base, prior_white_spread(), False)}
     if sensitivities is None or known:
         m = calibrate_scene_model(o, sensitivities, known, lambda oo, c: _fit_fixed_camera(oo, c, **kwargs),
                                   prior_mean=camera_prior_mean, primaries=primaries)
     else:
         css = np.asarray(sensitivities, dtype=float)
-        extra = {"camera_level": (css, MEASURED_WHITE_SD)} if primaries == "camera" else {}
+        extra = {"camera_level": (css, MEASURED_WHITE_SD, True)} if primaries == "camera" else {}
         m, _ = _fit_fixed_camera(o, css, **kwargs, **extra)
         m.camera = {"calibration": "measured"}
     m.camera["primaries"] = primaries
@@ -425,17 +425,19 @@ def _fit_fixed_camera(
     iterations: int = 40,
     tol: float = 0.01,
     balance_sd: float | None = None,
-    camera_level: tuple[NDArray[np.float64], float] | None = None,
+    camera_level: tuple[NDArray[np.float64], float, bool] | None = None,
     estimate: Observations | None = None,
     rows: NDArray[np.intp] | None = None,
 ) -> tuple[SceneModel, NDArray[np.float64]]:
     """:func:`fit_scene_model` for given (effective) sensitivities. Returns the model and every frame's
     ``(mired, δ, log k)`` (F × 3) from the learned reflectances. ``balance_sd``: the output is white-balanced by the
     camera, the history's mean white lies within that spread (log r/g, b/g) of grey — for daylight; a history lit
-    only by lamps is told apart by its scene average (:mod:`.level`). ``camera_level``: sensor RGB of a camera nobody
-    measured, ``(prior sensitivities, spread of their white)``; a history the scene average places among the lamps'
-    whites through that camera rather than the daylights' is anchored there as a lamp-lit one (:mod:`.level`),
-    anything else keeps the fit's level.
+    only by lamps is told apart by its scene average (:mod:`.level`). ``camera_level``: sensor RGB, ``(sensitivities
+    the daylight and lamp whites are taken through, spread of their white, measured)`` — the prior camera and the
+    measured cameras' spread for a camera nobody measured, the camera itself and :data:`MEASURED_WHITE_SD` for a
+    measured one; a history the scene average places among the lamps' whites through that camera rather than the
+    daylights' is anchored there as a lamp-lit one (:mod:`.level`); a daylight one keeps the fit's level, a measured
+    camera's joined by the scene average where that is the better evidence (:func:`.level.daylight_level`).
 
     ``estimate``: the frames ``model.history_estimate`` (and the returned ``θ``) holds, a history whose frames
     ``rows`` are ``obs`` (the same patches; the training summary and identifiability read those rows); default
@@ -478,7 +480,7 @@ def _fit_fixed_camera(
             level = common_level_posterior(fit_level, SCENE_AVERAGE_SD, balance_sd, average, reading,
                                            lamp_population(css, dm, 1)[2])
         else:
-            base, camera_sd = camera_level
+            base, camera_sd, measured = camera_level
             days, days_logw, lamps, _ = lamp_population(base, dm, 1)
             level = common_level_posterior(fit_level, SCENE_AVERAGE_SD, camera_sd, average, reading, lamps,
                                            balanced=(days, days_logw), camera_sd=camera_sd)
@@ -486,7 +488,7 @@ def _fit_fixed_camera(
                 # daylight: an unmeasured camera keeps the prior camera's level (the calibration's scene-average
                 # transform); a measured one the fit's, joined by the scene average where that is the better evidence
                 level = (daylight_level(fit_level, FIT_LEVEL_SD, average, reading, level.unbalanced)
-                         if camera_sd == MEASURED_WHITE_SD else None)
+                         if measured else None)
         if level is not None:
             theta, coef, anchored_sd = anchor_common_level(objective, theta, css, level)
     am = objective.operators(theta)

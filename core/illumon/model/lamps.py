@@ -672,7 +672,9 @@ converges geometrically)."""
 def _unbalanced_whites(model, lp: LampPosterior, result, extra: dict) -> bool:
     """A history lit only by lamps (:mod:`.level`): every frame's white is its scene average less the history's
     offset (the daylight fit cannot follow lights off its locus, and no daylight frame pins the scene), its
-    ``non_daylight`` at least the history's probability of being lamp-lit. In place; ``True`` if it applied."""
+    ``non_daylight`` at least the history's probability of being lamp-lit. A measured sensor's frames are judged each
+    on its own against that offset instead (its daylight whites are known): those more likely lamp-lit take the
+    scene-average white, the others keep the daylight fit's and their own verdict. In place; ``True`` if it applied."""
     unbalanced = float(model.noise.get("unbalanced", 0.0) or 0.0)
     if unbalanced <= 0.5 or "level" not in model.noise:
         return False

@@ -387,6 +387,7 @@ def calibrate_scene_model(
     model, theta = fit(scene, base)
     theta_first = np.array(theta, dtype=float, copy=True)
     change, it = 0.0, 0
+    s_scene = None  # how precisely a scene average set the channel scales (no reference, sensor RGB)
     if ids:
         values, frames, spectra, neutral = _reference_data(obs, scene, ids, known)
         dm = model.daylight_model()
@@ -409,9 +410,7 @@ def calibrate_scene_model(
         model, theta = fit(scene, base @ t)
         it = 1
     model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()
-    if kind == "none" and primaries == "camera":
-        model.camera["scene_average_sd"] = s_scene
-    _record_camera_uncertainty(model, kind, primaries, measured=sensitivities is not None)
+    _record_camera_uncertainty(model, kind, primaries, measured=sensitivities is not None, scene_sd=s_scene)
     if ids and primaries == "srgb":
         model.noise["mired_offset"] = _reporting_offset(theta_first, theta)
     model.history_estimate = model.estimate(scene)  # with the camera's uncertainty in its intervals
@@ -446,17 +445,19 @@ def _reporting_offset(theta_first: NDArray[np.float64], theta: NDArray[np.float6
     and the last is kept as a reporting offset (CCT, Duv, spectrum)."""
     return float(np.nanmedian(theta_first[:, 0] - theta[:, 0]))
 
-def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bool) -> None:
+def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bool,
+                               scene_sd: float | None = None) -> None:
     """The camera's own uncertainty after calibration, in the model: ``camera["white_sd_log"]`` and the model errors
     ``camera_log_gain`` and ``camera_mired`` its intervals widen by. Rendered output: a grey card pins channel scales,
     but not how a real camera's matrix departs from the sRGB functions away from the card's light (a chart's 3 × 3
-    does)."""
+    does). ``scene_sd``: how precisely the scene average set the channel scales, where it did
+    (:func:`scene_calibrated_scale`)."""
     white_sd = SRGB_CAMERA_WHITE_SD if (kind in ("none", "grey") and primaries == "srgb") else CAMERA_WHITE_SD[kind]
     model.camera["white_sd_log"] = white_sd
     mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)["measured" if measured else kind]
     scale, stated = (1.0, white_sd) if measured else STATED_WHITE_SPREAD.get((primaries, kind), (1.0, white_sd))
-    if "scene_average_sd" in model.camera:  # the scene average calibrated the channel scales: as well as it read
-        scale *= scene_calibrated_scale(float(model.camera["scene_average_sd"]))
+    if scene_sd is not None:  # the scene average calibrated the channel scales: as well as it read
+        scale *= scene_calibrated_scale(scene_sd)
     model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=stated,
                                       camera_mired=mired_sd, laplace_scale=scale)
 

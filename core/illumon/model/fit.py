@@ -221,18 +221,20 @@ def _fit_camera_and_scene(o: Observations, sensitivities: NDArray[np.float64] | 
                           primaries: str, kwargs: dict) -> SceneModel:
     """One scene fit of ``o``: through :func:`~illumon.camera.calibration.calibrate_scene_model` for a camera known
     only up to ``T`` (unmeasured, or with references), else the fixed-camera fit; ``camera`` records which."""
-    if sensitivities is None and not known and primaries == "camera":
-        # sensor RGB nobody measured: the level static patches cannot see is the prior camera's, unless the scene
-        # average says the history is lit by light no daylight through such a camera gives (:mod:`.level`)
-        base = prior_sensitivities() if camera_prior_mean is None else np.asarray(camera_prior_mean, dtype=float)
-        kwargs = {**kwargs, "camera_level": (base, prior_white_spread(), False)}
+    if not known and primaries == "camera":
+        # sensor RGB without references: the level static patches cannot see is the camera's daylight, unless the
+        # scene average says the history is lit by light no daylight through that camera gives (:mod:`.level`) — the
+        # prior camera within the measured cameras' spread for one nobody measured, else the camera itself
+        if sensitivities is None:
+            base = prior_sensitivities() if camera_prior_mean is None else np.asarray(camera_prior_mean, dtype=float)
+            kwargs = {**kwargs, "camera_level": (base, prior_white_spread(), False)}
+        else:
+            kwargs = {**kwargs, "camera_level": (np.asarray(sensitivities, dtype=float), MEASURED_WHITE_SD, True)}
     if sensitivities is None or known:
         m = calibrate_scene_model(o, sensitivities, known, lambda oo, c: _fit_fixed_camera(oo, c, **kwargs),
                                   prior_mean=camera_prior_mean, primaries=primaries)
     else:
-        css = np.asarray(sensitivities, dtype=float)
-        extra = {"camera_level": (css, MEASURED_WHITE_SD, True)} if primaries == "camera" else {}
-        m, _ = _fit_fixed_camera(o, css, **kwargs, **extra)
+        m, _ = _fit_fixed_camera(o, np.asarray(sensitivities, dtype=float), **kwargs)
         m.camera = {"calibration": "measured"}
     m.camera["primaries"] = primaries
     return m
@@ -471,8 +473,9 @@ def _fit_fixed_camera(
                                      iterations, tol)
     anchored_sd, level = None, None
     if balance_sd is not None or camera_level is not None:
-        # the level static patches cannot see (:mod:`.level`): a rendered camera's balance against the scene average;
-        # its lamp-lit component's mixed lamps are half the prior's mean daylight (chosen so on the MIMO scenes)
+        # the level static patches cannot see (:mod:`.level`): a rendered camera's balance, or sensor RGB's daylight
+        # through the camera, against the scene average; the lamp-lit component's mixed lamps are half the prior's
+        # mean daylight (chosen so on the MIMO scenes)
         average = scene_average_evidence(y, present)
         fit_level = mean_log_chroma(dm, css, theta)
         reading = scene_reading(dm, css, theta, average, rb)

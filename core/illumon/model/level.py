@@ -56,10 +56,6 @@ class CommonLevel:
     """Posterior probability of the lamp-lit component (light the camera was not balanced for)."""
 
 
-def _gauss(x: NDArray[np.float64], var: float) -> float:
-    return float(np.exp(-0.5 * np.sum(x**2) / var) / (2 * math.pi * var))
-
-
 def _log_mixture(x: NDArray[np.float64], centres: NDArray[np.float64], var: float,
                  logw: NDArray[np.float64] | None = None) -> float:
     """log of the Gaussian mixture density (isotropic variance ``var``) over ``centres`` at ``x``, with log weights
@@ -194,4 +190,3 @@ def anchor_common_level(objective, theta: NDArray[np.float64], css: NDArray[np.f
     except np.linalg.LinAlgError:
         sd = np.array([dm.mired_sigma, dm.duv_sigma])
     return theta, coef, sd
-

@@ -232,11 +232,9 @@ class FrameSolver:
         most :data:`SOLVE_CHUNK` at a time (every frame is solved on its own; the temporaries hold F × patches × 9
         values each). ``extra_var``: see :meth:`linear`.
         """
-        if len(y) <= SOLVE_CHUNK:
-            return self._solve(y, present, extra_var)
-        parts = [self._solve(y[i:i + SOLVE_CHUNK], present[i:i + SOLVE_CHUNK],
-                             None if extra_var is None else extra_var[i:i + SOLVE_CHUNK])
-                 for i in range(0, len(y), SOLVE_CHUNK)]
+        parts = self._chunks(y, present, extra_var, laplace=True)
+        if len(parts) == 1:
+            return parts[0]  # type: ignore[return-value]
         return tuple(np.concatenate(v) for v in zip(*parts, strict=True))  # type: ignore[return-value]
 
     def solve_theta(
@@ -245,11 +243,15 @@ class FrameSolver:
         """:meth:`solve`'s ``θ`` alone (F × 3), without the Laplace covariance and cost it then works out: the scene
         fit's alternation reads ``θ`` only (issue 29: ~0.5 ms of each of its ~19 solves of 300 frames; the same ``θ``
         bit for bit)."""
-        if len(y) <= SOLVE_CHUNK:
-            return self._solve(y, present, extra_var, laplace=False)[0]
-        return np.concatenate([self._solve(y[i:i + SOLVE_CHUNK], present[i:i + SOLVE_CHUNK],
-                                           None if extra_var is None else extra_var[i:i + SOLVE_CHUNK], laplace=False)[0]
-                               for i in range(0, len(y), SOLVE_CHUNK)])
+        parts = self._chunks(y, present, extra_var, laplace=False)
+        return parts[0][0] if len(parts) == 1 else np.concatenate([p[0] for p in parts])
+
+    def _chunks(self, y: NDArray[np.float64], present: NDArray[np.bool_], extra_var: NDArray[np.float64] | None,
+                laplace: bool) -> list[tuple]:
+        """:meth:`_solve` of the frames at most :data:`SOLVE_CHUNK` at a time (each frame is solved on its own)."""
+        return [self._solve(y[i:i + SOLVE_CHUNK], present[i:i + SOLVE_CHUNK],
+                            None if extra_var is None else extra_var[i:i + SOLVE_CHUNK], laplace)
+                for i in range(0, max(len(y), 1), SOLVE_CHUNK)]
 
     def _solve(
         self, y: NDArray[np.float64], present: NDArray[np.bool_], extra_var: NDArray[np.float64] | None = None,

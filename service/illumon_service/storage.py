@@ -35,7 +35,7 @@ from sqlalchemy import (
     insert,
     text,
 )
-from sqlalchemy.engine import Engine
+from sqlalchemy.engine import Dialect, Engine
 from sqlalchemy.orm import DeclarativeBase, Mapped, Session, mapped_column, sessionmaker
 
 __all__ = [
@@ -61,6 +61,7 @@ __all__ = [
     "json_loads",
     "orjson_loads",
     "insert_columns",
+    "upsert_dialect",
 ]
 
 T = TypeVar("T")
@@ -389,13 +390,41 @@ def add_missing_indexes(engine: Engine) -> list[str]:
     return added
 
 
+def upsert_dialect(dialect: Dialect) -> bool:
+    """Whether :func:`insert_columns` can replace rows on ``dialect`` (``replace_on``): PostgreSQL, and SQLite from
+    3.24 (``INSERT … ON CONFLICT … DO UPDATE``)."""
+    if dialect.name == "postgresql":
+        return True
+    return dialect.name == "sqlite" and tuple(dialect.server_version_info or (0,)) >= (3, 24)
+
+
+def _insert_statement(table: Table, dialect: Dialect, keys: Sequence[str], replace_on: Sequence[str] | None) -> Any:
+    """``insert(table)``, or with ``replace_on`` the dialect's insert whose rows replace those of the same key."""
+    if not replace_on:
+        return insert(table)
+    if dialect.name == "postgresql":
+        from sqlalchemy.dialects.postgresql import insert as dialect_insert
+    elif dialect.name == "sqlite" and upsert_dialect(dialect):
+        from sqlalchemy.dialects.sqlite import insert as dialect_insert
+    else:
+        raise ValueError(f"insert_columns: no upsert on {dialect.name}")
+    stmt = dialect_insert(table)
+    return stmt.on_conflict_do_update(index_elements=[table.columns[k] for k in replace_on],
+                                      set_={k: stmt.excluded[k] for k in keys if k not in replace_on})
+
+
 def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequence[Any]],
-                   constants: Mapping[str, Any] | None = None) -> int:
+                   constants: Mapping[str, Any] | None = None, *, replace_on: Sequence[str] | None = None) -> int:
     """One executemany INSERT into ``table`` of rows given a column at a time, within the session's transaction, the
     rows handed to the driver as they are; returns the number of rows.
 
     ``columns``: each column's values, one per row (lists of one length); ``constants``: columns every row has the
-    same value of. The statement is the one SQLAlchemy Core compiles for the dialect (``insert(table)``), every value
+    same value of. ``replace_on``: the columns of a unique key (the primary key): a row whose key is stored already
+    replaces that row, every other given column set to the row's value (``INSERT … ON CONFLICT (key) DO UPDATE``,
+    only where :func:`upsert_dialect`; ``ValueError`` elsewhere) — the table then holds what a DELETE of those keys
+    followed by the INSERT leaves when every column is given, in one statement: on SQLite the row is rewritten where
+    it lies instead of deleted and inserted again (a 100k-frame refit's write 1.7 → 1.3 s of SQLite's time).
+    The statement is the one SQLAlchemy Core compiles for the dialect (``insert(table)``), every value
     converted by its column type's bind processor as SQLAlchemy converts it (datetimes as SQLite's text, JSON through
     the engine's serializer, psycopg's JSON wrapper), a column at a time and a constant once, and the rows passed to
     the driver's ``executemany`` (:meth:`~sqlalchemy.engine.Connection.exec_driver_sql`):
@@ -409,7 +438,7 @@ def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequenc
     conn = session.connection()
     dialect = conn.dialect
     keys = [*columns, *constants]
-    compiled = insert(table).compile(dialect=dialect, column_keys=keys)
+    compiled = _insert_statement(table, dialect, keys, replace_on).compile(dialect=dialect, column_keys=keys)
     if compiled.insert_prefetch:
         raise ValueError(f"insert_columns: no value for {', '.join(c.key for c in compiled.insert_prefetch)}")
     processors = {k: table.columns[k].type.dialect_impl(dialect).bind_processor(dialect) for k in keys}

@@ -10,7 +10,7 @@ from sqlalchemy import delete, select, update
 from sqlalchemy.engine import Row
 from sqlalchemy.orm import Session
 
-from ..storage import Estimate, Frame, as_utc, insert_columns, utcnow
+from ..storage import Estimate, Frame, as_utc, insert_columns, upsert_dialect, utcnow
 
 __all__ = [
     "estimate_non_daylight", "estimate_out", "nearest_estimate", "estimates_between", "latest_estimate",
@@ -127,24 +127,39 @@ def add_estimate(session: Session, **columns: object) -> Estimate:
     return row
 
 
-def replace_estimates(session: Session, chunks: Iterable[Mapping[str, Sequence]], **constants: object) -> int:
-    """Replace the estimates of the frames of ``chunks`` and clear those frames' reason for having none; returns the
-    rows written. Each chunk holds the estimate's columns a column at a time (``frame_id`` among them; at most
-    :data:`WRITE_CHUNK` rows), ``constants`` the columns every row has the same value of (``camera_id``, ``model``),
-    and ``created_at`` is the chunk's time. Per chunk one DELETE, one executemany INSERT
-    (:func:`.storage.insert_columns`) and one UPDATE (of the frames that had a reason), SQLAlchemy Core statements
-    within the caller's transaction."""
+def replace_estimates(session: Session, chunks: Iterable[Mapping[str, Sequence]], *, camera_id: int,
+                      **constants: object) -> int:
+    """Replace the estimates of the frames of ``chunks`` (frames of camera ``camera_id``) and clear those frames'
+    reason for having none; returns the rows written. Each chunk holds the estimate's columns a column at a time
+    (``frame_id`` among them; at most :data:`WRITE_CHUNK` rows), ``constants`` the columns every row has the same
+    value of (``model``), and ``created_at`` is the chunk's time. SQLAlchemy Core statements within the caller's
+    transaction:
+
+    * per chunk one executemany INSERT (:func:`.storage.insert_columns`) whose rows replace the stored estimates of
+      their frames (``replace_on``: ``INSERT … ON CONFLICT (frame_id) DO UPDATE`` of every column, where
+      :func:`.storage.upsert_dialect`: SQLite ≥ 3.24, PostgreSQL; elsewhere a DELETE of the chunk's frames first) —
+      the same rows as a DELETE and INSERT, every column being given;
+    * the frames of the camera that have a reason are read once from the partial index
+      ``ix_frames_camera_not_estimated`` (few), and only those of a chunk are updated: an UPDATE naming every frame
+      written looked up 100k frames by key to change none.
+    """
     estimates, frames = Estimate.__table__, Frame.__table__
+    upsert = upsert_dialect(session.connection().dialect)
+    marked = set(session.scalars(select(frames.c.id).where(frames.c.camera_id == camera_id,
+                                                           frames.c.not_estimated.is_not(None))).all())
     written = 0
     for columns in chunks:
         ids = [int(i) for i in columns["frame_id"]]
         if not ids:
             continue
-        session.execute(delete(estimates).where(estimates.c.frame_id.in_(ids)))
+        if not upsert:
+            session.execute(delete(estimates).where(estimates.c.frame_id.in_(ids)))
         written += insert_columns(session, estimates, {**columns, "frame_id": ids},
-                                  {**constants, "created_at": utcnow()})
-        session.execute(update(frames).where(frames.c.id.in_(ids), frames.c.not_estimated.is_not(None))
-                        .values(not_estimated=None))  # rows already without a reason are not rewritten
+                                  {**constants, "camera_id": camera_id, "created_at": utcnow()},
+                                  replace_on=("frame_id",) if upsert else None)
+        clear = [i for i in ids if i in marked]
+        if clear:
+            session.execute(update(frames).where(frames.c.id.in_(clear)).values(not_estimated=None))
     return written
 
 

@@ -1,0 +1,117 @@
+"""A refit's write step (issue 29, branch ``refit-io``): its estimates replace the stored ones with one
+``INSERT … ON CONFLICT (frame_id) DO UPDATE`` per chunk where the database has it (SQLite ≥ 3.24, PostgreSQL), and
+the frames' reasons for having no estimate are cleared for those that have one. The tables it leaves are those of a
+DELETE of the chunk's frames followed by the INSERT (the path of other databases), row for row."""
+
+from __future__ import annotations
+
+from datetime import datetime, timedelta, timezone
+
+import illumon_service.crud.estimates as crud_estimates
+import pytest
+from illumon_service import crud
+from illumon_service.storage import (
+    Camera,
+    Estimate,
+    Frame,
+    StoredJSON,
+    make_engine,
+    make_session_factory,
+    upsert_dialect,
+)
+from sqlalchemy import insert, select, text
+from svc_helpers import same_value
+
+T0 = datetime(2025, 6, 1, tzinfo=timezone.utc)
+N = 30
+
+
+def _estimate(i: int, version: str) -> dict:
+    """Estimate columns of frame ``i`` (1-based) by model ``version``."""
+    shift = 0.0 if version == "old" else 100.0
+    return {"frame_id": i, "camera_id": 1, "taken_at": T0 + timedelta(minutes=i), "cct_k": 5000.0 + i + shift,
+            "duv": 0.001 * i, "xy": [0.31, 0.32 + 1e-3 * i], "white_rgb": StoredJSON(f"[0.5,1.0,{0.01 * i}]"),
+            "gains_rgb": [2.0, 1.0, 1.5], "confidence": 0.5, "spectrum": [1e-3 * i] * 61,
+            "intervals": None if i % 2 else {"cct_lo": 4000.0 + shift}, "source": f"refit:{version}"}
+
+
+def _written(url: str, chunk: int) -> tuple[list, list]:
+    """A camera of :data:`N` frames, half of them estimated by an old model and a third of them with a reason for
+    having none; then :func:`crud.replace_estimates` of frames 6…25 by a new model, ``chunk`` frames per chunk.
+    Returns the estimates (all columns but ``created_at``) and the frames' reasons, by id."""
+    engine = make_engine(url)
+    sessions = make_session_factory(engine)
+    with sessions() as s, s.begin():
+        s.add(Camera(name="c", token_hash="0" * 64, sensitivities=[], regions=[], response={}))
+        s.flush()
+        s.execute(insert(Frame), [{"camera_id": 1, "taken_at": T0 + timedelta(minutes=i), "patches": {},
+                                   "not_estimated": "no_model" if i % 3 == 0 else None} for i in range(1, N + 1)])
+        s.execute(insert(Estimate), [{**_estimate(i, "old"), "model": "old", "created_at": T0}
+                                     for i in range(1, N + 1) if i % 2 == 0])
+    new = [_estimate(i, "new") for i in range(6, 26)]
+
+    def chunks():  # noqa: ANN202 - the columns of ``chunk`` estimates at a time, as the refit gives them
+        for start in range(0, len(new), chunk):
+            part = new[start : start + chunk]
+            yield {k: [r[k] for r in part] for k in part[0] if k != "camera_id"}
+
+    with sessions() as s, s.begin():
+        assert crud.replace_estimates(s, chunks(), camera_id=1, model="new") == len(new)
+    with sessions() as s:
+        est = [tuple(r) for r in s.execute(select(*[c for c in Estimate.__table__.columns if c.name != "created_at"])
+                                           .order_by(Estimate.frame_id)).all()]
+        reasons = [tuple(r) for r in s.execute(select(Frame.id, Frame.not_estimated).order_by(Frame.id)).all()]
+    engine.dispose()
+    return est, reasons
+
+
+def _both(url_of, monkeypatch) -> None:  # noqa: ANN001 - a function of the path's name to a database URL
+    """The upsert path and the DELETE + INSERT path leave the same tables; the new estimates replaced the old."""
+    got = {}
+    for name in ("upsert", "delete"):
+        if name == "delete":
+            monkeypatch.setattr(crud_estimates, "upsert_dialect", lambda _dialect: False)
+        got[name] = _written(url_of(name), chunk=7)
+    (est, reasons), (est_d, reasons_d) = got["upsert"], got["delete"]
+    assert len(est) == len(est_d) == 20 + 2 + 3  # frames 6…25 new, the old ones of 2, 4 and 26, 28, 30 kept
+    assert all(same_value(list(a), list(b)) for a, b in zip(est, est_d, strict=True))
+    assert reasons == reasons_d
+    by_id = {r[0]: r for r in est}
+    assert by_id[6][-1] == "new" and by_id[4][-1] == "old" and by_id[26][-1] == "old"
+    assert by_id[10][3] == 5110.0 and by_id[10][-2] == "refit:new"
+    assert dict(reasons) == {i: "no_model" if i % 3 == 0 and not 6 <= i <= 25 else None for i in range(1, N + 1)}
+
+
+def test_upsert_leaves_the_rows_of_delete_and_insert_on_sqlite(tmp_path, monkeypatch) -> None:
+    engine = make_engine(f"sqlite:///{tmp_path}/probe.sqlite")
+    with engine.connect():
+        assert upsert_dialect(engine.dialect)  # the path under test is taken
+    engine.dispose()
+    _both(lambda name: f"sqlite:///{tmp_path}/{name}.sqlite", monkeypatch)
+
+
+def test_upsert_leaves_the_rows_of_delete_and_insert_on_postgresql(pg_url, monkeypatch) -> None:  # noqa: F811
+    from sqlalchemy import create_engine
+
+    reset = create_engine(pg_url)
+
+    def fresh(_name: str) -> str:
+        with reset.begin() as c:
+            c.execute(text("DROP SCHEMA public CASCADE; CREATE SCHEMA public"))
+        return pg_url
+
+    try:
+        _both(fresh, monkeypatch)
+    finally:
+        reset.dispose()
+
+
+def test_insert_columns_refuses_an_upsert_it_cannot_compile() -> None:
+    from illumon_service.storage import _insert_statement
+    from sqlalchemy.dialects import mysql
+
+    with pytest.raises(ValueError, match="no upsert"):
+        _insert_statement(Estimate.__table__, mysql.dialect(), ["frame_id", "cct_k"], ("frame_id",))
+
+
+from test_faults import pg_url  # noqa: E402, F401 - a throwaway PostgreSQL cluster, or skip

@@ -413,6 +413,18 @@ def _insert_statement(table: Table, dialect: Dialect, keys: Sequence[str], repla
                                       set_={k: stmt.excluded[k] for k in keys if k not in replace_on})
 
 
+_PROBE = StoredJSON('[0.5,"x"]')
+
+
+def _passes_json_text(process: Callable[[Any], Any]) -> bool:
+    """Whether a bind processor turns a :class:`StoredJSON` into its own text (a JSON column on SQLite: the engine's
+    serializer, :func:`json_dumps`, gives ``str(value)``), so that :func:`insert_columns` may hand the driver the
+    value itself (a ``str``) without the call (~1 µs a value: 400 000 values in a 100k-frame refit). ``False``
+    where the processor makes anything else of it (psycopg's JSON wrapper)."""
+    out = process(_PROBE)
+    return type(out) is str and out == _PROBE
+
+
 def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequence[Any]],
                    constants: Mapping[str, Any] | None = None, *, replace_on: Sequence[str] | None = None) -> int:
     """One executemany INSERT into ``table`` of rows given a column at a time, within the session's transaction, the
@@ -428,8 +440,10 @@ def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequenc
     converted by its column type's bind processor as SQLAlchemy converts it (datetimes as SQLite's text, JSON through
     the engine's serializer, psycopg's JSON wrapper), a column at a time and a constant once, and the rows passed to
     the driver's ``executemany`` (:meth:`~sqlalchemy.engine.Connection.exec_driver_sql`):
-    ``session.execute(insert(table), rows)`` prepares every row's parameters on its own, ~10 µs a row. Every column
-    with a Python-side default must be given (``ValueError`` otherwise: no default is computed here).
+    ``session.execute(insert(table), rows)`` prepares every row's parameters on its own, ~10 µs a row. A
+    :class:`StoredJSON` value is handed over as it is where its processor would give its text unchanged
+    (:func:`_passes_json_text`). Every column with a Python-side default must be given (``ValueError`` otherwise:
+    no default is computed here).
     """
     constants = dict(constants or {})
     n = len(next(iter(columns.values()))) if columns else 0
@@ -445,7 +459,12 @@ def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequenc
     values: dict[str, Any] = {}
     for key, column in columns.items():
         process = processors[key]
-        values[key] = column if process is None else [process(v) for v in column]
+        if process is None:
+            values[key] = column
+        elif isinstance(table.columns[key].type, JSON) and _passes_json_text(process):  # the caller's JSON text
+            values[key] = [v if type(v) is StoredJSON else process(v) for v in column]
+        else:
+            values[key] = [process(v) for v in column]
     for key, value in constants.items():
         values[key] = repeat(value if processors[key] is None else processors[key](value), n)
     if compiled.positional:

@@ -146,3 +146,38 @@ def test_usable_frames_of_a_whole_odd_chunk() -> None:
     assert got_dropped == want_dropped and len(want_dropped) > 20
     assert [f.id for f in got_usable] == [u[0] for u in want_usable]
     assert all(same_value(_used(f), _used(u)) for f, u in zip(got_usable, want_usable, strict=True))
+
+
+def test_utc_iso_is_as_utc_isoformat() -> None:
+    """``refit._utc_iso`` (the observations' times): ``as_utc(t).isoformat()`` of naive times (SQLite's), with and
+    without microseconds, and of aware ones in other zones (PostgreSQL's)."""
+    from datetime import timezone
+
+    from illumon_service.refit import _utc_iso
+    from illumon_service.storage import as_utc
+
+    naive = [T0, T0 + timedelta(microseconds=1), T0 + timedelta(seconds=59.5), datetime(1999, 12, 31, 23, 59, 59)]
+    aware = [t.replace(tzinfo=timezone(timedelta(hours=h))) for t, h in zip(naive, (0, 2, -5, 14), strict=True)]
+    times = naive + aware + [t.replace(tzinfo=timezone.utc) for t in naive]
+    assert _utc_iso(times) == [as_utc(t).isoformat() for t in times]
+
+
+def test_the_collector_is_paused_for_a_chunk_and_on_again_after_it() -> None:
+    """``refit._collector_paused`` (a read chunk decoded without the collector's passes): off inside, on after, also
+    when the block raises; left off after it when it was off before."""
+    import gc
+
+    from illumon_service.refit import _collector_paused
+
+    assert gc.isenabled()
+    with pytest.raises(RuntimeError), _collector_paused():
+        assert not gc.isenabled()
+        raise RuntimeError
+    assert gc.isenabled()
+    gc.disable()
+    try:
+        with _collector_paused():
+            assert not gc.isenabled()
+        assert not gc.isenabled()
+    finally:
+        gc.enable()

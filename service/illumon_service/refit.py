@@ -11,13 +11,15 @@ from __future__ import annotations
 import gc
 import json
 import logging
+import math
+import operator
 import time
 import uuid
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime
-from itertools import chain
+from itertools import chain, repeat
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -213,8 +215,20 @@ class _ViewRows:
         self.values: list[NDArray[np.float64]] = []
         self.sd: list[NDArray[np.float64]] = []
 
-    def add(self, frames: Sequence[_Stored], matrix: list | None) -> None:
-        values, sd = history_arrays(frames, self.region_ids, matrix)
+    def add(self, frames: Sequence[_Stored], matrix: list | None, plain: _PlainFrames | None = None) -> None:
+        """The frames' arrays (:func:`~.estimation.history_arrays`); taken from the numbers the check converted
+        (``plain``) when every frame's region means were converted there and are what ``history_arrays`` reads: no
+        colour matrix, no applied gains, exposure or standard errors, and exactly the view's regions in the view's
+        order (the same floats and NaN, bit for bit)."""
+        p = len(self.region_ids)
+        start = [-1] if plain is None or plain.values is None or matrix is not None else \
+            [plain.start[f.id] if not f.patch_sd and f.applied_gains is None and f.exposure is None
+             and list(f.patches) == self.region_ids else -1 for f in frames]
+        if frames and min(start) >= 0:
+            values = plain.values[(np.array(start)[:, None] + np.arange(p)).ravel()].reshape(len(frames), p, 3)
+            sd = np.full_like(values, np.nan)
+        else:
+            values, sd = history_arrays(frames, self.region_ids, matrix)
         self.ids += [f.id for f in frames]
         self.taken_at += [f.taken_at for f in frames]
         self.times += _utc_iso([f.taken_at for f in frames])  # history_row's times
@@ -225,12 +239,16 @@ class _ViewRows:
     def finish(self) -> ViewHistory:
         """Oldest first."""
         p = len(self.region_ids)
-        values = np.concatenate(self.values)[::-1] if self.values else np.empty((0, p, 3))
-        sd = np.concatenate(self.sd)[::-1] if self.sd else np.empty((0, p, 3))
+        values = _oldest_first(self.values, p)
+        sd = _oldest_first(self.sd, p)
         return ViewHistory(self.region_ids, np.array(self.ids[::-1], dtype=np.int64), self.taken_at[::-1],
-                           self.times[::-1], np.ascontiguousarray(values),
-                           np.ascontiguousarray(sd) if np.isfinite(sd).any() else None,
+                           self.times[::-1], values, sd if np.isfinite(sd).any() else None,
                            np.array(self.used[::-1], dtype=np.int64))
+
+
+def _oldest_first(chunks: list[NDArray[np.float64]], p: int) -> NDArray[np.float64]:
+    """The chunks' frames (newest first) in one contiguous F × ``p`` × 3 array, oldest first (one copy)."""
+    return np.concatenate([c[::-1] for c in reversed(chunks)]) if chunks else np.empty((0, p, 3))
 
 
 def _utc_iso(times: Sequence[datetime]) -> list[str]:
@@ -312,23 +330,41 @@ def _plainly_valid(frames: Sequence[_Stored]) -> list[bool]:
     accepted by :func:`~.limits.frame_problem`. ``False`` for every other frame, and for every frame when a value of
     any is not three numbers: it is judged by :func:`~.limits.frame_problem` itself then, so a frame is never
     accepted here that it would leave out, and a reason is always the function's."""
+    return _plain_values(frames)[0]
+
+
+class _Plain(NamedTuple):
+    """The numbers :func:`_plain_values` converted: every plainly valid frame's region means then standard errors,
+    in the order of their dicts, one row of three each (NaN for ``None``), and where each frame's means start."""
+
+    values: NDArray[np.float64]
+    start: list[int]
+    """Per frame, its first row in ``values`` (-1: a frame not plainly valid)."""
+
+
+def _plain_values(frames: Sequence[_Stored]) -> tuple[list[bool], _Plain | None]:
+    """:func:`_plainly_valid`'s answer, and the numbers it converted to check them (``None`` when none were)."""
     sure = [type(f.patches) is dict and (f.patch_sd is None or type(f.patch_sd) is dict)
             and ((f.applied_gains is None and f.exposure is None)
                  or frame_problem(None, None, f.applied_gains, f.exposure) is None)
             for f in frames]
     counts = [len(f.patches) + len(f.patch_sd or ()) if ok else 0 for f, ok in zip(frames, sure, strict=True)]
-    flat = [_ZERO3 if v is None else v for f, ok in zip(frames, sure, strict=True) if ok
-            for d in (f.patches, f.patch_sd or {}) for v in d.values()]
+    stored = [v for f, ok in zip(frames, sure, strict=True) if ok for d in (f.patches, f.patch_sd or {})
+              for v in d.values()]
+    flat = [_ZERO3 if v is None else v for v in stored]
     try:
         if set(map(len, flat)) - {3} or set(map(type, chain.from_iterable(flat))) - {float, int}:
-            return [False] * len(frames)
+            return [False] * len(frames), None
         a = np.fromiter(chain.from_iterable(flat), dtype=float, count=3 * len(flat)).reshape(-1, 3)
     except (TypeError, OverflowError):  # a value without a length; an integer beyond a float's range
-        return [False] * len(frames)
+        return [False] * len(frames), None
     bad = ~((a >= 0.0) & (a <= MAX_VALUE)).all(axis=1)
     owner = np.repeat(np.arange(len(frames)), counts)
     bad_frames = np.bincount(owner[bad], minlength=len(frames)) > 0
-    return [ok and not b for ok, b in zip(sure, bad_frames.tolist(), strict=True)]
+    plain = [ok and not b for ok, b in zip(sure, bad_frames.tolist(), strict=True)]
+    a[np.fromiter(map(operator.is_, stored, repeat(None)), dtype=bool, count=len(stored))] = math.nan
+    start = (np.cumsum(counts) - counts).tolist()
+    return plain, _Plain(a, [i if ok else -1 for i, ok in zip(start, plain, strict=True)])
 
 
 def _usable(rows: Sequence[Row]) -> tuple[list[_Stored], list[dict]]:
@@ -338,11 +374,17 @@ def _usable(rows: Sequence[Row]) -> tuple[list[_Stored], list[dict]]:
     plainly valid (:func:`_plainly_valid`) is read again by :func:`json.loads` and judged by
     :func:`~.limits.frame_problem`, so that whatever was stored, the frames used, their values and the reasons given
     are those of the stored rows as :func:`json.loads` reads them."""
+    usable, dropped, _ = _usable_plain(rows)
+    return usable, dropped
+
+
+def _usable_plain(rows: Sequence[Row]) -> tuple[list[_Stored], list[dict], _PlainFrames]:
+    """:func:`_usable`, and the numbers already converted of the usable frames (:func:`_plain_values`)."""
     kept = [(f, r) for f, r in ((_decoded(r, orjson_loads), r) for r in rows)
             if f.patches and (f.registration or {}).get("state") != "view_change"]
-    plain = _plainly_valid([f for f, _ in kept])
-    usable, dropped = [], []
-    for (f, r), ok in zip(kept, plain, strict=True):
+    plain, numbers = _plain_values([f for f, _ in kept])
+    usable, dropped, start = [], [], []
+    for (f, r), ok, at in zip(kept, plain, numbers.start if numbers else repeat(-1), strict=False):
         if not ok:
             f = _decoded(r, json.loads)
             problem = frame_problem(f.patches, f.patch_sd, f.applied_gains, f.exposure)
@@ -350,7 +392,17 @@ def _usable(rows: Sequence[Row]) -> tuple[list[_Stored], list[dict]]:
                 dropped.append({"frame_id": f.id, "reason": problem})
                 continue
         usable.append(f)
-    return usable, dropped
+        start.append(at if ok else -1)
+    return usable, dropped, _PlainFrames(None if numbers is None else numbers.values, dict(zip(
+        (f.id for f in usable), start, strict=True)))
+
+
+class _PlainFrames(NamedTuple):
+    """A chunk's numbers converted while checking them (:class:`_Plain`), and where each usable frame's region means
+    start there, by frame id (-1: read again by :func:`json.loads`)."""
+
+    values: NDArray[np.float64] | None
+    start: dict[int, int]
 
 
 def read_history(sessions: sessionmaker[Session], camera_id: int, max_frames: int) -> History:
@@ -374,15 +426,15 @@ def read_history(sessions: sessionmaker[Session], camera_id: int, max_frames: in
                 if rows is None:
                     break
                 read.append(np.fromiter((r.id for r in rows), dtype=np.int64, count=len(rows)))
-                usable, left_out = _usable(rows)
+                usable, left_out, plain = _usable_plain(rows)
                 dropped += left_out
                 for v in {r.view for r in usable}:
                     if v is not None:
                         views.add(v)
                     if v is None or regions.get(v):
                         gathered.setdefault(v, _ViewRows(regions.get(v, []))).add([r for r in usable if r.view == v],
-                                                                                 matrix)
-                del rows, usable
+                                                                                 matrix, plain)
+                del rows, usable, plain
         css = sensitivities_array(cam.sensitivities)
         calibrations, known, cal_warnings = calibration_frames(crud.calibrations(s, camera_id), matrix)
         history = History(

@@ -181,3 +181,39 @@ def test_the_collector_is_paused_for_a_chunk_and_on_again_after_it() -> None:
         assert not gc.isenabled()
     finally:
         gc.enable()
+
+
+@pytest.mark.parametrize("odd", [None, *range(len(ODD))])
+def test_arrays_from_the_checked_numbers_equal_history_arrays(odd: int | None, monkeypatch) -> None:
+    """A view's arrays taken from the numbers the validity check converted (``_ViewRows.add`` with the chunk's
+    numbers) equal ``history_arrays`` of the same frames bit for bit: plain frames in the view's region order, and
+    among them frames read otherwise (another key order, a missing or extra region, integers, standard errors,
+    gains, exposure, an odd row read again by json.loads)."""
+    from illumon_service.refit import _usable_plain, _ViewRows
+
+    ids = ["p0", "p1", "p2"]
+    rows = [_row(i, GOOD) for i in range(6)]
+    rows += [_row(6, '{"p0": [0.0, 1, 2], "p1": [0.25, 0.5, 0.75], "p2": null}'),
+             _row(7, '{"p1": [0.1, 0.2, 0.3], "p0": null, "p2": [0.5, 1.5, 2.0]}'),
+             _row(8, '{"p0": [0.1, 0.2, 0.3], "p2": [0.5, 1.5, 2.0]}'),
+             _row(9, '{"p0": [0.1, 0.2, 0.3], "p1": null, "p2": [0.5, 1.5, 2.0], "p3": [1.0, 1.0, 1.0]}')]
+    if odd is not None:
+        rows.append(_row(10, *ODD[odd]))
+    rows += [_row(i, GOOD) for i in range(11, 14)]
+    usable, _, plain = _usable_plain(rows)
+    for frames in (usable, [f for f in usable if f.id < 6 or f.id > 10], [f for f in usable if f.id == 6]):
+        fast, slow = _ViewRows(ids), _ViewRows(ids)
+        fast.add(frames, None, plain)
+        slow.add(frames, None)
+        a, b = fast.finish(), slow.finish()
+        assert np.array_equal(a.values.view(np.uint64), b.values.view(np.uint64)) and a.values.flags.c_contiguous
+        assert (a.sd is None) == (b.sd is None)
+        if a.sd is not None:
+            assert np.array_equal(a.sd.view(np.uint64), b.sd.view(np.uint64))
+        assert np.array_equal(a.used, b.used) and a.times == b.times
+    if odd is None:  # plain frames in the view's order are taken from the checked numbers, not converted again
+        import illumon_service.refit as refit
+
+        assert plain.values is not None and all(plain.start[i] >= 0 for i in (0, 6, 7))
+        monkeypatch.setattr(refit, "history_arrays", None)
+        _ViewRows(ids).add([f for f in usable if f.id < 7 or f.id > 10], None, plain)

@@ -28,9 +28,11 @@ are stored straight into the service's SQLite database (not timed); the timed pa
 :func:`illumon_service.refit.refit_camera` — read the history, fit the scene model (reflectances on 300 frames spread
 over the illuminant range), estimate every frame, write the estimates — with the service's default settings.
 
-Fleet: serial is ``refit_camera`` camera after camera in this process; Dask is :func:`illumon_service.jobs.run_batch`
-(a ``LocalCluster`` of ``--workers`` processes with one thread each, tasks carrying only camera ids, its start-up
-included). The per-camera seconds of both and the load average are printed: on a shared machine the speed-up is
+Fleet: Dask is :func:`illumon_service.jobs.run_batch` (``--workers`` processes with one thread each forked from this
+process, :func:`illumon_service.jobs.fork_workers`, joining a ``LocalCluster``'s scheduler, tasks carrying only camera
+ids, the workers' and the cluster's start-up included); serial, run after it, is ``refit_camera`` camera after camera
+in this process (after, so that the forked workers do not inherit the per-process tables the serial refits build).
+The per-camera seconds of both and the load average are printed: on a shared machine the speed-up is
 bounded by the CPUs other processes leave free, and a per-camera time that grows under Dask means the workers competed
 for CPUs.
 """
@@ -281,7 +283,15 @@ def fleet(cameras: int, frames: int, workers: int, css, day, refl) -> dict:
         sessions = make_session_factory(engine)
         ids = [store_camera(sessions, css, day, refl, frames, seed=s)[0] for s in range(cameras)]
         engine.dispose()
+        # Dask first: run_batch forks its workers from this process (jobs.fork_workers), which must not have built
+        # the per-process tables of a refit before (the serial part would build them: `illumon refit --all` starts
+        # without them, and so does each of its workers).
         load0 = os.getloadavg()[0]
+        t = time.perf_counter()
+        results = run_batch(settings, ids, n_workers=workers, progress=False)
+        out["dask_s"] = time.perf_counter() - t
+        out["dask_failures"] = sum("error" in r for r in results)
+        load1 = os.getloadavg()[0]
         t = time.perf_counter()
         serial = []
         for cid in ids:
@@ -290,15 +300,10 @@ def fleet(cameras: int, frames: int, workers: int, css, day, refl) -> dict:
                                        max_fit_frames=settings.refit_fit_frames))
             engine.dispose()
         out["serial_s"] = time.perf_counter() - t
-        load1 = os.getloadavg()[0]
-        t = time.perf_counter()
-        results = run_batch(settings, ids, n_workers=workers, progress=False)
-        out["dask_s"] = time.perf_counter() - t
-        out["dask_failures"] = sum("error" in r for r in results)
         # Per-camera seconds inside refit_camera: equal on both sides unless the workers compete for CPUs.
         out["serial_camera_s"] = float(np.mean([r["seconds"] for r in serial]))
         out["dask_camera_s"] = float(np.mean([r["seconds"] for r in results if "seconds" in r] or [np.nan]))
-        out["load_serial"], out["load_dask"] = (load0 + load1) / 2, (load1 + os.getloadavg()[0]) / 2
+        out["load_dask"], out["load_serial"] = (load0 + load1) / 2, (load1 + os.getloadavg()[0]) / 2
     out["speedup"] = out["serial_s"] / out["dask_s"]
     return out
 

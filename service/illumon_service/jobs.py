@@ -16,6 +16,7 @@ import time
 import uuid
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 from illumon._blas import limit_blas_threads
 from sqlalchemy.orm import Session, sessionmaker
@@ -28,7 +29,7 @@ from .refit import refit_camera
 from .settings import Settings
 from .storage import as_utc, make_engine, make_session_factory, utcnow
 
-__all__ = ["JobRunner", "run_batch", "usable_cpus"]
+__all__ = ["JobRunner", "run_batch", "usable_cpus", "fork_workers"]
 
 log = logging.getLogger("illumon_service.jobs")
 
@@ -295,7 +296,7 @@ def run_batch(
         Address of a Dask scheduler; a ``LocalCluster`` of ``n_workers`` processes (default: the CPUs this process
         may use, at most the number of cameras) otherwise.
     n_workers
-        Worker processes of the ``LocalCluster``, one thread each. When only one worker would run (one camera, one
+        Worker processes, one thread each. When only one worker would run (one camera, one
         usable CPU or ``n_workers=1``) and no scheduler is given, the cameras are refitted serially in this process
         (a message on standard error says so): a one-worker cluster only adds its start-up (~2 s) and task traffic.
     progress
@@ -306,8 +307,11 @@ def run_batch(
     Each task is a camera id; the worker reads that camera's history itself through one engine per worker process
     (nothing but the id and settings is pickled). The speed-up over serial is bounded by the CPUs left free by other
     work: on a 2-core machine whose other processes keep one core busy, two workers share the remaining core and a
-    fleet refit is no faster than serial (the same holds for two plain ``multiprocessing`` processes). The
-    ``LocalCluster``'s workers start with :func:`worker_config` (without Dask's ``MALLOC_TRIM_THRESHOLD_``).
+    fleet refit is no faster than serial (the same holds for two plain ``multiprocessing`` processes). Without a
+    scheduler, the workers are forked from this process before the cluster starts (:func:`fork_workers`: they have
+    its imports, ~2 s less start-up a worker) and join a ``LocalCluster`` that runs the scheduler only; where this
+    process cannot fork safely (another thread runs), the ``LocalCluster`` spawns them, with :func:`worker_config`
+    (without Dask's ``MALLOC_TRIM_THRESHOLD_``).
     """
     from tqdm import tqdm
 
@@ -342,12 +346,25 @@ def run_batch(
     from dask.distributed import Client, LocalCluster, as_completed
 
     cluster = None
+    forked: list[tuple[Any, Any]] = []
     if dask_scheduler:
         client = Client(dask_scheduler)
     else:
-        with dask.config.set(worker_config()):
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
-        client = Client(cluster)
+        forked = fork_workers(workers)  # before the cluster starts any thread; [] where it cannot fork safely
+        try:
+            with dask.config.set(worker_config()):
+                cluster = LocalCluster(n_workers=0 if forked else workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=None)
+            for _, conn in forked:
+                conn.send(cluster.scheduler_address)
+            client = Client(cluster)
+            if forked:
+                client.wait_for_workers(len(forked), timeout=FORKED_WORKERS_TIMEOUT)
+        except BaseException:
+            if cluster is not None:
+                cluster.close()
+            _end_forked(forked)
+            raise
     try:
         futures = [client.submit(_refit_worker, url, cid, *args, pure=False) for cid in ids]
         futures_ids = {f.key: cid for f, cid in zip(futures, ids, strict=True)}
@@ -359,5 +376,111 @@ def run_batch(
     finally:
         client.close()
         if cluster is not None:
-            cluster.close()
+            cluster.close()  # the scheduler closes its workers, the forked ones among them
+        _end_forked(forked)
     return results
+
+
+FORKED_WORKERS_TIMEOUT = 120.0
+"""Seconds :func:`run_batch` waits for its forked workers to join the scheduler (``TimeoutError`` after)."""
+
+
+def fork_workers(n: int) -> list[tuple[Any, Any]]:
+    """``n`` Dask worker processes forked from this one, each waiting for a scheduler's address (then a
+    one-thread :class:`distributed.Worker` of that scheduler until it closes it): ``(process, connection)`` pairs, the
+    address to be sent on the connection (``None``: exit). ``[]`` where forking is not safe: more than one thread
+    in this process, a running event loop, or no ``fork``.
+
+    Why: a spawned worker (Dask's default, ``LocalCluster``'s nanny) starts a new interpreter that imports
+    ``distributed`` and, at its first task, the service, illumon, colour-science and scipy (~2 s a worker on two
+    free cores, more on a loaded machine): for a fleet of 12 cameras × 2k frames, whose refits take ~0.45 s each,
+    that start-up took all the second worker's gain. A forked worker has everything this process imported.
+
+    Why it is safe: ``fork`` copies only the calling thread, and any lock another thread held at that moment stays
+    held in the child forever — which is why Dask's ``multiprocessing-method: fork`` (the nanny forks from a thread
+    of its own while the event loop runs in another) can deadlock a worker. Here the processes are forked before the
+    cluster exists, from the main thread, while it is the only Python thread of the process
+    (:func:`threading.active_count` is 1, checked) and no event loop runs in it: no Python-level lock can be held by
+    anyone else. Native threads that may exist then — an idle BLAS pool — are handled by the library's own
+    ``pthread_atfork`` handlers (OpenBLAS stops its pool before a fork and restarts it in the child); the child
+    pins BLAS to one thread (:func:`~illumon._blas.limit_blas_threads`), as Dask's ``pre-spawn-environ`` does for
+    spawned workers. The child never uses a database connection of this process (it drops the engines it
+    inherited without closing them, and opens its own, as a spawned worker does) and ends with ``os._exit`` through
+    :mod:`multiprocessing`, so no inherited finaliser runs. Results are those of a spawned worker: the same function
+    on the same rows (``tests/service/test_jobs.py``)."""
+    import asyncio
+    import multiprocessing
+
+    if n < 1 or not hasattr(os, "fork") or threading.active_count() != 1 \
+            or threading.current_thread() is not threading.main_thread():
+        return []
+    try:
+        asyncio.get_running_loop()
+        return []
+    except RuntimeError:  # no running loop: the expected case
+        pass
+    import distributed  # noqa: F401 - imported once here, not in every worker
+
+    if threading.active_count() != 1:  # pragma: no cover - an import started a thread
+        return []
+    ctx = multiprocessing.get_context("fork")
+    out = []
+    for i in range(n):
+        receive, send = ctx.Pipe(duplex=False)
+        proc = ctx.Process(target=_forked_worker, args=(receive,), name=f"illumon-refit-worker-{i}", daemon=True)
+        proc.start()
+        receive.close()
+        out.append((proc, send))
+    return out
+
+
+def _forked_worker(conn: Any) -> None:  # noqa: ANN401 - a multiprocessing Connection
+    """A forked worker's main (:func:`fork_workers`): wait for the scheduler's address, then serve it."""
+    import asyncio
+
+    import dask
+    from distributed import Worker
+
+    _INHERITED.append(dict(_ENGINES))  # the parent's engines: kept, never used or closed here
+    _ENGINES.clear()
+    limit_blas_threads()
+    address = conn.recv()
+    conn.close()
+    if not address:
+        return
+
+    logging.getLogger("distributed").setLevel(logging.WARNING)  # as LocalCluster's silence_logs
+
+    async def serve() -> None:  # no memory limit: no nanny to restart a worker, no pause that could stall a task
+        async with Worker(address, nthreads=1, name=multiprocessing_name(), memory_limit=0) as worker:
+            await worker.finished()
+
+    with dask.config.set({"distributed.worker.profile.enabled": False}):
+        asyncio.run(serve())
+
+
+def multiprocessing_name() -> str:
+    """This process's :mod:`multiprocessing` name (a forked worker's Dask name)."""
+    import multiprocessing
+
+    return multiprocessing.current_process().name
+
+
+_INHERITED: list[dict] = []
+"""A forked worker's inherited engines (:func:`_forked_worker`)."""
+
+
+def _end_forked(forked: list[tuple[Any, Any]]) -> None:
+    """Let the forked workers go: an empty address to those still waiting for one, then each joined (killed after
+    ten seconds)."""
+    for _, conn in forked:
+        try:
+            conn.send(None)
+        except (OSError, ValueError):  # already given the address, or gone
+            pass
+        conn.close()
+    for proc, _ in forked:
+        proc.join(timeout=10)
+        if proc.is_alive():  # pragma: no cover - a worker that did not close
+            proc.kill()
+            proc.join()

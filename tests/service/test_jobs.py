@@ -142,3 +142,107 @@ def test_dask_workers_start_without_the_malloc_trim_threshold():
     assert "MALLOC_TRIM_THRESHOLD_" not in env
     assert {k: int(env[k]) for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS")} == {
         "OMP_NUM_THREADS": 1, "MKL_NUM_THREADS": 1, "OPENBLAS_NUM_THREADS": 1}
+
+
+_FORKED_BATCH = """
+import json, sys, threading, warnings
+warnings.simplefilter("ignore")
+from illumon_service import jobs
+from illumon_service.settings import Settings
+forked = []
+fork = jobs.fork_workers
+def spy(n):
+    forked.append(threading.active_count())
+    out = fork(n)
+    forked.append(len(out))
+    return out
+jobs.fork_workers = spy
+results = jobs.run_batch(Settings(data_dir=sys.argv[1], admin_token="x"), None, n_workers=2, progress=False)
+print(json.dumps({"forked": forked, "results": results}))
+"""
+
+
+def _store_cameras(tmp_path, n: int, frames: int) -> None:
+    """``n`` cameras of ``frames`` simulated daylight frames each (8 regions, some missing), stored directly."""
+    from datetime import datetime, timedelta, timezone
+
+    from illumon.daylight import CIEDaylight
+    from illumon.simulation import simulate_history
+    from illumon_service.storage import Camera, Frame, make_engine, make_session_factory
+    from sqlalchemy import insert
+
+    wl = np.arange(400, 701, 5)
+    css = np.column_stack([np.exp(-0.5 * ((wl - c) / 30) ** 2) for c in (600, 540, 460)])
+    engine = make_engine(make_settings(tmp_path).resolved_database_url)
+    with make_session_factory(engine)() as s, s.begin():
+        for k in range(n):
+            rng = np.random.default_rng(k)
+            refl = np.clip(0.2 + 0.6 * rng.random((8, 1)) * np.sin(wl / rng.uniform(40, 120, (8, 1))) ** 2, 0, 1)
+            mired = np.linspace(110, 250, frames)
+            hist = simulate_history(css, CIEDaylight().spectra(np.column_stack([mired, np.zeros(frames)])), refl,
+                                    rng=k, missing_fraction=0.1)
+            cam = Camera(name=f"c{k}", token_hash=f"{k:064x}", sensitivities=css.tolist(),
+                         regions=[{"id": f"p{j}", "x": 0, "y": 0, "width": 1, "height": 1} for j in range(8)],
+                         response={"encoding": "linear"})
+            s.add(cam)
+            s.flush()
+            t0 = datetime(2025, 6, 1, tzinfo=timezone.utc)
+            s.execute(insert(Frame), [{"camera_id": cam.id, "taken_at": t0 + timedelta(minutes=f), "patches": {
+                f"p{j}": None if not np.isfinite(v[j, 0]) else v[j].tolist() for j in range(8)}}
+                for f, v in enumerate(hist.observations.values)])
+    engine.dispose()
+
+
+def _stored_estimates(tmp_path) -> list[tuple]:
+    """Every stored estimate but the columns a refit's time and version set."""
+    import sqlite3
+
+    con = sqlite3.connect(make_settings(tmp_path).resolved_database_url.removeprefix("sqlite:///"))
+    try:
+        return con.execute("SELECT frame_id, camera_id, taken_at, cct_k, duv, xy, white_rgb, gains_rgb, confidence, "
+                           "spectrum, intervals, source FROM estimates ORDER BY frame_id").fetchall()
+    finally:
+        con.close()
+
+
+def test_refit_all_in_forked_workers_equals_serial(tmp_path):
+    """`run_batch` in a process with one thread forks its Dask workers (``jobs.fork_workers``, no spawned interpreter
+    to start): the estimates they write and their summaries equal those of the serial refit in this process."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    from illumon_service.jobs import run_batch
+
+    _store_cameras(tmp_path, 3, 40)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    out = subprocess.run([sys.executable, "-c", _FORKED_BATCH, str(tmp_path)], capture_output=True, text=True,
+                         env=env, timeout=300, check=True).stdout
+    got = json.loads(out.strip().splitlines()[-1])
+    assert got["forked"] == [1, 2]  # one thread when it forked, two workers forked
+    forked_rows = _stored_estimates(tmp_path)
+    serial = run_batch(make_settings(tmp_path), None, n_workers=1, progress=False)
+    assert len(forked_rows) == 120 and forked_rows == _stored_estimates(tmp_path)
+    timing = {"seconds", "read_s", "fit_s", "write_s", "response_check_s", "version"}
+
+    def same(results: list[dict]) -> list[dict]:
+        return sorted(({k: v for k, v in r.items() if k not in timing} for r in results), key=lambda r: r["camera_id"])
+
+    assert same(got["results"]) == json.loads(json.dumps(same(serial)))
+
+
+def test_no_fork_beside_other_threads():
+    """``jobs.fork_workers`` forks nothing while another thread runs (its lock could be held forever in a child)."""
+    import threading
+
+    from illumon_service.jobs import fork_workers
+
+    stop = threading.Event()
+    other = threading.Thread(target=stop.wait)
+    other.start()
+    try:
+        assert fork_workers(2) == []
+    finally:
+        stop.set()
+        other.join()

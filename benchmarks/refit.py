@@ -44,6 +44,7 @@ import json
 import math
 import os
 import tempfile
+import threading
 import time
 import warnings
 from datetime import datetime, timedelta, timezone
@@ -287,6 +288,7 @@ def fleet(cameras: int, frames: int, workers: int, css, day, refl) -> dict:
         # the per-process tables of a refit before (the serial part would build them: `illumon refit --all` starts
         # without them, and so does each of its workers).
         load0 = os.getloadavg()[0]
+        out["workers_forked"] = threading.active_count() == 1  # else run_batch spawns them (jobs.fork_workers)
         t = time.perf_counter()
         results = run_batch(settings, ids, n_workers=workers, progress=False)
         out["dask_s"] = time.perf_counter() - t
@@ -348,7 +350,7 @@ def main() -> None:
     print(f"{fl['serial_s']:9.1f} {fl['dask_s']:8.1f} {fl['dask_workers']:8d} {fl['speedup']:9.2f} {fl['dask_failures']:9d} "
           f"{fl['serial_camera_s']:9.2f} {fl['dask_camera_s']:10.2f} {fl['load_serial']:8.1f} {fl['load_dask']:9.1f}")
     print("s/cam: mean seconds of one camera's refit inside refit_camera; load: 1-min load average during each part "
-          f"(other processes included; {os.cpu_count()} CPUs)")
+          f"(other processes included; {os.cpu_count()} CPUs); workers {'forked' if fl['workers_forked'] else 'spawned'}")
     RESULTS.mkdir(exist_ok=True)
     out = {"data": provenance, "cpus": os.cpu_count(), "one_camera": single, "fleet": fl}
     (RESULTS / "refit.json").write_text(json.dumps(out, indent=1) + "\n")

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+import orjson
 from illumon.observations import Observations
 from numpy.typing import NDArray
 from sqlalchemy.engine import Row
@@ -378,9 +379,22 @@ def _usable(rows: Sequence[Row]) -> tuple[list[_Stored], list[dict]]:
     return usable, dropped
 
 
+def _decoded_chunk(rows: Sequence[Row]) -> list[_Stored]:
+    """``_decoded(row, orjson_loads)`` of every row: :func:`orjson.loads` called directly, and the chunk decoded
+    again through :func:`~.storage.orjson_loads` (whose :func:`json.loads` reads what orjson refuses) only when
+    orjson refused a text of it."""
+    loads = orjson.loads
+    try:
+        return [_Stored(r[0], r[1], None if r[2] is None else loads(r[2]), None if r[3] is None else loads(r[3]),
+                        r[4], r[5], None if r[6] is None else loads(r[6]), None if r[7] is None else loads(r[7]))
+                for r in rows]
+    except orjson.JSONDecodeError:
+        return [_decoded(r, orjson_loads) for r in rows]
+
+
 def _usable_plain(rows: Sequence[Row]) -> tuple[list[_Stored], list[dict], _PlainFrames]:
     """:func:`_usable`, and the numbers already converted of the usable frames (:func:`_plain_values`)."""
-    kept = [(f, r) for f, r in ((_decoded(r, orjson_loads), r) for r in rows)
+    kept = [(f, r) for f, r in zip(_decoded_chunk(rows), rows, strict=True)
             if f.patches and (f.registration or {}).get("state") != "view_change"]
     plain, numbers = _plain_values([f for f, _ in kept])
     usable, dropped, start = [], [], []

@@ -141,7 +141,10 @@ def replace_estimates(session: Session, chunks: Iterable[Mapping[str, Sequence]]
       the same rows as a DELETE and INSERT, every column being given;
     * the frames of the camera that have a reason are read once from the partial index
       ``ix_frames_camera_not_estimated`` (few), and only those of a chunk are updated: an UPDATE naming every frame
-      written looked up 100k frames by key to change none.
+      written looked up 100k frames by key to change none. The set read stays right for the transaction: the caller
+      holds the camera's row (:func:`.refit.write_refit`: no other refit of the camera runs its write meanwhile), and
+      an ingest records a reason only for the frame it stores, in the transaction that stores it (a frame this one
+      cannot be writing unless it saw it committed, reason included).
     """
     estimates, frames = Estimate.__table__, Frame.__table__
     upsert = upsert_dialect(session.connection().dialect)

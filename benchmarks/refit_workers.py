@@ -4,8 +4,11 @@ processes and in Dask ``LocalCluster`` workers, with the CPU time and page fault
 Run: ``python benchmarks/refit_workers.py [--cameras 8] [--frames 1000] [--modes serial,plain1,dask1,dask-default1]
 [--env MALLOC_TRIM_THRESHOLD_=65536]``. Modes, run in the order given on the same stored cameras: ``serial`` (this
 process), ``plainK`` (K spawned processes sharing the cameras; ``--env`` variables set in their environment),
-``daskK`` (K workers with the service's configuration, :func:`illumon_service.jobs.worker_config`) and
-``dask-defaultK`` (K workers with Dask's defaults). Each line gives the wall time (Dask's includes the cluster's
+``daskK`` (K workers with the service's configuration, :func:`illumon_service.jobs.worker_config`),
+``dask-defaultK`` (K workers with Dask's defaults) and ``forkK`` (K workers forked from this process as
+:func:`illumon_service.jobs.run_batch` forks them; before any ``dask`` mode, which leaves threads behind, and
+first for workers as cold as ``run_batch``'s: after ``serial`` they inherit the tables its refits built). Each
+line gives the wall time (Dask's includes the cluster's
 start-up, also shown), and per camera the seconds inside ``refit_camera``, the CPU seconds of the task's thread and
 of its whole process while it ran, and the minor page faults of the process while it ran (``ru_minflt``; a count,
 so it does not move with the machine's load as the seconds do). Histories as ``benchmarks/refit.py`` stores them.
@@ -86,6 +89,31 @@ def run_dask(url: str, data_dir: str, ids: list[int], k: int, service: bool) -> 
         cluster.close()
 
 
+def run_forked(url: str, data_dir: str, ids: list[int], k: int) -> tuple[float, list[dict]]:
+    """The cameras as tasks of ``k`` workers forked from this process joining a scheduler-only ``LocalCluster``,
+    as :func:`illumon_service.jobs.run_batch` runs them (:func:`illumon_service.jobs.fork_workers`; only while this
+    process runs one thread: give ``forkK`` before any ``dask`` mode); (start-up seconds, results)."""
+    from dask.distributed import Client, LocalCluster
+    from illumon_service.jobs import _end_forked, fork_workers
+
+    t = time.perf_counter()
+    forked = fork_workers(k)
+    if not forked:
+        raise SystemExit("forkK: this process runs more than one thread (give forkK before the dask modes)")
+    cluster = LocalCluster(n_workers=0, threads_per_worker=1, processes=True, dashboard_address=None)
+    for _, conn in forked:
+        conn.send(cluster.scheduler_address)
+    client = Client(cluster)
+    client.wait_for_workers(k)
+    start = time.perf_counter() - t
+    try:
+        return start, client.gather([client.submit(task, url, cid, data_dir, pure=False) for cid in ids])
+    finally:
+        client.close()
+        cluster.close()
+        _end_forked(forked)
+
+
 def main() -> None:
     """Store the cameras, run the modes, print a line each."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -112,6 +140,8 @@ def main() -> None:
         elif mode.startswith("plain"):
             results = run_plain(url, data_dir, ids, int(mode[5:]), env)
             mode += f" {' '.join(args.env)}" if env else ""
+        elif mode.startswith("fork"):
+            start, results = run_forked(url, data_dir, ids, int(mode[4:]))
         elif mode.startswith("dask-default"):
             start, results = run_dask(url, data_dir, ids, int(mode[12:]), service=False)
         else:

@@ -47,7 +47,7 @@ def _written(url: str, chunk: int) -> tuple[list, list]:
         s.execute(insert(Frame), [{"camera_id": 1, "taken_at": T0 + timedelta(minutes=i), "patches": {},
                                    "not_estimated": "no_model" if i % 3 == 0 else None} for i in range(1, N + 1)])
         s.execute(insert(Estimate), [{**_estimate(i, "old"), "model": "old", "created_at": T0}
-                                     for i in range(1, N + 1) if i % 2 == 0])
+                                     for i in range(1, N + 1) if i % 2 == 0 and not 13 <= i <= 25])
     new = [_estimate(i, "new") for i in range(6, 26)]
 
     def chunks():  # noqa: ANN202 - the columns of ``chunk`` estimates at a time, as the refit gives them
@@ -66,14 +66,27 @@ def _written(url: str, chunk: int) -> tuple[list, list]:
 
 
 def _both(url_of, monkeypatch) -> None:  # noqa: ANN001 - a function of the path's name to a database URL
-    """The upsert path and the DELETE + INSERT path leave the same tables; the new estimates replaced the old."""
+    """The upsert path and the DELETE + INSERT path leave the same tables; the new estimates replaced the old; a
+    chunk without a stored estimate is a plain INSERT."""
     got = {}
+    replaced: list[bool] = []
+    insert_columns = crud_estimates.insert_columns
+
+    def spy(*args, replace_on=None, **kwargs):  # noqa: ANN002, ANN003, ANN202 - insert_columns' own
+        replaced.append(bool(replace_on))
+        return insert_columns(*args, replace_on=replace_on, **kwargs)
+
+    monkeypatch.setattr(crud_estimates, "insert_columns", spy)
     for name in ("upsert", "delete"):
         if name == "delete":
             monkeypatch.setattr(crud_estimates, "upsert_dialect", lambda _dialect: False)
         got[name] = _written(url_of(name), chunk=7)
+        if name == "upsert":
+            replaced = replaced[:]  # the upsert path's chunks
+            monkeypatch.setattr(crud_estimates, "insert_columns", insert_columns)
     (est, reasons), (est_d, reasons_d) = got["upsert"], got["delete"]
     assert len(est) == len(est_d) == 20 + 2 + 3  # frames 6…25 new, the old ones of 2, 4 and 26, 28, 30 kept
+    assert replaced == [True, False, False]  # chunks 6…12 (old estimates of 6, 8, 10, 12), 13…19, 20…25 (none)
     assert all(same_value(list(a), list(b)) for a, b in zip(est, est_d, strict=True))
     assert reasons == reasons_d
     by_id = {r[0]: r for r in est}

@@ -135,10 +135,13 @@ def replace_estimates(session: Session, chunks: Iterable[Mapping[str, Sequence]]
     value of (``model``), and ``created_at`` is the chunk's time. SQLAlchemy Core statements within the caller's
     transaction:
 
-    * per chunk one executemany INSERT (:func:`.storage.insert_columns`) whose rows replace the stored estimates of
-      their frames (``replace_on``: ``INSERT … ON CONFLICT (frame_id) DO UPDATE`` of every column, where
-      :func:`.storage.upsert_dialect`: SQLite ≥ 3.24, PostgreSQL; elsewhere a DELETE of the chunk's frames first) —
-      the same rows as a DELETE and INSERT, every column being given;
+    * per chunk one executemany INSERT (:func:`.storage.insert_columns`); when a frame of the chunk has a stored
+      estimate, its rows replace the stored ones (``replace_on``: ``INSERT … ON CONFLICT (frame_id) DO UPDATE`` of
+      every column, where :func:`.storage.upsert_dialect`: SQLite ≥ 3.24, PostgreSQL; elsewhere a DELETE of the
+      chunk's frames first) — the same rows as a DELETE and INSERT, every column being given. Which frames have
+      one is read once (the camera's estimates, an index-only scan; every writer stores an estimate under its
+      frame's camera): a chunk of frames without any is a plain INSERT (on SQLite the upsert into an empty range
+      cost 0.35 s more CPU at 100k frames than the INSERT; over stored rows it saves 0.7 s);
     * the frames of the camera that have a reason are read once from the partial index
       ``ix_frames_camera_not_estimated`` (few), and only those of a chunk are updated: an UPDATE naming every frame
       written looked up 100k frames by key to change none. The set read stays right for the transaction: the caller
@@ -150,16 +153,18 @@ def replace_estimates(session: Session, chunks: Iterable[Mapping[str, Sequence]]
     upsert = upsert_dialect(session.connection().dialect)
     marked = set(session.scalars(select(frames.c.id).where(frames.c.camera_id == camera_id,
                                                            frames.c.not_estimated.is_not(None))).all())
+    stored = set(session.scalars(select(estimates.c.frame_id).where(estimates.c.camera_id == camera_id)).all())
     written = 0
     for columns in chunks:
         ids = [int(i) for i in columns["frame_id"]]
         if not ids:
             continue
-        if not upsert:
+        replace = any(i in stored for i in ids)
+        if replace and not upsert:
             session.execute(delete(estimates).where(estimates.c.frame_id.in_(ids)))
         written += insert_columns(session, estimates, {**columns, "frame_id": ids},
                                   {**constants, "camera_id": camera_id, "created_at": utcnow()},
-                                  replace_on=("frame_id",) if upsert else None)
+                                  replace_on=("frame_id",) if replace and upsert else None)
         clear = [i for i in ids if i in marked]
         if clear:
             session.execute(update(frames).where(frames.c.id.in_(clear)).values(not_estimated=None))

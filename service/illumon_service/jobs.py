@@ -351,6 +351,7 @@ def run_batch(
         client = Client(dask_scheduler)
     else:
         forked = fork_workers(workers)  # before the cluster starts any thread; [] where it cannot fork safely
+        client = None
         try:
             with dask.config.set(worker_config()):
                 cluster = LocalCluster(n_workers=0 if forked else workers, threads_per_worker=1, processes=True,
@@ -361,6 +362,8 @@ def run_batch(
             if forked:
                 client.wait_for_workers(len(forked), timeout=FORKED_WORKERS_TIMEOUT)
         except BaseException:
+            if client is not None:
+                client.close()
             if cluster is not None:
                 cluster.close()
             _end_forked(forked)

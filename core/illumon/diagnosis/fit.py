@@ -311,7 +311,8 @@ def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[D
     (:func:`illumon.model.level.common_level_posterior`), and each frame's ``non_daylight`` follows
     (:func:`illumon.model.lamps.apply_lamps`): for rendered output the camera's balance places a daylight history's
     mean white near grey, a lamp-lit one's near a lamp's; for sensor RGB the scene average is placed among the
-    daylight or the lamps' whites through a camera nobody measured (:func:`_level_verdict`). When the history is more
+    daylight or the lamps' whites through the camera given and through a camera nobody measured, both of which must
+    say lamps (:func:`_sensor_rgb_verdict`). When the history is more
     likely lamp-lit than not, the effect is named with the frames whose ``non_daylight`` ≥ 0.5 (at least
     :data:`MIN_OFF_LOCUS_FRAMES`; those the spectral stage found are kept too). ``lamp_share`` is the share of lamp
     light re-fitted as in the spectral stage (:func:`.spectral.lamp_shares`) where at least two daylight frames remain
@@ -327,24 +328,15 @@ def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[D
     for d in found:
         if d.effect in GLOBAL_EFFECTS:
             judged = corrected_observations(judged, d)
-    srgb = check_primaries(primaries) == "srgb"
-    verdict = _level_verdict(judged, css if srgb else None, primaries)
+    verdict = _level_verdict(judged, css, primaries)
+    if check_primaries(primaries) == "camera":
+        verdict = _sensor_rgb_verdict(verdict, _level_verdict(judged, None, primaries))
     if verdict is None:
         return None
     model, p, nd = verdict
     spectral = next((d for d in found if d.effect == "off_locus_illuminant"), None)
     if p <= 0.5:
-        if spectral is not None:
-            return None
-        if not srgb:
-            # the frames judged with the sensitivities given, where they too judge the history daylight; where they
-            # judge it lamp-lit against the camera nobody measured, their daylight whites do not match the history's
-            # (sensitivities standing in for the camera's: a daylight history's frames all read lamp-lit), and the
-            # frames are judged as that camera's
-            given = _level_verdict(judged, css, primaries)
-            if given is not None and given[1] <= 0.5:
-                nd = given[2]
-        return _lamp_lit_frames(obs, css, nd)
+        return None if spectral is not None else _lamp_lit_frames(obs, css, nd)
     frames = set(np.flatnonzero(nd >= 0.5).tolist())
     if spectral is not None:
         frames |= set(spectral.parameters.get("frame_indices", []))
@@ -362,22 +354,17 @@ def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[D
                            "lamp_whites": np.asarray(model.history_estimate[0].white, dtype=float)})
 
 
-def _level_verdict(obs: Observations, css: NDArray[np.float64] | None, primaries: str
-                   ) -> tuple[SceneModel, float, NDArray[np.float64]] | None:
-    """The estimator's scene model of ``obs`` (:func:`illumon.model.fit_scene_model`), the posterior probability that
-    the history is lit by lamps throughout (``noise["unbalanced"]``, :func:`illumon.model.level.common_level_posterior`)
-    and every frame's ``non_daylight``; None where the model cannot be fitted.
+Verdict = tuple["SceneModel", float, NDArray[np.float64]]
+"""A scene model, the posterior probability that its history is lit by lamps throughout, each frame's
+``non_daylight`` (:func:`_level_verdict`)."""
 
-    ``css`` None: sensor RGB of a camera nobody measured — the level test the estimator runs for such a camera
-    (``camera_level`` of its fixed-camera fit): the scene average against the daylight and the CIE lamps' whites
-    through the measured cameras' mean, each within the measured cameras' spread. The whole-history verdict of sensor
-    RGB is that one, whatever sensitivities were given: a sensor's daylight whites are known only as well as its
-    sensitivities, and those given to the diagnosis may stand in for a camera nobody measured (the sRGB functions, as
-    outside checkers pass). Judged with them as measured (± 0.02), real daylight reads lamp-lit: ``sony-raw`` with the
-    mean measured camera 0.99, every development daylight history of ``benchmarks/unmeasured.py``'s ``pale`` case
-    given the clipped sRGB functions 1.00 (12 of 12; its ``none`` case 10 of 12 above 0.5), while the prior's spread holds
-    them all at 0.00 and the real MIMO lamp-lit scenes (development) at 0.95–0.97 (development seeds 3 000–3 005,
-    both simulators)."""
+
+def _level_verdict(obs: Observations, css: NDArray[np.float64] | None, primaries: str
+                   ) -> Verdict | None:
+    """The estimator's scene model of ``obs`` (:func:`illumon.model.fit_scene_model`, ``css`` None for a camera nobody
+    measured), the posterior probability that the history is lit by lamps throughout (``noise["unbalanced"]``,
+    :func:`illumon.model.level.common_level_posterior`) and every frame's ``non_daylight``; None where the model
+    cannot be fitted."""
     import warnings
 
     from ..model import fit_scene_model
@@ -394,6 +381,34 @@ def _level_verdict(obs: Observations, css: NDArray[np.float64] | None, primaries
     if nd.shape != (len(obs.frames),):
         return None
     return model, float(model.noise.get("unbalanced", 0.0) or 0.0), nd
+
+
+def _sensor_rgb_verdict(given: Verdict | None, unmeasured: Verdict | None) -> Verdict | None:
+    """Sensor RGB's whole-history verdict from two level tests of the estimator (:mod:`illumon.model.level`): with the
+    sensitivities given, as a measured camera's (its daylight whites ± 0.02), and as a camera nobody measured (the
+    scene average against the daylight and the CIE lamps' whites through the measured cameras' mean, each within their
+    spread: the estimator's test for ``--primaries camera`` without sensitivities). The diagnosis cannot tell measured
+    sensitivities from stand-ins (the sRGB functions outside checkers pass for a camera nobody measured), and each
+    test fails where the other holds:
+
+    * given stand-ins, the measured camera's test calls real daylight lamp-lit (``sony-raw`` with the mean measured
+      camera 0.99; ``benchmarks/unmeasured.py``'s raw daylight histories given the clipped sRGB functions, development
+      seeds 3 000–3 013, both simulators: ``pale`` 26 of 28 above 0.5, every frame judged lamp-lit, ``none`` 20 of
+      28), where the unmeasured camera's says 0.00 on all but the Point Grey camera's ``pale`` ones (below);
+    * a measured camera whose daylight white lies outside the measured cameras' spread (the Point Grey machine-vision
+      camera) reads lamp-lit to the unmeasured test on a daylight scene of pale surfaces (0.93), not to its own (0.00).
+
+    So the history is lamp-lit throughout when both say so (probability the smaller of the two; the frames as the
+    unmeasured test judges them: on a history lit by lamps throughout it judged every frame lamp-lit where it judged
+    the history so, the measured test 16–24 of 30). Otherwise the frames are judged with a model that found the
+    history daylight (the given sensitivities' where they did: unchanged from before the unmeasured test), for
+    :func:`_lamp_lit_frames`. The real MIMO lamp-lit scenes (development) given the clipped sRGB functions: 0.997 and
+    0.95–0.97. None where either model cannot be fitted."""
+    if given is None or unmeasured is None:
+        return None
+    if given[1] > 0.5 and unmeasured[1] > 0.5:
+        return unmeasured[0], min(given[1], unmeasured[1]), unmeasured[2]
+    return given if given[1] <= 0.5 else unmeasured
 
 
 def _lamp_share_column(obs: Observations, css: NDArray[np.float64], idx: list[int]) -> list[float | None]:

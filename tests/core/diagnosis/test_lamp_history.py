@@ -100,9 +100,10 @@ def test_a_sensor_rgb_history_lit_by_lamps_throughout_is_off_locus_with_its_fram
     """Sensor RGB lit by lamps in every frame (Nikon D80, D3): the spectral stage's typical frame is lamp-lit, so it
     finds no outlier; the estimator's level tests — the sensitivities given as a measured camera's, and a camera
     nobody measured — both place the scene average among the lamps' whites, and every frame is named. With the
-    measured sensitivities the diagnosis before named only the frames the per-frame verdicts found (7 and 21 of 30
-    on these two); the unmeasured test judges 5 of the 14 development cameras' ``raw+lamps`` histories (seeds
-    3 000–3 013) lamp-lit throughout, the others' lamps lying near the daylight locus through the camera."""
+    measured sensitivities the diagnosis before named 24 (D80, the measured test alone) and 2 (D3, the spectral
+    stage) of the 30 frames; the unmeasured test judges 5 of the 14 development cameras' ``raw+lamps`` histories
+    (seeds 3 000–3 013) lamp-lit throughout, the others' lamps lying near the daylight locus through the camera (those
+    are named from their frames' verdicts or by the spectral stage)."""
     obs, css = _raw("raw+lamps", seed, sim)
     d = diagnose(obs, css if given == "measured" else _clipped_srgb(), reestimate=False)
     lamp = _off_locus(d)

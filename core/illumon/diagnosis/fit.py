@@ -212,7 +212,8 @@ def diagnose(
         The camera's output space (:data:`illumon.camera.primaries.PRIMARIES`). A history lit by lamps throughout is
         named ``off_locus_illuminant`` when the estimator's common level judges it so (:func:`_lamp_lit_history`):
         for rendered output (``"srgb"``: white balance and a colour matrix) against the balance, for sensor RGB
-        (``"camera"``) against the daylight whites of a camera nobody measured.
+        (``"camera"``) against the daylight whites through the sensitivities given and through a camera nobody
+        measured, both (:func:`_sensor_rgb_verdict`).
 
     Returns
     -------
@@ -237,8 +238,8 @@ SHORT_HISTORY_FRAMES = 2
 
 def min_frames(primaries: str, rank: int = RANK) -> int:
     """The fewest frames :func:`diagnose` accepts: :data:`SHORT_HISTORY_FRAMES`, below ``rank + 2`` (the bilinear
-    effects' fewest) the history's light being judged alone — for rendered output against the balance, for sensor
-    RGB against a camera nobody measured (:func:`_lamp_lit_history`). ``rank`` is kept for the callers' messages."""
+    effects' fewest) the history's light being judged alone (:func:`_lamp_lit_history`), for either primaries.
+    ``rank`` is kept for the callers' signature."""
     check_primaries(primaries)
     return SHORT_HISTORY_FRAMES
 

@@ -20,11 +20,11 @@ linear-sRGB colour-matching functions clipped at 0, :func:`illumon.camera.primar
 checkers pass for a camera nobody measured; values as loaded, white level 65535) on every scene, both with
 ``--primaries camera`` (the CLI's default) and ``srgb`` (raw-converted linear output, as the estimator's table above
 reads it): the effects named, the lamp-lit frames, and whether ``off_locus_illuminant`` was named. The daylight side:
-the ``sony-dolp`` chart sets — ``sony-raw`` with the mean measured camera's sensitivities (sensor RGB), the ISP sets
-with the clipped sRGB functions and ``--primaries srgb``. They have 3 frames, fewer than the bilinear effects need
-(6): the diagnosis refuses sensor RGB that short and judges rendered output for its light alone
-(:func:`illumon.diagnosis.fit._short_history`, as it does the 3-frame scene ``spdif``); the column also gives the
-whole-history lamp check itself (:func:`illumon.diagnosis.fit._lamp_lit_history`, rendered output only).
+the ``sony-dolp`` chart sets — ``sony-raw`` with the mean measured camera's sensitivities (sensor RGB) and again with
+the clipped sRGB functions (what an outside checker passes), the ISP sets with the clipped sRGB functions and
+``--primaries srgb``. They have 3 frames, fewer than the bilinear effects need (6): the diagnosis judges them for their
+light alone (:func:`illumon.diagnosis.fit._short_history`, as it does the 3-frame scene ``spdif``); the column also
+gives the whole-history lamp check itself (:func:`illumon.diagnosis.fit._lamp_lit_history`).
 ``--split development`` runs the development scenes only, ``--split score`` the held-out ones (looked at once,
 after every choice).
 
@@ -124,6 +124,7 @@ def diagnosis_row(obs, css: NDArray, primaries: str) -> dict:
     except ValueError as exc:
         return {"refused": str(exc).replace("<history>: ", ""), "off_locus": False, "effects": []}
     effects = [{"effect": e["effect"], "frames": e["parameters"].get("frames"),
+                "non_daylight": e["parameters"].get("non_daylight"),
                 "found_by": e["parameters"].get("found_by", "spectral" if e["effect"] == "off_locus_illuminant" else None),
                 "illuminant_change_deg": e["illuminant_change_deg"]} for e in d.effects]
     return {"effect": d.effect, "effects": effects, "off_locus": any(e["effect"] == "off_locus_illuminant" for e in effects),
@@ -135,7 +136,11 @@ def _diagnosis_text(r: dict) -> str:
         return "refused (" + r["refused"].split(";")[0] + ")"
     if not r["effects"]:
         return "none"
-    return ", ".join(e["effect"] + (f" [{' '.join(e['frames'])}]" if e.get("frames") else "") for e in r["effects"])
+    def frames(e: dict) -> str:
+        nd = e.get("non_daylight") or [None] * len(e["frames"])
+        return " [" + " ".join(f + ("" if v is None else f":{v:.2f}") for f, v in zip(e["frames"], nd, strict=True)) + "]"
+
+    return ", ".join(e["effect"] + (frames(e) if e.get("frames") else "") for e in r["effects"])
 
 
 def daylight_diagnosis(s) -> dict:
@@ -147,20 +152,18 @@ def daylight_diagnosis(s) -> dict:
     from real import _observations
 
     obs = _observations(s, [])
-    if s.primaries == "srgb":
-        css, name = np.clip(srgb_sensitivities(), 0.0, None), "clipped sRGB functions"
-    else:
-        css, name = prior_sensitivities(), "mean measured camera"
+    clipped = np.clip(srgb_sensitivities(), 0.0, None)
+    css, name = (clipped, "clipped sRGB functions") if s.primaries == "srgb" else (prior_sensitivities(),
+                                                                                   "mean measured camera")
     out = {"sensitivities": name, "diagnose": diagnosis_row(obs, css, s.primaries)}
-    if s.primaries == "srgb":
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            lamp = _lamp_lit_history(obs, css, [], "srgb")
-        out["lamp_check"] = "off-locus" + str(lamp.parameters["frames"]) if lamp is not None else "daylight (no off-locus)"
-        out["off_locus"] = lamp is not None
-    else:
-        out["lamp_check"] = "not applicable (sensor RGB)"
-        out["off_locus"] = False
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        lamp = _lamp_lit_history(obs, css, [], s.primaries)
+    out["lamp_check"] = "off-locus" + str(lamp.parameters["frames"]) if lamp is not None else "daylight (no off-locus)"
+    out["off_locus"] = lamp is not None or out["diagnose"]["off_locus"]
+    if s.primaries == "camera":  # sensor RGB as an outside checker passes it: the clipped sRGB functions
+        out["diagnose_srgb_functions"] = diagnosis_row(obs, clipped, s.primaries)
+        out["off_locus"] = out["off_locus"] or out["diagnose_srgb_functions"]["off_locus"]
     return out
 
 
@@ -280,7 +283,9 @@ def main(argv: list[str] | None = None) -> int:
             if args.diagnose:
                 report["daylight_sets"][s.name]["diagnosis"] = dr = daylight_diagnosis(s)
                 print(f"    diagnosis ({dr['sensitivities']}, --primaries {s.primaries}): "
-                      + _diagnosis_text(dr["diagnose"]) + f"; whole-history lamp check: {dr['lamp_check']}")
+                      + _diagnosis_text(dr["diagnose"]) + f"; whole-history lamp check: {dr['lamp_check']}"
+                      + ("; with the clipped sRGB functions: " + _diagnosis_text(dr["diagnose_srgb_functions"])
+                         if "diagnose_srgb_functions" in dr else ""))
     if args.sim:
         report["simulated"] = simulated(args.sim)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)

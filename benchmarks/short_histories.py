@@ -1,6 +1,6 @@
-"""Short histories of rendered output (issue 28): the diagnosis's whole-history light verdict on 2, 3 and 6 frames.
+"""Short histories (issue 28): the diagnosis's whole-history light verdict on 2, 3 and 6 frames.
 
-``illumon diagnose --primaries srgb`` judges a history shorter than the bilinear effects need (``rank + 2`` = 6 frames)
+``illumon diagnose`` judges a history shorter than the bilinear effects need (``rank + 2`` = 6 frames)
 for its light alone (:func:`illumon.diagnosis.fit._short_history`): ``off_locus_illuminant`` when the scene model's
 common level says lamps light it throughout (:func:`illumon.diagnosis.fit._lamp_lit_history`), else ``none``. This
 benchmark counts how often that verdict names lamp light
@@ -10,6 +10,9 @@ benchmark counts how often that verdict names lamp light
 * on rendered **lamp-lit** histories (``none+lamps``: lamps only, over pale man-made surfaces, as the real MIMO scenes)
   — every miss is a miss,
 
+``--primaries camera``: sensor RGB instead — ``none`` (daylight over measured surfaces), ``pale`` (daylight over pale
+surfaces) and ``raw+lamps`` (the lamps of ``none+lamps`` seen as raw output), judged with ``primaries="camera"``;
+
 from ``benchmarks/unmeasured.py``'s renderer (both simulators, ``illumon`` and ``rawsim``), each 30-frame history cut
 into disjoint windows of ``--frames`` consecutive frames (every window judged; the full 30 frames too). The diagnosis
 is given the linear-sRGB colour-matching functions clipped at 0 as sensitivities, as outside checkers pass for a camera
@@ -18,7 +21,7 @@ level has, not a tuned value); ``--split dev`` (Nikon and Point Grey cameras, de
 development data, ``--split score`` (Canon, Hasselblad, Pentax, Phase One; score surfaces, Granada 1300–2599) is held
 out.
 
-    python benchmarks/short_histories.py [--split dev|score] [--seeds 2] [--frames 2,3,6]
+    python benchmarks/short_histories.py [--split dev|score] [--seeds 2] [--frames 2,3,6] [--primaries camera]
 
 Prints a table and writes ``benchmarks/results/short_histories.json``.
 """
@@ -40,8 +43,9 @@ import unmeasured  # noqa: E402
 from illumon.camera.primaries import srgb_sensitivities  # noqa: E402
 from illumon.diagnosis.fit import _lamp_lit_history  # noqa: E402
 
-CASES = {"none+rendered": False, "none+awb": False, "none+lamps": True}
-"""Case of ``benchmarks/unmeasured.py`` → whether its history is lit by lamps."""
+CASES = {"srgb": {"none+rendered": False, "none+awb": False, "none+lamps": True},
+         "camera": {"none": False, "pale": False, "raw+lamps": True}}
+"""Per primaries, case of ``benchmarks/unmeasured.py`` → whether its history is lit by lamps."""
 
 
 def windows(n_frames: int, size: int) -> list[np.ndarray]:
@@ -52,11 +56,11 @@ def windows(n_frames: int, size: int) -> list[np.ndarray]:
     return [np.arange(i, i + size) for i in range(0, n_frames - size + 1, size)]
 
 
-def named(obs, css: np.ndarray) -> bool:
-    """Whether the short-history verdict names lamp light for ``obs`` (rendered output)."""
+def named(obs, css: np.ndarray, primaries: str = "srgb") -> bool:
+    """Whether the short-history verdict names lamp light for ``obs``."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return _lamp_lit_history(obs, css, [], "srgb") is not None
+        return _lamp_lit_history(obs, css, [], primaries) is not None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -64,6 +68,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split", choices=["dev", "score"], default="dev")
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--frames", default="2,3,6,30", help="window lengths, comma-separated (30: the whole history)")
+    ap.add_argument("--primaries", choices=["srgb", "camera"], default="srgb",
+                    help="srgb: rendered histories; camera: sensor-RGB ones")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "short_histories.json"))
     args = ap.parse_args(argv)
     sizes = [int(v) for v in args.frames.split(",")]
@@ -72,20 +78,20 @@ def main(argv: list[str] | None = None) -> int:
     counts: dict[tuple[str, int], list[int]] = {}
     for sim in ("illumon", "rawsim"):
         for cam in cams:
-            for case in CASES:
+            for case in CASES[args.primaries]:
                 for seed in range(args.seeds):
                     obs, _, _ = unmeasured.render(sim, cam, case, seed)
                     for size in sizes:
                         c = counts.setdefault((case, size), [0, 0])
                         for idx in windows(len(obs.frames), size):
-                            c[0] += named(obs.subset(idx), css)
+                            c[0] += named(obs.subset(idx), css, args.primaries)
                             c[1] += 1
     split = ("development (dev cameras, surfaces, Granada 0–1299)" if args.split == "dev"
              else "score (held out: score cameras, surfaces, Granada 1300–2599)")
-    print(f"split: {split}; {args.seeds} seed(s) × {len(cams)} cameras × 2 simulators")
+    print(f"split: {split}; {args.seeds} seed(s) × {len(cams)} cameras × 2 simulators; primaries {args.primaries}")
     print(f"{'case':<15} {'light':<9} " + " ".join(f"{f'{s} frames':>14}" for s in sizes))
     rows = []
-    for case, lamp in CASES.items():
+    for case, lamp in CASES[args.primaries].items():
         cells = []
         for size in sizes:
             k, n = counts[(case, size)]
@@ -94,7 +100,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{case:<15} {'lamps' if lamp else 'daylight':<9} " + " ".join(f"{c:>14}" for c in cells))
     print("off_locus_illuminant named: on daylight a false alarm, on lamps a hit")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps({"split": args.split, "seeds": args.seeds, "rows": rows}, indent=1) + "\n")
+    report = {"split": args.split, "seeds": args.seeds, "primaries": args.primaries, "rows": rows}
+    Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
     print(f"wrote {args.out}")
     return 0
 

@@ -51,6 +51,7 @@ change is reported.
 from __future__ import annotations
 
 import copy
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -73,6 +74,9 @@ from .stages import (
     refined_spectral_base,
     spectral_stage,
 )
+
+if TYPE_CHECKING:
+    from ..model import SceneModel
 
 __all__ = ["RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "SHORT_HISTORY_FRAMES", "Candidate", "diagnose", "min_frames",
            "short_history_hint"]
@@ -182,9 +186,8 @@ def diagnose(
     Parameters
     ----------
     obs
-        Observations (values on a 0…1 scale, NaN where missing), at least ``rank + 2`` frames; for rendered output
-        (``primaries="srgb"``) at least :data:`SHORT_HISTORY_FRAMES`, a shorter history than ``rank + 2`` being
-        judged for its light alone (:func:`_short_history`).
+        Observations (values on a 0…1 scale, NaN where missing), at least :data:`SHORT_HISTORY_FRAMES` frames; a
+        history shorter than ``rank + 2`` is judged for its light alone (:func:`_short_history`).
     sensitivities
         Camera sensitivities on the grid (61 × 3).
     rank
@@ -206,9 +209,11 @@ def diagnose(
         :data:`.noise.DARK_CODES` codes of black are censored at any brightness; above that, a dim history's censoring
         level follows its own brightness (:func:`.noise.history_dark_level`).
     primaries
-        The camera's output space (:data:`illumon.camera.primaries.PRIMARIES`). For rendered output (``"srgb"``: white
-        balance and a colour matrix) a history lit by lamps throughout is named ``off_locus_illuminant`` when the
-        estimator's common level judges it so (:func:`_lamp_lit_history`); sensor RGB has no balance to judge it by.
+        The camera's output space (:data:`illumon.camera.primaries.PRIMARIES`). A history lit by lamps throughout is
+        named ``off_locus_illuminant`` when the estimator's common level judges it so (:func:`_lamp_lit_history`):
+        for rendered output (``"srgb"``: white balance and a colour matrix) against the balance, for sensor RGB
+        (``"camera"``) against the daylight whites through the sensitivities given and through a camera nobody
+        measured, both (:func:`_sensor_rgb_verdict`).
 
     Returns
     -------
@@ -227,28 +232,27 @@ def diagnose(
 
 
 SHORT_HISTORY_FRAMES = 2
-"""Fewest frames of rendered output (``primaries="srgb"``) whose light is judged as a whole when the history is too
-short for the bilinear effects (:func:`_short_history`)."""
+"""Fewest frames whose light is judged as a whole when the history is too short for the bilinear effects
+(:func:`_short_history`)."""
 
 
 def min_frames(primaries: str, rank: int = RANK) -> int:
-    """The fewest frames :func:`diagnose` accepts: ``rank + 2`` for the bilinear effects, or
-    :data:`SHORT_HISTORY_FRAMES` for rendered output, whose whole-history light is judged alone below that."""
-    return SHORT_HISTORY_FRAMES if check_primaries(primaries) == "srgb" else rank + 2
+    """The fewest frames :func:`diagnose` accepts: :data:`SHORT_HISTORY_FRAMES`, below ``rank + 2`` (the bilinear
+    effects' fewest) the history's light being judged alone (:func:`_lamp_lit_history`), for either primaries.
+    ``rank`` is kept for the callers' signature."""
+    check_primaries(primaries)
+    return SHORT_HISTORY_FRAMES
 
 
 def short_history_hint(primaries: str) -> str:
-    """What a refused short history can do instead, to follow "needs at least ``rank + 2`` frames"."""
-    if check_primaries(primaries) == "srgb":
-        return f" ({SHORT_HISTORY_FRAMES} of rendered output to judge its light alone)"
-    return (f"; for rendered output (--primaries srgb) {SHORT_HISTORY_FRAMES} frames are enough to judge the "
-            "history's light alone")
+    """What a refused short history could do instead, to follow "needs at least ``rank + 2`` frames"."""
+    check_primaries(primaries)
+    return f" ({SHORT_HISTORY_FRAMES} to judge its light alone)"
 
 
 def _short_history(obs: Observations, css: NDArray[np.float64], rank: int, reestimate: bool,
                    primaries: str) -> Diagnosis:
-    """A history of rendered output too short for the bilinear effects (fewer than ``rank + 2`` frames) judged for its
-    light alone.
+    """A history too short for the bilinear effects (fewer than ``rank + 2`` frames) judged for its light alone.
 
     The bilinear stage fits a rank-``rank`` model of the frames and needs two frames more than its rank to leave any
     residual to read an effect in (tone curve, clipping, pedestal, patch change, shadow, fluorescence). Whether the
@@ -280,10 +284,9 @@ def _diagnose(obs: Observations, sensitivities: NDArray[np.float64], rank: int, 
     chosen, cands, info = _choose(obs, css, rank, margins, learn_noise, from_images=images)
     diag = _as_diagnosis(obs, chosen, cands, info)
     found = _further_effects(obs, css, rank, margins, learn_noise, [diag] if chosen is not None else [], images)
-    if not any(d.effect == "off_locus_illuminant" for d in found) or check_primaries(primaries) == "srgb":
-        lamp = _lamp_lit_history(obs, css, found, primaries)
-        if lamp is not None:
-            found = [d for d in found if d.effect != "off_locus_illuminant"] + [lamp]
+    lamp = _lamp_lit_history(obs, css, found, primaries)
+    if lamp is not None:
+        found = [d for d in found if d.effect != "off_locus_illuminant"] + [lamp]
     if reestimate:
         if not found:
             diag.illuminant_change_deg = 0.0
@@ -305,40 +308,33 @@ def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[D
     The spectral stage finds lamp-lit frames as outliers of the history's own frames (:func:`.spectral.off_locus_gains`
     in units of its typical frame), so a history lit by lamps *throughout* has none: its typical frame is lamp-lit (the
     real MIMO lamp-lit scenes, every frame a pair of white, red or blue lamps: lamp light named in 2 of 6 frames of
-    one development scene, ``none`` for the other). The estimator's scene model judges such a history as a whole: for
-    rendered output the camera's balance places a daylight history's mean white near grey, a lamp-lit one's near a
-    lamp's (:func:`illumon.model.level.common_level_posterior`), and each frame's ``non_daylight`` follows
-    (:func:`illumon.model.lamps.apply_lamps`). When the history is more likely lamp-lit than not, the effect is named
-    with the frames whose ``non_daylight`` ≥ 0.5 (at least :data:`MIN_OFF_LOCUS_FRAMES`; those the spectral stage
-    found are kept too). ``lamp_share`` is the share of lamp light re-fitted as in the spectral stage
-    (:func:`.spectral.lamp_shares`) where at least two daylight frames remain to learn the reflectances from, else
-    ``None`` (not estimable: no daylight frame). The verdict is judged with the global effects found modelled
-    (values linearised, offsets subtracted, clipped values dropped: a tone curve pulls the scene's average towards
-    grey, a pedestal towards its own colour), the rule that a spectral effect is named beside a global one only when
-    it survives the other modelled; the global effects keep their own (bilinear) evidence, which lamps lighting every
-    frame cannot explain away (no frame is left to fit without them). Score: ``−2 ln`` of the posterior odds. What
-    modelling it changes (``illuminant_change_deg``) is the move from the daylight-only joint estimate to the scene
-    model's whites, which follow the lamps (``info["lamp_whites"]``)."""
-    import warnings
-
-    from ..model import fit_scene_model
-
+    one development scene, ``none`` for the other). The estimator's scene model judges such a history as a whole
+    (:func:`illumon.model.level.common_level_posterior`), and each frame's ``non_daylight`` follows
+    (:func:`illumon.model.lamps.apply_lamps`): for rendered output the camera's balance places a daylight history's
+    mean white near grey, a lamp-lit one's near a lamp's; for sensor RGB the scene average is placed among the
+    daylight or the lamps' whites through the camera given and through a camera nobody measured, both of which must
+    say lamps (:func:`_sensor_rgb_verdict`). When the history is more
+    likely lamp-lit than not, the effect is named with the frames whose ``non_daylight`` ≥ 0.5 (at least
+    :data:`MIN_OFF_LOCUS_FRAMES`; those the spectral stage found are kept too). ``lamp_share`` is the share of lamp
+    light re-fitted as in the spectral stage (:func:`.spectral.lamp_shares`) where at least two daylight frames remain
+    to learn the reflectances from, else ``None`` (not estimable: no daylight frame). The verdict is judged with the
+    global effects found modelled (values linearised, offsets subtracted, clipped values dropped: a tone curve pulls
+    the scene's average towards grey, a pedestal towards its own colour), the rule that a spectral effect is named
+    beside a global one only when it survives the other modelled; the global effects keep their own (bilinear)
+    evidence, which lamps lighting every frame cannot explain away (no frame is left to fit without them). Score:
+    ``−2 ln`` of the posterior odds. What modelling it changes (``illuminant_change_deg``) is the move from the
+    daylight-only joint estimate to the scene model's whites, which follow the lamps (``info["lamp_whites"]``).
+    A history judged daylight as a whole may still have lamp-lit frames (:func:`_lamp_lit_frames`)."""
     judged = obs
     for d in found:
         if d.effect in GLOBAL_EFFECTS:
             judged = corrected_observations(judged, d)
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            model = fit_scene_model(judged, css, primaries=primaries)
-    except (ValueError, np.linalg.LinAlgError):
+    verdict = _level_verdict(judged, css, primaries)
+    if check_primaries(primaries) == "camera":
+        verdict = _sensor_rgb_verdict(verdict, _level_verdict(judged, None, primaries))
+    if verdict is None:
         return None
-    p = float(model.noise.get("unbalanced", 0.0) or 0.0)
-    if model.history_estimate is None:
-        return None
-    nd = np.asarray(model.history_estimate[1].get("non_daylight", []), dtype=float)
-    if nd.shape != (len(obs.frames),):
-        return None
+    model, p, nd = verdict
     spectral = next((d for d in found if d.effect == "off_locus_illuminant"), None)
     if p <= 0.5:
         return None if spectral is not None else _lamp_lit_frames(obs, css, nd)
@@ -357,6 +353,63 @@ def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[D
     return Diagnosis("off_locus_illuminant", None, None, params, [], 0.0, 0.0, None,
                      info={"score": score, "rms_base": 0.0,
                            "lamp_whites": np.asarray(model.history_estimate[0].white, dtype=float)})
+
+
+Verdict = tuple["SceneModel", float, NDArray[np.float64]]
+"""A scene model, the posterior probability that its history is lit by lamps throughout, each frame's
+``non_daylight`` (:func:`_level_verdict`)."""
+
+
+def _level_verdict(obs: Observations, css: NDArray[np.float64] | None, primaries: str
+                   ) -> Verdict | None:
+    """The estimator's scene model of ``obs`` (:func:`illumon.model.fit_scene_model`, ``css`` None for a camera nobody
+    measured), the posterior probability that the history is lit by lamps throughout (``noise["unbalanced"]``,
+    :func:`illumon.model.level.common_level_posterior`) and every frame's ``non_daylight``; None where the model
+    cannot be fitted."""
+    import warnings
+
+    from ..model import fit_scene_model
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            model = fit_scene_model(obs, css, primaries=primaries)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    if model.history_estimate is None:
+        return None
+    nd = np.asarray(model.history_estimate[1].get("non_daylight", []), dtype=float)
+    if nd.shape != (len(obs.frames),):
+        return None
+    return model, float(model.noise.get("unbalanced", 0.0) or 0.0), nd
+
+
+def _sensor_rgb_verdict(given: Verdict | None, unmeasured: Verdict | None) -> Verdict | None:
+    """Sensor RGB's whole-history verdict from two level tests of the estimator (:mod:`illumon.model.level`): with the
+    sensitivities given, as a measured camera's (its daylight whites ± 0.02), and as a camera nobody measured (the
+    scene average against the daylight and the CIE lamps' whites through the measured cameras' mean, each within their
+    spread: the estimator's test for ``--primaries camera`` without sensitivities). The diagnosis cannot tell measured
+    sensitivities from stand-ins (the sRGB functions outside checkers pass for a camera nobody measured), and each
+    test fails where the other holds:
+
+    * given stand-ins, the measured camera's test calls real daylight lamp-lit (``sony-raw`` with the mean measured
+      camera 0.99; ``benchmarks/unmeasured.py``'s raw daylight histories given the clipped sRGB functions, development
+      seeds 3 000–3 013, both simulators: ``pale`` 26 of 28 above 0.5, every frame judged lamp-lit, ``none`` 20 of
+      28), where the unmeasured camera's says 0.00 on all but the Point Grey camera's ``pale`` ones (below);
+    * a measured camera whose daylight white lies outside the measured cameras' spread (the Point Grey machine-vision
+      camera) reads lamp-lit to the unmeasured test on a daylight scene of pale surfaces (0.93), not to its own (0.00).
+
+    So the history is lamp-lit throughout when both say so (probability the smaller of the two; the frames as the
+    unmeasured test judges them: on a history lit by lamps throughout it judged every frame lamp-lit where it judged
+    the history so, the measured test 16–24 of 30). Otherwise the frames are judged with a model that found the
+    history daylight (the given sensitivities' where they did: unchanged from before the unmeasured test), for
+    :func:`_lamp_lit_frames`. The real MIMO lamp-lit scenes (development) given the clipped sRGB functions: 0.997 and
+    0.95–0.97. None where either model cannot be fitted."""
+    if given is None or unmeasured is None:
+        return None
+    if given[1] > 0.5 and unmeasured[1] > 0.5:
+        return unmeasured[0], min(given[1], unmeasured[1]), unmeasured[2]
+    return given if given[1] <= 0.5 else unmeasured
 
 
 def _lamp_share_column(obs: Observations, css: NDArray[np.float64], idx: list[int]) -> list[float | None]:

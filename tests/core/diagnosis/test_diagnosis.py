@@ -171,7 +171,15 @@ def test_corrected_observations_split_and_drop(shared_data):
 def test_too_short_history_is_rejected(shared_data):
     h = _hist("none", 0)
     with pytest.raises(ValueError, match="at least"):
-        diagnose(h.observations.subset(slice(0, 4)), h.history.sensitivities)
+        diagnose(h.observations.subset(slice(0, 1)), h.history.sensitivities)
+
+
+def test_a_history_too_short_for_the_bilinear_effects_is_judged_for_its_light(shared_data):
+    """Four frames of a clean daylight history (sensor RGB, measured camera): fewer than the bilinear effects need
+    (rank + 2 = 6), judged for its light alone — daylight, ``none``, with the note."""
+    h = _hist("none", 0)
+    d = diagnose(h.observations.subset(slice(0, 4)), h.history.sensitivities)
+    assert d.effect == "none" and d.effects == [] and any("need at least 6 frames" in n for n in d.notes)
 
 
 def test_generator_fluorophores_are_short_wave_excited_and_daylight_mixture_is_normalised(shared_data):

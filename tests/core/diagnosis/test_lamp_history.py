@@ -62,20 +62,98 @@ def test_a_short_daylight_history_is_not_off_locus(shared_data, frames):
     assert any("need at least 6 frames" in n for n in d.notes)
 
 
-def test_a_short_history_of_sensor_rgb_is_refused(shared_data):
-    """Sensor RGB has no balance to judge a few frames by: refused, saying what rendered output could do."""
+def test_a_single_frame_is_refused(shared_data):
+    """One frame has no history to judge, whatever its primaries; the message says how many frames would do."""
     obs, css = _rendered("none+lamps", 3001)
-    with pytest.raises(ValueError, match="at least 6 frames, got 3; for rendered output"):
-        diagnose(obs.subset(np.arange(3)), css)
-    with pytest.raises(ValueError, match=r"at least 6 frames, got 1 \(2 of rendered output"):
-        diagnose(obs.subset(np.arange(1)), css, primaries="srgb")
+    for primaries in ("camera", "srgb"):
+        with pytest.raises(ValueError, match=r"at least 6 frames, got 1 \(2 to judge its light alone\)"):
+            diagnose(obs.subset(np.arange(1)), css, primaries=primaries)
 
 
-def test_sensor_rgb_is_not_judged_by_a_balance(shared_data):
-    """Sensor RGB (``primaries="camera"``) has no white balance to judge a whole history by: no scene-level verdict."""
-    obs, css = _rendered("none+lamps", 3002)
-    d = diagnose(obs, css, reestimate=False)
-    assert all(e["parameters"].get("found_by") != "scene_level" for e in d.effects)
+def _raw(case: str, seed: int, sim: str = "rawsim"):
+    """``benchmarks/unmeasured.py``'s sensor-RGB histories (``raw+lamps``: lit only by CIE lamps, :func:`rawsim.lamp_run`,
+    over pale surfaces; ``pale``: its daylight twin, the same camera, seed and surfaces under Granada daylight; ``none``:
+    daylight over measured surfaces), development camera ``seed % 14``, and that camera's sensitivities."""
+    import rawsim
+    import unmeasured
+    from illumon.simulation import datasets
+
+    cam = rawsim.DEV_CAMERAS[seed % len(rawsim.DEV_CAMERAS)]
+    obs, _, _ = unmeasured.render(sim, cam, case, seed)
+    return obs, datasets.load_camera(cam)
+
+
+def _clipped_srgb():
+    """What outside checkers pass as the sensitivities of a camera nobody measured."""
+    from illumon.camera.primaries import srgb_sensitivities
+
+    return np.clip(srgb_sensitivities(), 0.0, None)
+
+
+def _off_locus(d) -> list[dict]:
+    return [e for e in d.effects if e["effect"] == "off_locus_illuminant"]
+
+
+@pytest.mark.parametrize("given", ["measured", "clipped sRGB"])
+@pytest.mark.parametrize(("seed", "sim"), [(3007, "rawsim"), (3011, "illumon")])
+def test_a_sensor_rgb_history_lit_by_lamps_throughout_is_off_locus_with_its_frames(shared_data, seed, sim, given):
+    """Sensor RGB lit by lamps in every frame (Nikon D80, D3): the spectral stage's typical frame is lamp-lit, so it
+    finds no outlier; the estimator's level tests — the sensitivities given as a measured camera's, and a camera
+    nobody measured — both place the scene average among the lamps' whites, and every frame is named. With the
+    measured sensitivities the diagnosis before named 24 (D80, the measured test alone) and 2 (D3, the spectral
+    stage) of the 30 frames; the unmeasured test judges 5 of the 14 development cameras' ``raw+lamps`` histories
+    (seeds 3 000–3 013) lamp-lit throughout, the others' lamps lying near the daylight locus through the camera (those
+    are named from their frames' verdicts or by the spectral stage)."""
+    obs, css = _raw("raw+lamps", seed, sim)
+    d = diagnose(obs, css if given == "measured" else _clipped_srgb(), reestimate=False)
+    lamp = _off_locus(d)
+    assert lamp, d.effects
+    par = lamp[0]["parameters"]
+    assert par["found_by"] == "scene_level" and 0.55 < par["history_non_daylight"] <= 1.0
+    assert set(par["frames"]) == set(obs.frames)
+    assert min(par["non_daylight"]) >= 0.5
+
+
+@pytest.mark.parametrize("given", ["measured", "clipped sRGB"])
+@pytest.mark.parametrize(("case", "seed", "sim"), [("pale", 3007, "rawsim"), ("pale", 3011, "illumon"),
+                                                   ("none", 3007, "rawsim"), ("pale", 3000, "rawsim")])
+def test_a_sensor_rgb_daylight_history_is_not_off_locus(shared_data, case, seed, sim, given):
+    """The daylight twins (the same cameras, seeds and pale surfaces under daylight; a scene of measured surfaces): no
+    off-locus light. Given the clipped sRGB functions for a raw camera, the measured camera's level test alone called
+    the pale ones lamp-lit throughout (every frame, history ``non_daylight`` 1.00: the stand-in's daylight whites are
+    not the camera's); the unmeasured camera's test says 0.00."""
+    obs, css = _raw(case, seed, sim)
+    d = diagnose(obs, css if given == "measured" else _clipped_srgb(), reestimate=False)
+    assert not _off_locus(d), d.effects
+
+
+def test_a_measured_camera_outside_the_prior_keeps_its_own_daylight(shared_data):
+    """The Point Grey machine-vision camera's daylight white lies outside the measured cameras' spread: on daylight
+    over pale surfaces the unmeasured camera's level test reads lamps (0.93), its own measured test daylight (0.00).
+    Both must say lamps; this history is clean. Lit by lamps throughout (same seed), both say so and every frame is
+    named."""
+    obs, css = _raw("pale", 3009)
+    assert not _off_locus(diagnose(obs, css, reestimate=False))
+    lit, css = _raw("raw+lamps", 3009)
+    lamp = _off_locus(diagnose(lit, css, reestimate=False))
+    assert lamp and lamp[0]["parameters"]["found_by"] == "scene_level"
+    assert set(lamp[0]["parameters"]["frames"]) == set(lit.frames)
+
+
+@pytest.mark.parametrize("frames", [[0, 1, 2], [10, 11], [25, 26, 27, 28, 29]])
+def test_a_short_sensor_rgb_history_is_judged_for_its_light(shared_data, frames):
+    """Sensor RGB of 2–5 frames (the real MIMO scene ``spdif`` has 3, the sony-dolp daylight sets 3): judged for its
+    light alone, as rendered output is — lamp-lit windows named with all their frames, daylight windows clean."""
+    obs, css = _raw("raw+lamps", 3007)
+    short = obs.subset(np.array(frames))
+    d = diagnose(short, _clipped_srgb())
+    assert d.effect == "off_locus_illuminant" and d.parameters["found_by"] == "scene_level"
+    assert d.parameters["frames"] == short.frames
+    assert d.residual_base is None and any("judged as a whole" in n for n in d.notes)
+    day, css = _raw("pale", 3007)
+    for given in (css, _clipped_srgb()):
+        d = diagnose(day.subset(np.array(frames)), given)
+        assert d.effect == "none" and d.effects == [], d.effects
 
 
 @pytest.mark.parametrize(

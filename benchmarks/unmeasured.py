@@ -63,7 +63,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import rawsim  # noqa: E402
-from illumon.camera import angular_error_deg, camera_white, colourchecker_references, grey_card_reference  # noqa: E402
+from illumon.camera import (  # noqa: E402
+    angular_error_deg,
+    camera_white,
+    colourchecker_references,
+    formation,
+    grey_card_reference,
+)
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
@@ -97,9 +103,12 @@ def _light(camera: str, case: str, seed: int) -> tuple[str, np.random.Generator,
     return split, rng, e
 
 
-def render(sim: str, camera: str, case: str, seed: int) -> tuple[Observations, np.ndarray, dict]:
-    """Observations (scene patches + references in frame 0), the true output-space white (F × 3), references."""
+def render(sim: str, camera: str, case: str, seed: int, flare: bool = False) -> tuple[Observations, np.ndarray, dict]:
+    """Observations (scene patches + references in frame 0), the true output-space white (F × 3), references.
+    ``flare``: every frame gets veiling glare (:func:`rawsim.flare_draw`, from a generator of its own: the history
+    is otherwise the same)."""
     split, rng, e = _light(camera, case, seed)
+    glare = rawsim.flare_draw(FRAMES, np.random.default_rng([seed, 0xF1A2E])) if flare else None
     css = datasets.load_camera(camera)
     scene = rawsim.draw_reflectances(split, PATCHES, rng)
     if case.endswith("lamps") or case == "pale":
@@ -116,7 +125,7 @@ def render(sim: str, camera: str, case: str, seed: int) -> tuple[Observations, n
         h = rawsim.simulate_raw_history(
             css, e, refl, rng=rng, bits=12, conversion_gain=prof["conversion_gain"], read_noise_e=prof["read_noise_e"],
             black_level=prof["black_level"], full_well_e=prof["full_well_e"], adc_bits=prof["adc_bits"], matrix=matrix,
-            applied_gains=gains,
+            applied_gains=gains, flare=glare,
         )
         values, white = h.linear_output.copy(), h.true_white
         if gains is not None:
@@ -125,6 +134,8 @@ def render(sim: str, camera: str, case: str, seed: int) -> tuple[Observations, n
         h = simulate_history(css, e, refl, rng=rng)
         values = h.observations.values.copy()
         white = camera_white(css, e)
+        if glare is not None:  # light scattered in the lens: a fraction of the frame's mean region in every region
+            values = values + glare[:, None, None] * np.nanmean(values, axis=1, keepdims=True)
         if gains is not None:
             values, white = values * gains[:, None, :], white * gains
         if matrix is not None:  # a camera clips what its matrix makes negative
@@ -148,8 +159,9 @@ MEASURED_CASES = ("none", "none+matrix", "raw+lamps", "pale")
 """Cases ``--measured`` runs with the camera's own sensitivities."""
 
 
-def run_case(sim: str, camera: str, case: str, seed: int, hours: float = 0.0, measured: bool = False) -> dict:
-    obs, white, known = render(sim, camera, case, seed)
+def run_case(sim: str, camera: str, case: str, seed: int, hours: float = 0.0, measured: bool = False,
+             flare: bool = False) -> dict:
+    obs, white, known = render(sim, camera, case, seed, flare)
     if hours > 0:  # the frames spread evenly over that many hours (the service's histories carry their times)
         t0 = datetime(2026, 6, 1, 6, 0, tzinfo=timezone.utc)
         obs.times = [(t0 + timedelta(hours=hours * i / (FRAMES - 1))).isoformat() for i in range(FRAMES)]
@@ -216,7 +228,13 @@ def main() -> int:
                          "often have); a day lets a history whose light hardly moved be read as self-balanced")
     ap.add_argument("--measured", action="store_true",
                     help=f"give the camera's own sensitivities (cases {', '.join(MEASURED_CASES)} only)")
+    ap.add_argument("--flare", action="store_true",
+                    help="veiling glare in every frame (rawsim.flare_draw: what the real photographs showed)")
+    ap.add_argument("--flare-sd", type=float,
+                    help=f"the model's prior on each frame's offset (default {formation.FLARE_SD}; 0: the model without it)")
     args = ap.parse_args()
+    if args.flare_sd is not None:
+        formation.FLARE_SD = args.flare_sd
     if datasets.shared_data_dir() is None:
         print("skipped: measured data (../shared/data) not available")
         return 0
@@ -225,10 +243,12 @@ def main() -> int:
     cams = cams[:3] if args.quick else cams
     base = 700_000 if args.split == "score" else 7_000
     cases = [c for c in CASES if c in args.cases.split(",") and (c in MEASURED_CASES or not args.measured)]
-    rows = [run_case(sim, cam, case, base + 100 * i + s, args.hours, args.measured)
+    rows = [run_case(sim, cam, case, base + 100 * i + s, args.hours, args.measured, args.flare)
             for sim in ("illumon", "rawsim") for case in cases for i, cam in enumerate(cams) for s in seeds]
     table = summarise(rows)
-    print(("measured sensitivities given; " if args.measured else "sensitivities never given; ") +
+    print(("veiling glare in every frame; " if args.flare else "") +
+          (f"model offset prior {formation.FLARE_SD}; " if args.flare_sd is not None else "") +
+          ("measured sensitivities given; " if args.measured else "sensitivities never given; ") +
           f"split {args.split} (cameras {', '.join(cams)}; rawsim's {args.split} surfaces and Granada daylight): "
           f"{len(cams)} cameras × {len(list(seeds))} seeds, {FRAMES} frames × {PATCHES} patches")
     print(f"{'simulator':9} {'case':13} {'median':>7} {'p95':>6} {'max':>6} {'gw med':>7} {'gw max':>7} "

@@ -90,7 +90,10 @@ def test_a_refit_estimating_every_frame_equals_the_fit_of_its_frames(lamp_histor
 
 def _linear_reference(solver, y, present, extra_var=None):
     """:meth:`FrameSolver.linear` as it was written before its sums became matrix products (einsums and
-    ``np.linalg.inv``)."""
+    ``np.linalg.inv``), with each frame's offset as three more unknowns of one 6 × 6 solve (its prior from
+    :func:`flare_basis`) instead of integrated out: ``b`` is the first three, ``A`` the inverse of their
+    covariance."""
+    from illumon.model.solver import flare_basis
     from illumon.retrieval.common import censored
 
     yy = np.where(present[..., None], y, 0.0)
@@ -110,7 +113,21 @@ def _linear_reference(solver, y, present, extra_var=None):
             gw = np.einsum("fpce,pek->fpck", cinv, solver.G)
         a = np.einsum("fpck,pcl->fkl", gw, solver.G) + 1e-12 * np.eye(3)
         z = np.einsum("fpck,fpc->fk", gw, yy)
-        b = np.linalg.solve(a, z[..., None])[..., 0]
+        if it == 0:
+            u = flare_basis(yy, cinv > 0, solver.flare_sd, solver.abs)  # o = U φ, φ standard normal
+        if u is not None:
+            cm = cinv if it == 1 else np.einsum("fpc,ce->fpce", cinv, np.eye(3))  # patch precisions, 3 × 3
+            r = u.shape[2]
+            n = np.zeros((len(yy), 3 + r, 3 + r))
+            n[:, :3, :3] = a
+            n[:, 3:, :3] = np.einsum("fcr,fpce,pek->frk", u, cm, solver.G)
+            n[:, :3, 3:] = np.swapaxes(n[:, 3:, :3], 1, 2)
+            n[:, 3:, 3:] = np.einsum("fcr,fpce,fes->frs", u, cm, u) + np.eye(r)
+            rhs = np.concatenate([z, np.einsum("fcr,fpce,fpe->fr", u, cm, yy)], axis=1)
+            b = np.linalg.solve(n, rhs[..., None])[:, :3, 0]
+            a = np.linalg.inv(np.linalg.inv(n)[:, :3, :3])
+        else:
+            b = np.linalg.solve(a, z[..., None])[..., 0]
     return b, a
 
 
@@ -121,14 +138,15 @@ def test_frame_solver_linear_equals_the_einsum_reference(lamp_history):
     y = np.asarray(obs.values) / model.noise["scale"]
     present = np.all(np.isfinite(y), axis=-1)
     extra = obs.extra_variance() / model.noise["scale"] ** 2
-    for cov in (model.covariance, None):
+    for cov, flare in ((model.covariance, 0.0), (None, 0.0), (model.covariance, 0.05), (None, 0.05)):
         solver = model.solver()
+        solver.flare_sd = flare  # each frame's glare offset integrated out (FLARE_SD) or not
         if cov is None:
             solver.H = None
         for ev in (None, extra):
             b, a = solver.linear(y, present, ev)
             rb, ra = _linear_reference(solver, y, present, ev)
-            np.testing.assert_allclose(b, rb, rtol=1e-10, atol=0)
+            np.testing.assert_allclose(b, rb, rtol=1e-10, atol=1e-12 * np.abs(rb).max())
             np.testing.assert_allclose(a, ra, rtol=1e-10, atol=1e-12 * np.abs(ra).max())
     m = np.random.default_rng(0).normal(size=(200, 3, 3))
     m = m @ m.transpose(0, 2, 1) + 1e-3 * np.eye(3)
@@ -174,3 +192,37 @@ def test_solve_theta_is_solves_theta(lamp_history, monkeypatch):
         monkeypatch.setattr(solver_mod, "SOLVE_CHUNK", chunk)
         for ev in (None, obs.extra_variance() / model.noise["scale"] ** 2):
             np.testing.assert_array_equal(solver.solve_theta(y, present, ev), solver.solve(y, present, ev)[0])
+
+
+def test_joint_objective_glare_offsets_are_the_exact_joint_minimum(lamp_history, monkeypatch):
+    """With each frame's glare offset on (``FLARE_SD``), the joint objective's reflectances and offsets
+    (``_JointObjective._offsets``) are the joint minimum: the gradient of its quadratic in both is zero (the dense
+    reflectance system after the offsets' block is eliminated, not an alternation), and the offsets follow the data
+    (a glare added to one frame comes back as that frame's offset)."""
+    from illumon.camera import formation
+    from illumon.model.fit import _JointObjective
+
+    monkeypatch.setattr(formation, "FLARE_SD", 0.05)
+    obs, _, model = lamp_history
+    y = np.asarray(obs.values)[:12] / model.noise["scale"]
+    present = np.all(np.isfinite(y), axis=-1)
+    dm, rb = model.daylight_model(), model.reflectance_basis()
+    theta = model.history_estimate[0].info["theta"][:12]
+    glare = np.zeros_like(y)
+    glare[3] = 0.04 * np.nanmean(y[3], axis=0)  # frame 3: 4 % of its mean added to every patch
+    offsets = []
+    for extra in (np.zeros_like(y), glare):
+        obj = _JointObjective(y + extra, present, model.sensitivities, dm, rb, 0.02, 0.002)
+        am = obj.operators(theta)
+        off, coef, _ = obj._offsets(am, obj.w2)
+        r = obj.yz - off[:, None, :] - np.einsum("fcj,pj->fpc", am, coef)
+        grad_s = -np.einsum("fcj,fpc->pj", am, obj.w2 * r) + (coef - obj.mu) @ obj.lam
+        u = obj.flare  # F × 3 × 3, diagonal: o = U φ
+        phi = off / np.einsum("fcc->fc", u)
+        grad_phi = -np.einsum("fcr,fc->fr", u, (obj.w2 * r).sum(axis=1)) + phi
+        scale = np.einsum("fcj,fpc->pj", am, obj.w2 * np.abs(obj.yz)).max()
+        assert np.abs(grad_s).max() < 1e-8 * scale and np.abs(grad_phi).max() < 1e-8 * scale
+        offsets.append(off)
+    rise = (offsets[1][3] - offsets[0][3]) / glare[3, 0]
+    others = np.abs(np.delete(offsets[1] - offsets[0], 3, axis=0)).max() / glare[3, 0].max()
+    assert np.all((rise > 0.5) & (rise < 1.2)) and others < 0.2, (rise, others)

@@ -116,18 +116,20 @@ def solve(rows: list[dict], cases: tuple[str, ...]) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("rows", help="JSON written by benchmarks/unmeasured.py (--split dev)")
+    ap.add_argument("rows", nargs="+",
+                    help="JSON written by benchmarks/unmeasured.py (--split dev); several: their frames pooled")
     args = ap.parse_args(argv)
-    d = json.loads(Path(args.rows).read_text())
-    if d.get("split") != "dev":
-        print(f"{args.rows}: split {d.get('split')!r}; choose on the development split only", file=sys.stderr)
-        return 2
-    rows = d["rows"]
-    for r in rows:
-        if "camera_log_gain" not in r:
-            print(f"{args.rows}: rows without camera_log_gain (written before this tool); re-run the benchmark",
+    rows = []
+    for path in args.rows:
+        d = json.loads(Path(path).read_text())
+        if d.get("split") != "dev":
+            print(f"{path}: split {d.get('split')!r}; choose on the development split only", file=sys.stderr)
+            return 2
+        if any("camera_log_gain" not in r for r in d["rows"]):
+            print(f"{path}: rows without camera_log_gain (written before this tool); re-run the benchmark",
                   file=sys.stderr)
             return 2
+        rows += d["rows"]
     print(f"{'regime':16} {'chosen on':28} {'frames':>6} {'within 1°':>9} {'a':>6} {'s (log)':>8} {'stated':>7}")
     for (prim, kind), cases in REGIMES.items():
         if not any(r["case"] in cases for r in rows):

@@ -81,12 +81,17 @@ def run_dask(url: str, data_dir: str, ids: list[int], k: int, service: bool) -> 
     os.environ.clear()  # the nanny sets its workers' variables in this process's environment too: later modes
     os.environ.update(environ)  # would inherit them
     client = Client(cluster)
-    start = time.perf_counter() - t
+    return _gather(client, url, data_dir, ids, time.perf_counter() - t, cluster.close)
+
+
+def _gather(client, url: str, data_dir: str, ids: list[int], start: float, *closers) -> tuple[float, list[dict]]:  # noqa: ANN001
+    """The cameras as tasks of ``client``'s workers: (``start``, results); the client and then ``closers`` closed."""
     try:
         return start, client.gather([client.submit(task, url, cid, data_dir, pure=False) for cid in ids])
     finally:
         client.close()
-        cluster.close()
+        for close in closers:
+            close()
 
 
 def run_forked(url: str, data_dir: str, ids: list[int], k: int) -> tuple[float, list[dict]]:
@@ -105,13 +110,7 @@ def run_forked(url: str, data_dir: str, ids: list[int], k: int) -> tuple[float, 
         conn.send(cluster.scheduler_address)
     client = Client(cluster)
     client.wait_for_workers(k)
-    start = time.perf_counter() - t
-    try:
-        return start, client.gather([client.submit(task, url, cid, data_dir, pure=False) for cid in ids])
-    finally:
-        client.close()
-        cluster.close()
-        _end_forked(forked)
+    return _gather(client, url, data_dir, ids, time.perf_counter() - t, cluster.close, lambda: _end_forked(forked))
 
 
 def main() -> None:

@@ -263,7 +263,8 @@ def main() -> int:
               f"{t['mean_confidence']:5.2f} {t['cct_in_95']:5.2f} {t['mired_rms']:5.1f} {t['seconds']:6.2f} "
               f"{t['non_daylight_flagged']:5.2f}  {gtxt}")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps({"split": args.split, "table": table, "rows": rows}, indent=1))
+    Path(args.out).write_text(json.dumps({"split": args.split, "flare": args.flare, "flare_sd": formation.FLARE_SD,
+                                          "table": table, "rows": rows}, indent=1))
     return 0
 
 

@@ -26,7 +26,7 @@ __all__ = [
 
 FLARE_SD = 0.0
 """Prior standard deviation of a frame's additive offset (veiling glare, flare), as a fraction of the frame's mean
-patch value in each channel (:func:`illumon.model.solver.flare_basis`); 0: the model has no offset (the default).
+patch value in each channel (:func:`illumon.model.solver.flare_scales`); 0: the model has no offset (the default).
 The development photographs (``benchmarks/real.py``'s ``sony-raw``) show offsets of 3–19 % of the frame's mean patch
 value, changing from frame to frame (spread about their mean 0.047–0.058; ``python benchmarks/flare.py``), and with
 0.05 every real set gains (``docs/methods.md``, *Veiling glare*). It is not on by default yet: on glare-free

@@ -41,7 +41,7 @@ from .intervals import MODEL_ERROR, widen_cct_intervals
 from .lamps import LAMP_PRIOR, apply_lamps, history_lamps, lamp_population
 from .level import anchor_common_level, common_level_posterior, daylight_level, mean_log_chroma, scene_reading
 from .scene import SceneModel
-from .solver import FrameSolver, flare_basis
+from .solver import FrameSolver, flare_scales
 
 __all__ = ["fit_scene_model", "LAMP_ROUNDS", "MIN_LAMP_SHARE"]
 
@@ -299,7 +299,7 @@ class _JointObjective:
         w2 = np.where(present[..., None], 1.0 / var, 0.0)
         w2[censored(self.yz, absolute_error, white)] = 0.0  # at 0 after the black level, or near white
         self.w2 = w2
-        self.flare = flare_basis(self.yz, w2 > 0, formation.FLARE_SD, absolute_error)  # F × 3 × 3, or None
+        self.flare = flare_scales(self.yz, w2 > 0, formation.FLARE_SD, absolute_error)  # F × 3, or None
         self.k_ops, self.w_ops = imaging_operators(css, dm.basis, rb)
         self.lam = np.linalg.inv(rb.prior_covariance)
         self.mu = rb.prior_mean
@@ -323,36 +323,33 @@ class _JointObjective:
         r = self.yz - np.einsum("fcj,pj->fpc", am, coef)
         if self.flare is None:
             return r
-        wsum = self.w2.sum(axis=1)  # each frame's offset given the reflectances: its weighted mean residual, shrunk
-        prior = np.einsum("fcr,fcr->fc", self.flare, self.flare)  # U diagonal: the offsets' prior variances
-        off = (self.w2 * r).sum(axis=1) / (wsum + 1.0 / prior)
+        # each frame's offset given the reflectances: its weighted mean residual, shrunk by its prior
+        off = (self.w2 * r).sum(axis=1) / (self.w2.sum(axis=1) + 1.0 / self.flare**2)
         return r - off[:, None, :]
 
-    def _offsets(self, am: NDArray[np.float64], w2: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Each frame's additive offset (F × 3, ``U φ`` of :func:`~illumon.model.solver.flare_basis`) and the
-        reflectances (P × K) that minimise the objective jointly: the offsets' block (diagonal: one frame's amounts
-        do not meet another's) eliminated first, leaving one dense system in the P·K reflectance coefficients (a
-        system in the offsets would grow with the history; this one does not). Returns the offsets, the
+    def _offsets(self, am: NDArray[np.float64], w2: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
+        """Each frame's additive offset (F × 3, ``u ⊙ φ`` of :func:`~illumon.model.solver.flare_scales`) and the
+        reflectances (P × K) that minimise the objective jointly: the offsets' block (diagonal: one amount per frame
+        and channel, meeting no other) eliminated first, leaving one dense system in the P·K reflectance coefficients
+        (a system in the offsets would grow with the history; this one does not). Returns the offsets, the
         reflectances and the amounts' prior cost ``Σ φ²``."""
         f, c, k = am.shape
         n_p = w2.shape[1]
-        u = self.flare  # F × 3 × r
-        r = u.shape[2]
+        u = self.flare
         rows = am.reshape(f * c, k)
         wt = w2.transpose(1, 0, 2).reshape(n_p, f * c)  # P × (F·3)
         prec = (wt @ (rows[:, :, None] * rows[:, None, :]).reshape(f * c, k * k)).reshape(-1, k, k) + self.lam
         rhs = (wt * self.yz.transpose(1, 0, 2).reshape(wt.shape)) @ rows + self.lam @ self.mu  # P × K
-        # the amounts' precision Uᵀ (Σ_p W_p) U + I: diagonal, as U is (one amount per channel)
-        wsum = w2.sum(axis=1)  # F × 3
-        d = (np.einsum("fcr,fc,fcr->fr", u, wsum, u) + 1.0).reshape(f * r)
-        r_o = np.einsum("fcr,fc->fr", u, (w2 * self.yz).sum(axis=1)).reshape(f * r)
-        cross = np.einsum("pfc,fck,fcr->pkfr", w2.transpose(1, 0, 2), am, u).reshape(n_p * k, f * r)
+        d = (u**2 * w2.sum(axis=1) + 1.0).reshape(f * c)  # the amounts' precision
+        r_o = (u * (w2 * self.yz).sum(axis=1)).reshape(f * c)
+        cross = ((wt * u.reshape(f * c))[:, :, None] * rows[None]).transpose(0, 2, 1).reshape(n_p * k, f * c)
         system = -(cross / d) @ cross.T
         idx = np.arange(n_p)[:, None] * k + np.arange(k)
         system[idx[:, :, None], idx[:, None, :]] += prec
         coef = np.linalg.solve(system, rhs.reshape(-1) - cross @ (r_o / d)).reshape(n_p, k)
-        phi = ((r_o - cross.T @ coef.reshape(-1)) / d).reshape(f, r)
-        return np.einsum("fcr,fr->fc", u, phi), coef, float((phi**2).sum())
+        phi = ((r_o - cross.T @ coef.reshape(-1)) / d).reshape(f, c)
+        return u * phi, coef, float((phi**2).sum())
 
     def __call__(self, th: NDArray[np.float64], noise: float = 1.0) -> tuple[float, NDArray[np.float64]]:
         return self.cost(self.operators(th), th, noise)
@@ -367,11 +364,12 @@ class _JointObjective:
         """``self(th)`` given its operators ``am``."""
         w2 = self.w2 / noise**2
         if self.flare is None:
-            off, prior = np.zeros((self.yz.shape[0], 3)), 0.0
-            s, _ = _reflectance_posterior(am, self.yz, w2, self.lam, self.mu)
+            y, prior = self.yz, 0.0
+            s, _ = _reflectance_posterior(am, y, w2, self.lam, self.mu)
         else:
             off, s, prior = self._offsets(am, w2)
-        r = self.yz - off[:, None, :] - (am.reshape(-1, am.shape[2]) @ s.T).reshape(am.shape[0], 3, -1).transpose(0, 2, 1)
+            y = self.yz - off[:, None, :]
+        r = y - (am.reshape(-1, am.shape[2]) @ s.T).reshape(am.shape[0], 3, -1).transpose(0, 2, 1)
         d = s - self.mu
         c = (w2 * r**2).sum() + ((d @ self.lam) * d).sum()
         c += prior

@@ -77,10 +77,10 @@ def _solve3(a: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.float6
         return out
 
 
-def flare_basis(values: NDArray[np.float64], weighted: NDArray[np.bool_], flare_sd: float, floor: float
-                ) -> NDArray[np.float64] | None:
-    """Each frame's offset directions ``U`` (F × 3 × 3), scaled so that the offset ``o = U φ`` has ``φ`` standard
-    normal a priori, or ``None`` when ``flare_sd`` is 0.
+def flare_scales(values: NDArray[np.float64], weighted: NDArray[np.bool_], flare_sd: float, floor: float
+                 ) -> NDArray[np.float64] | None:
+    """Each frame's prior standard deviation of its additive offset in each channel (F × 3), or ``None`` when
+    ``flare_sd`` is 0: the offset is ``o_c = u_c φ_c`` with ``φ`` standard normal a priori.
 
     The offset of frame ``f`` in channel ``c`` is Gaussian around 0 with standard deviation ``flare_sd`` times the
     frame's mean weighted value in that channel (at least ``floor``): light scattered in the lens adds a fraction of
@@ -92,17 +92,20 @@ def flare_basis(values: NDArray[np.float64], weighted: NDArray[np.bool_], flare_
     if flare_sd <= 0:
         return None
     n = np.maximum(weighted.sum(axis=1), 1)
-    level = np.maximum(np.where(weighted, values, 0.0).sum(axis=1) / n, floor) * flare_sd  # F × 3
-    return level[:, :, None] * np.eye(3)
+    return np.maximum(np.where(weighted, values, 0.0).sum(axis=1) / n, floor) * flare_sd
 
 
-def _without_offset(a: NDArray[np.float64], z: NDArray[np.float64], s_oo: NDArray[np.float64],
-                    s_ob: NDArray[np.float64], s_oy: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``b``'s precision and information (F × 3 × 3, F × 3) with each frame's offset amounts ``φ`` integrated out:
-    the Schur complement of their block ``s_oo`` (F × r × r) given the cross terms ``s_ob`` (F × r × 3) and their
-    information ``s_oy`` (F × r)."""
-    t = np.swapaxes(s_ob, 1, 2) @ np.linalg.inv(s_oo)
-    return a - t @ s_ob, z - (t @ s_oy[..., None])[..., 0]
+def _without_offset(a: NDArray[np.float64], z: NDArray[np.float64], u: NDArray[np.float64],
+                    cinv_sum: NDArray[np.float64], cinv_g: NDArray[np.float64], cinv_y: NDArray[np.float64]
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``b``'s precision and information (F × 3 × 3, F × 3) with each frame's offset amounts ``φ`` (``o = u ⊙ φ``,
+    ``u`` F × 3 of :func:`flare_scales`) integrated out: the Schur complement of their block
+    ``diag(u) (Σ_p C_p⁻¹) diag(u) + I`` given the patches' summed precisions ``cinv_sum`` (F × 3 × 3), precision
+    times operator ``cinv_g`` (Σ_p C_p⁻¹ G_p, F × 3(c) × 3(k)) and precision times value ``cinv_y`` (F × 3)."""
+    s_oo = u[:, :, None] * cinv_sum * u[:, None, :] + np.eye(3)
+    s_ob = u[:, :, None] * cinv_g
+    t = np.swapaxes(s_ob, 1, 2) @ _inv3(s_oo)
+    return a - t @ s_ob, z - (t @ (u * cinv_y)[..., None])[..., 0]
 
 
 class FrameSolver:
@@ -212,14 +215,12 @@ class FrameSolver:
         cinv = np.where(present[..., None], 1.0 / var, 0.0).reshape(f, n_p * 3)  # diagonal
         a = (cinv @ self._gg).reshape(f, 3, 3) + _EPS3
         z = (cinv * yy.reshape(f, n_p * 3)) @ self.G.reshape(n_p * 3, 3)
-        u = flare_basis(yy, cinv.reshape(f, n_p, 3) > 0, self.flare_sd, self.abs)
+        u = flare_scales(yy, cinv.reshape(f, n_p, 3) > 0, self.flare_sd, self.abs)
         if u is not None:
             ci = cinv.reshape(f, n_p, 3)
-            cu = ci.sum(axis=1)[:, :, None] * u  # Σ_p C_p⁻¹ U (F × 3 × r)
-            s_oo = np.swapaxes(u, 1, 2) @ cu + np.eye(u.shape[2])
-            s_ob = np.einsum("fcr,fpc,pck->frk", u, ci, self.G)
-            s_oy = np.einsum("fcr,fpc->fr", u, ci * yy)
-            a, z = _without_offset(a, z, s_oo, s_ob, s_oy)
+            diag = np.zeros((f, 3, 3))
+            diag[:, _DIAG, _DIAG] = ci.sum(axis=1)
+            a, z = _without_offset(a, z, u, diag, np.einsum("fpc,pck->fck", ci, self.G), (ci * yy).sum(axis=1))
         b = _solve3(a, z)
         if self.H is not None:
             # the reflectance posterior mapped through the current b joins each patch's noise covariance
@@ -229,10 +230,8 @@ class FrameSolver:
             a = (cinv.reshape(f, n_p * 9) @ self._gge).reshape(f, 3, 3) + _EPS3
             z = (cinv * yy[..., None]).reshape(f, n_p * 9) @ self._ge
             if u is not None:
-                s_oo = np.swapaxes(u, 1, 2) @ cinv.sum(axis=1) @ u + np.eye(u.shape[2])
-                s_ob = np.einsum("fcr,fpce,pek->frk", u, cinv, self.G)
-                s_oy = np.einsum("fcr,fpce,fpe->fr", u, cinv, yy)
-                a, z = _without_offset(a, z, s_oo, s_ob, s_oy)
+                a, z = _without_offset(a, z, u, cinv.sum(axis=1), np.einsum("fpce,pek->fck", cinv, self.G),
+                                       np.einsum("fpce,fpe->fc", cinv, yy))
             b = _solve3(a, z)
         return b, a
 

@@ -91,9 +91,9 @@ def test_a_refit_estimating_every_frame_equals_the_fit_of_its_frames(lamp_histor
 def _linear_reference(solver, y, present, extra_var=None):
     """:meth:`FrameSolver.linear` as it was written before its sums became matrix products (einsums and
     ``np.linalg.inv``), with each frame's offset as three more unknowns of one 6 × 6 solve (its prior from
-    :func:`flare_basis`) instead of integrated out: ``b`` is the first three, ``A`` the inverse of their
+    :func:`flare_scales`) instead of integrated out: ``b`` is the first three, ``A`` the inverse of their
     covariance."""
-    from illumon.model.solver import flare_basis
+    from illumon.model.solver import flare_scales
     from illumon.retrieval.common import censored
 
     yy = np.where(present[..., None], y, 0.0)
@@ -114,7 +114,8 @@ def _linear_reference(solver, y, present, extra_var=None):
         a = np.einsum("fpck,pcl->fkl", gw, solver.G) + 1e-12 * np.eye(3)
         z = np.einsum("fpck,fpc->fk", gw, yy)
         if it == 0:
-            u = flare_basis(yy, cinv > 0, solver.flare_sd, solver.abs)  # o = U φ, φ standard normal
+            scales = flare_scales(yy, cinv > 0, solver.flare_sd, solver.abs)
+            u = None if scales is None else scales[:, :, None] * np.eye(3)  # o = U φ, φ standard normal
         if u is not None:
             cm = cinv if it == 1 else np.einsum("fpc,ce->fpce", cinv, np.eye(3))  # patch precisions, 3 × 3
             r = u.shape[2]
@@ -217,9 +218,9 @@ def test_joint_objective_glare_offsets_are_the_exact_joint_minimum(lamp_history,
         off, coef, _ = obj._offsets(am, obj.w2)
         r = obj.yz - off[:, None, :] - np.einsum("fcj,pj->fpc", am, coef)
         grad_s = -np.einsum("fcj,fpc->pj", am, obj.w2 * r) + (coef - obj.mu) @ obj.lam
-        u = obj.flare  # F × 3 × 3, diagonal: o = U φ
-        phi = off / np.einsum("fcc->fc", u)
-        grad_phi = -np.einsum("fcr,fc->fr", u, (obj.w2 * r).sum(axis=1)) + phi
+        u = obj.flare  # F × 3: o = u ⊙ φ
+        phi = off / u
+        grad_phi = -u * (obj.w2 * r).sum(axis=1) + phi
         scale = np.einsum("fcj,fpc->pj", am, obj.w2 * np.abs(obj.yz)).max()
         assert np.abs(grad_s).max() < 1e-8 * scale and np.abs(grad_phi).max() < 1e-8 * scale
         offsets.append(off)

@@ -324,16 +324,6 @@ def _decoded(row: Row, loads: Callable[[str], Any]) -> _Stored:
 _ZERO3 = (0.0, 0.0, 0.0)
 
 
-def _plainly_valid(frames: Sequence[_Stored]) -> list[bool]:
-    """Which of ``frames`` :func:`~.limits.frame_problem` accepts, found for all of them at once where it is plain:
-    region means and standard errors as dicts whose values are ``None`` or three numbers (``float`` or ``int``, not
-    ``bool``), every number within 0…:data:`~.limits.MAX_VALUE` (NaN and ±inf are not), applied gains and exposure
-    accepted by :func:`~.limits.frame_problem`. ``False`` for every other frame, and for every frame when a value of
-    any is not three numbers: it is judged by :func:`~.limits.frame_problem` itself then, so a frame is never
-    accepted here that it would leave out, and a reason is always the function's."""
-    return _plain_values(frames)[0]
-
-
 class _Plain(NamedTuple):
     """The numbers :func:`_plain_values` converted: every plainly valid frame's region means then standard errors,
     in the order of their dicts, one row of three each (NaN for ``None``), and where each frame's means start."""
@@ -344,7 +334,13 @@ class _Plain(NamedTuple):
 
 
 def _plain_values(frames: Sequence[_Stored]) -> tuple[list[bool], _Plain | None]:
-    """:func:`_plainly_valid`'s answer, and the numbers it converted to check them (``None`` when none were)."""
+    """Which of ``frames`` :func:`~.limits.frame_problem` accepts, found for all of them at once where it is plain:
+    region means and standard errors as dicts whose values are ``None`` or three numbers (``float`` or ``int``, not
+    ``bool``), every number within 0…:data:`~.limits.MAX_VALUE` (NaN and ±inf are not), applied gains and exposure
+    accepted by :func:`~.limits.frame_problem`. ``False`` for every other frame, and for every frame when a value of
+    any is not three numbers: it is judged by :func:`~.limits.frame_problem` itself then, so a frame is never
+    accepted here that it would leave out, and a reason is always the function's. With the answer, the numbers
+    converted to check them (``None`` when none were)."""
     sure = [type(f.patches) is dict and (f.patch_sd is None or type(f.patch_sd) is dict)
             and ((f.applied_gains is None and f.exposure is None)
                  or frame_problem(None, None, f.applied_gains, f.exposure) is None)
@@ -368,17 +364,6 @@ def _plain_values(frames: Sequence[_Stored]) -> tuple[list[bool], _Plain | None]
     return plain, _Plain(a, [i if ok else -1 for i, ok in zip(start, plain, strict=True)])
 
 
-def _usable(rows: Sequence[Row]) -> tuple[list[_Stored], list[dict]]:
-    """The frames of ``rows`` (:func:`.crud.history_chunks`) a refit can use, decoded, and those it leaves out
-    (``{"frame_id", "reason"}``): frames of an unknown view (a view change) or measured before any region existed
-    carry no region values and are passed over. JSON is read by orjson (:func:`~.storage.orjson_loads`); a frame not
-    plainly valid (:func:`_plainly_valid`) is read again by :func:`json.loads` and judged by
-    :func:`~.limits.frame_problem`, so that whatever was stored, the frames used, their values and the reasons given
-    are those of the stored rows as :func:`json.loads` reads them."""
-    usable, dropped, _ = _usable_plain(rows)
-    return usable, dropped
-
-
 def _decoded_chunk(rows: Sequence[Row]) -> list[_Stored]:
     """``_decoded(row, orjson_loads)`` of every row: :func:`orjson.loads` called directly, and the chunk decoded
     again through :func:`~.storage.orjson_loads` (whose :func:`json.loads` reads what orjson refuses) only when
@@ -392,8 +377,13 @@ def _decoded_chunk(rows: Sequence[Row]) -> list[_Stored]:
         return [_decoded(r, orjson_loads) for r in rows]
 
 
-def _usable_plain(rows: Sequence[Row]) -> tuple[list[_Stored], list[dict], _PlainFrames]:
-    """:func:`_usable`, and the numbers already converted of the usable frames (:func:`_plain_values`)."""
+def _usable(rows: Sequence[Row]) -> tuple[list[_Stored], list[dict], _PlainFrames]:
+    """The frames of ``rows`` (:func:`.crud.history_chunks`) a refit can use, decoded, those it leaves out
+    (``{"frame_id", "reason"}``) and the numbers already converted of the usable frames: frames of an unknown view
+    (a view change) or measured before any region existed carry no region values and are passed over. JSON is read
+    by orjson (:func:`~.storage.orjson_loads`); a frame not plainly valid (:func:`_plain_values`) is read again by
+    :func:`json.loads` and judged by :func:`~.limits.frame_problem`, so that whatever was stored, the frames used,
+    their values and the reasons given are those of the stored rows as :func:`json.loads` reads them."""
     kept = [(f, r) for f, r in zip(_decoded_chunk(rows), rows, strict=True)
             if f.patches and (f.registration or {}).get("state") != "view_change"]
     plain, numbers = _plain_values([f for f, _ in kept])
@@ -440,7 +430,7 @@ def read_history(sessions: sessionmaker[Session], camera_id: int, max_frames: in
                 if rows is None:
                     break
                 read.append(np.fromiter((r.id for r in rows), dtype=np.int64, count=len(rows)))
-                usable, left_out, plain = _usable_plain(rows)
+                usable, left_out, plain = _usable(rows)
                 dropped += left_out
                 for v in {r.view for r in usable}:
                     if v is not None:

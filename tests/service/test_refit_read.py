@@ -132,7 +132,7 @@ def test_usable_frames_and_reasons_equal_those_of_json_loads_row_by_row(odd: int
     those of reading every row with json.loads and judging it with frame_problem."""
     rows = [_row(i, GOOD) for i in range(5)] + [_row(5, *ODD[odd])] + [_row(i, GOOD, "[1.2, 1, 0.9]") for i in (6, 7)]
     want_usable, want_dropped = _reference(rows)
-    got_usable, got_dropped = _usable(rows)
+    got_usable, got_dropped, _ = _usable(rows)
     assert got_dropped == want_dropped
     assert [f.id for f in got_usable] == [u[0] for u in want_usable]
     for f, u in zip(got_usable, want_usable, strict=True):
@@ -142,7 +142,7 @@ def test_usable_frames_and_reasons_equal_those_of_json_loads_row_by_row(odd: int
 def test_usable_frames_of_a_whole_odd_chunk() -> None:
     rows = [_row(i, *odd) for i, odd in enumerate(ODD)]
     want_usable, want_dropped = _reference(rows)
-    got_usable, got_dropped = _usable(rows)
+    got_usable, got_dropped, _ = _usable(rows)
     assert got_dropped == want_dropped and len(want_dropped) > 20
     assert [f.id for f in got_usable] == [u[0] for u in want_usable]
     assert all(same_value(_used(f), _used(u)) for f, u in zip(got_usable, want_usable, strict=True))
@@ -189,7 +189,7 @@ def test_arrays_from_the_checked_numbers_equal_history_arrays(odd: int | None, m
     numbers) equal ``history_arrays`` of the same frames bit for bit: plain frames in the view's region order, and
     among them frames read otherwise (another key order, a missing or extra region, integers, standard errors,
     gains, exposure, an odd row read again by json.loads)."""
-    from illumon_service.refit import _usable_plain, _ViewRows
+    from illumon_service.refit import _usable, _ViewRows
 
     ids = ["p0", "p1", "p2"]
     rows = [_row(i, GOOD) for i in range(6)]
@@ -200,7 +200,7 @@ def test_arrays_from_the_checked_numbers_equal_history_arrays(odd: int | None, m
     if odd is not None:
         rows.append(_row(10, *ODD[odd]))
     rows += [_row(i, GOOD) for i in range(11, 14)]
-    usable, _, plain = _usable_plain(rows)
+    usable, _, plain = _usable(rows)
     for frames in (usable, [f for f in usable if f.id < 6 or f.id > 10], [f for f in usable if f.id == 6]):
         fast, slow = _ViewRows(ids), _ViewRows(ids)
         fast.add(frames, None, plain)

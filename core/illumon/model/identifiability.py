@@ -1,5 +1,7 @@
-"""How well a history determines its illuminants: spread of its reciprocal temperatures and the condition of the
-data-only Jacobian of the joint problem (Marguier & Süsstrunk's model with the reflectance basis; priors left out)."""
+"""How well a history determines its illuminants: spread of its reciprocal temperatures, the condition of the
+data-only Jacobian of the joint problem (Marguier & Süsstrunk's model with the reflectance basis; priors left out),
+and how far the data narrow the frames' illuminants relative to each other in the model as fitted (its priors and,
+with :data:`illumon.camera.formation.FLARE_SD` > 0, each frame's offset)."""
 
 from __future__ import annotations
 
@@ -52,19 +54,73 @@ def _whitened_prediction(css: NDArray[np.float64], dm: CIEDaylight, rb: Reflecta
     return pred, x0, steps
 
 
+def _relative_posterior_sd(jac: NDArray[np.float64], f: int, dm: CIEDaylight, rb: ReflectanceBasis,
+                           steps: NDArray[np.float64], sqrt_w2: NDArray[np.float64],
+                           flare: NDArray[np.float64] | None) -> tuple[float, float]:
+    """Posterior standard deviations (MK⁻¹, Duv) of the frames' illuminants relative to each other, in the direction
+    the model as fitted determines worst: the data's Gauss–Newton information (``jac``, whitened, columns in
+    ``steps``) plus the fit's priors — the history prior of the reciprocal temperatures and Duv (its within-history
+    part: a level common to the frames does not enter), the reflectance prior, and each frame's additive offset with
+    its prior scale ``flare`` (F × 3) where the model has one; the common level of every parameter projected out."""
+    n_p = (jac.shape[1] - 3 * f) // rb.size
+    if flare is not None:  # one column per frame and channel: the offset moves that frame's values in that channel
+        cols = np.zeros((jac.shape[0], f * 3))
+        rows = np.arange(jac.shape[0]).reshape(f, n_p, 3)
+        for c in range(3):
+            cols[rows[:, :, c], (np.arange(f) * 3 + c)[:, None]] = sqrt_w2[:, :, c] * flare[:, None, c]
+        jac = np.concatenate([jac, cols], axis=1)
+    info = jac.T @ jac
+    prior = np.zeros(info.shape[0])
+    ones = np.eye(f) - 1.0 / f
+    for k, (sigma, between) in enumerate(((dm.mired_sigma, dm.mired_between), (dm.duv_sigma, dm.duv_between))):
+        idx = np.arange(f) * 3 + k
+        # −2 log prior of N(m·1, σ_w² I + σ_b² 11ᵀ): σ_w⁻² on the frames' departures from their mean (the
+        # common level, weaker, is projected out below anyway), in the columns' units
+        info[idx[:, None], idx[None, :]] += ones * (steps[idx[0]] ** 2 / (sigma**2 - between**2))
+    lam = np.linalg.inv(rb.prior_covariance) * 0.1**2
+    for q in range(n_p):
+        i0 = 3 * f + q * rb.size
+        info[i0 : i0 + rb.size, i0 : i0 + rb.size] += lam
+    if flare is not None:
+        prior[3 * f + n_p * rb.size :] = 1.0  # the offsets' columns are in units of their prior scale
+    info[np.diag_indices_from(info)] += prior
+    # a level common to the frames (each parameter's) is the gauge and the prior's business: pin it
+    for k in range(3):
+        idx = np.arange(f) * 3 + k
+        info[idx[:, None], idx[None, :]] += 1.0 / f
+    try:
+        cov = np.linalg.inv(info)[: 3 * f, : 3 * f]
+    except np.linalg.LinAlgError:
+        return math.inf, math.inf
+    out = []
+    for k in range(2):
+        c = ones @ cov[k::3, k::3] @ ones
+        out.append(float(steps[k] * math.sqrt(max(np.linalg.eigvalsh(c)[-1], 0.0))))
+    return out[0], out[1]
+
+
 def identifiability(
     y: NDArray[np.float64], present: NDArray[np.bool_], css: NDArray[np.float64], dm: CIEDaylight,
     rb: ReflectanceBasis, theta: NDArray[np.float64], coef: NDArray[np.float64], w2: NDArray[np.float64],
     mired_all: NDArray[np.float64], *, max_frames: int = 40, min_mired_spread: float = 4.0,
-    max_condition: float = 1e8,
+    flare: NDArray[np.float64] | None = None, max_relative_share: float = 0.5,
 ) -> dict:
     """How well a history determines its illuminants.
 
-    Reports the spread (standard deviation, 5–95 % range) of the history's reciprocal temperatures and the condition
+    Reports the spread (standard deviation, 5–95 % range) of the history's reciprocal temperatures, the condition
     number of the *data-only* Jacobian of the joint problem (priors left out) on up to ``max_frames`` frames spread
     over the illuminant range, columns scaled to meaningful changes (10 MK⁻¹, 0.003 Duv, 0.1 log exposure, 0.1
-    coefficient), the exact exposure/reflectance scale gauge removed. Constant illuminants make reflectance and
-    illuminant trade off (condition → ∞); the spread then says the same in physical units.
+    coefficient), and the posterior standard deviations of the frames' reciprocal temperatures and Duv relative to
+    each other in the model as fitted (its priors, and each frame's offset of scale ``flare``, F × 3, where it has
+    one), in their worst-determined direction.
+
+    Two warnings: constant illuminants (spread < ``min_mired_spread``), where reflectance and illuminant colour
+    trade off so the illuminants are the prior's; and data that narrow the frames' reciprocal temperatures relative
+    to each other to no better than ``max_relative_share`` of the prior's within-history spread (Duv, whose prior is
+    itself narrow, ±0.003, is reported). The data-only condition is
+    reported but does not warn: its smallest singular values belong to reflectance directions the camera barely
+    sees (a README history: 99 % of the 4th-smallest direction's weight on reflectance coefficients), which the
+    reflectance prior holds and which do not move the illuminants.
     """
     sel = spread_subsample(theta[:, 0], max_frames)
     f, p, nk = sel.size, coef.shape[0], rb.size
@@ -90,6 +146,9 @@ def identifiability(
     # The condition of the rest says whether the data determine the illuminants relative to each other.
     cond = float(sv[0] / max(sv[-4], 1e-300)) if sv.size > 4 else math.inf
     sv_tail = [float(v / sv[0]) for v in sv[-4:]]
+    rel_mired, rel_duv = _relative_posterior_sd(jac, f, dm, rb, steps, np.sqrt(w2[sel]),
+                                                None if flare is None else flare[sel])
+    prior_mired = math.sqrt(dm.mired_sigma**2 - dm.mired_between**2)
     spread = float(np.std(mired_all)) if mired_all.size else 0.0
     p5, p95 = (np.percentile(mired_all, [5, 95]) if mired_all.size else (np.nan, np.nan))
     warn = []
@@ -98,8 +157,12 @@ def identifiability(
             f"illuminants barely vary in this history (σ = {spread:.1f} MK⁻¹ < {min_mired_spread}): reflectances and "
             "illuminant colour trade off, so illuminants are set by the daylight prior, not by the data"
         )
-    if not cond < max_condition:
-        warn.append(f"joint problem ill-conditioned (condition {cond:.3g} ≥ {max_condition:.0e}): illuminants not determined")
+    if not rel_mired <= max_relative_share * prior_mired:
+        warn.append(
+            f"joint problem ill-conditioned: the data hardly narrow the frames' reciprocal temperatures relative to "
+            f"each other (±{rel_mired:.3g} MK⁻¹ where the prior alone gives ±{prior_mired:.3g}): illuminants not "
+            "determined"
+        )
     return {
         "mired_std": spread,
         "mired_p05": float(p5),
@@ -107,6 +170,8 @@ def identifiability(
         "condition": cond,
         "condition_frames": int(f),
         "smallest_singular_values_relative": sv_tail,
+        "relative_mired_sd": rel_mired,
+        "relative_duv_sd": rel_duv,
         "determined": not warn,
         "warnings": warn,
     }

@@ -24,16 +24,14 @@ __all__ = [
 ]
 
 
-FLARE_SD = 0.0
+FLARE_SD = 0.05
 """Prior standard deviation of a frame's additive offset (veiling glare, flare), as a fraction of the frame's mean
-patch value in each channel (:func:`illumon.model.solver.flare_scales`); 0: the model has no offset (the default).
-The development photographs (``benchmarks/real.py``'s ``sony-raw``) show offsets of 3–19 % of the frame's mean patch
-value, changing from frame to frame (spread about their mean 0.047–0.058; ``python benchmarks/flare.py``), and with
-0.05 every real set gains (``docs/methods.md``, *Veiling glare*). It is not on by default yet: on glare-free
-histories it costs a little, enough to put the README walkthrough's six-patch history over the identifiability
-warning's threshold (condition 2.1e8 ≥ 1e8, with estimates 0.08° median off) and the closed loop's final refit one
-frame 1.27° off; ``confidence`` (``STATED_WHITE_SPREAD``) was calibrated without it. Benchmarks set it to compare
-(``benchmarks/unmeasured.py --flare-sd``)."""
+patch value in each channel (:func:`illumon.model.solver.flare_scales`); 0: the model has no offset. The development
+photographs (``benchmarks/real.py``'s ``sony-raw``) show offsets of 3–19 % of the frame's mean patch value, changing
+from frame to frame (spread about their mean 0.047–0.058; ``python benchmarks/flare.py``); with 0.05 every real set
+gains (``docs/methods.md``, *Veiling glare*). On glare-free simulated histories it costs a little (a few tenths of a
+degree on single frames); ``confidence`` (``STATED_WHITE_SPREAD``) is calibrated with it, on histories with and
+without glare. Benchmarks set it to compare (``benchmarks/unmeasured.py --flare-sd 0``: the model without it)."""
 
 
 def render(sensitivities: ArrayLike, illuminant: ArrayLike, reflectances: ArrayLike) -> NDArray[np.float64]:

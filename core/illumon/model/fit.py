@@ -45,6 +45,11 @@ from .solver import FrameSolver, flare_scales
 
 __all__ = ["fit_scene_model", "LAMP_ROUNDS", "MIN_LAMP_SHARE"]
 
+FLARE_SD_MIN, FLARE_SD_MAX = 0.01, 0.12
+"""Bounds of a history's learned glare spread (:meth:`_JointObjective.learn_flare_sd`): 0.12 is the root mean square
+of the offsets measured on the development photographs (``benchmarks/flare.py``), 0.01 keeps a little of the offset
+every lens has where a history shows none."""
+
 LAMP_ROUNDS = 3
 """Rounds of judging the frames' light and refitting the scene without the lamp-lit ones (:mod:`.lamps`)."""
 
@@ -351,6 +356,39 @@ class _JointObjective:
         phi = ((r_o - cross.T @ coef.reshape(-1)) / d).reshape(f, c)
         return u * phi, coef, float((phi**2).sum())
 
+    def learn_flare_sd(self, th: NDArray[np.float64], noise: float, flare_sd: float,
+                       bounds: tuple[float, float] = (0.0, 0.12), strength: float = 30.0,
+                       iterations: int = 30) -> float:
+        """The history's own spread of its frames' offsets, learned from the frames with ``flare_sd`` as its prior:
+        the maximum a posteriori spread by expectation–maximisation with ``θ`` held.
+
+        Each offset ``o = s · m · φ`` (``m`` the frame's mean value in the channel,
+        :func:`~illumon.model.solver.flare_scales`) has posterior mean ``φ̄`` and variance ≈ ``1 / d`` (its own
+        block; the coupling with the reflectances left out), and ``s²`` has a scaled inverse-χ² prior of
+        ``strength`` degrees of freedom at ``flare_sd²``: ``s² ← (strength · flare_sd² + s² Σ (φ̄² + 1/d)) /
+        (strength + 3 (F − 1))`` — the history's mean offset is its patches' (learned into their reflectances), so
+        ``F`` frames tell ``3 (F − 1)`` amounts. A few frames keep about the prior's spread; a long history without
+        glare brings it down (to ``bounds[0]`` at least), one with more glare up (to ``bounds[1]`` at most: 0.12,
+        the root mean square of the offsets measured on the development photographs, ``benchmarks/flare.py``).
+        Sets :attr:`flare` to the learned scales and returns ``s``."""
+        if self.flare is None or flare_sd <= 0:
+            return 0.0
+        unit = self.flare / flare_sd
+        am, w2 = self.operators(th), self.w2 / noise**2
+        sd, w_sum = flare_sd, w2.sum(axis=1)
+        told = 3 * max(unit.shape[0] - 1, 0)
+        for _ in range(iterations):
+            self.flare = unit * sd
+            off, _, _ = self._offsets(am, w2)
+            seen = float(np.sum((off / self.flare) ** 2 + 1.0 / (self.flare**2 * w_sum + 1.0))) * sd**2
+            new = float(np.clip(math.sqrt((strength * flare_sd**2 + seen) / (strength + told)), *bounds))
+            done = abs(new - sd) <= 1e-3 * flare_sd
+            sd = new
+            if done:
+                break
+        self.flare = unit * sd
+        return sd
+
     def __call__(self, th: NDArray[np.float64], noise: float = 1.0) -> tuple[float, NDArray[np.float64]]:
         return self.cost(self.operators(th), th, noise)
 
@@ -518,6 +556,19 @@ def _fit_fixed_camera(
     theta = objective.start(gw_mired[sub], y, present)
     theta, coef, n_iter = _alternate(objective, theta, (css, dm, rb, relative_error, absolute_error), y, present,
                                      iterations, tol)
+
+    def measured_noise() -> float:
+        """The history's noise level: the fit's residuals (each frame's offset out) over their degrees of freedom."""
+        resid2 = objective.w2 * objective.residuals(theta, coef) ** 2
+        n_offsets = 0 if objective.flare is None else 3 * len(sub)
+        dof = max(int(present.sum()) * 3 - 3 * len(sub) - n_offsets - rb.size * len(obs.patches), 1)
+        return float(max(math.sqrt(resid2.sum() / dof), 0.5))
+
+    # the history's own glare spread (FLARE_SD is its prior), at the measured noise level, for the reflectances'
+    # posterior and the per-frame solver. The frames' light is not fitted again with it: on a real lamp-lit scene
+    # (MIMO `lion`, six frames) that sent the white from 1.9° to 29.6°, and it moved the closed loop's glare-free day
+    # by 0.02°.
+    flare_sd = objective.learn_flare_sd(theta, measured_noise(), formation.FLARE_SD, (FLARE_SD_MIN, FLARE_SD_MAX))
     anchored_sd, level = None, None
     if balance_sd is not None or camera_level is not None:
         # the level static patches cannot see (:mod:`.level`): a rendered camera's balance, or sensor RGB's daylight
@@ -541,10 +592,7 @@ def _fit_fixed_camera(
                          if measured else None)
         if level is not None:
             theta, coef, anchored_sd = anchor_common_level(objective, theta, css, level)
-    resid2 = objective.w2 * objective.residuals(theta, coef) ** 2
-    n_offsets = 0 if objective.flare is None else 3 * len(sub)
-    dof = max(int(present.sum()) * 3 - 3 * len(sub) - n_offsets - rb.size * len(obs.patches), 1)
-    noise_scale = float(max(math.sqrt(resid2.sum() / dof), 0.5))
+    noise_scale = measured_noise()
     # Posterior with the measured noise level (β scaled by 1/noise_scale²).
     coef, prec = objective.reflectances(theta, noise_scale)
     cov = np.linalg.inv(prec)
@@ -557,7 +605,7 @@ def _fit_fixed_camera(
         grid=(float(GRID.start), float(GRID.end), float(GRID.interval)), basis=rb.functions,
         daylight={"name": "cie", "duv_sigma": dm.duv_sigma, "mired_mean": dm.mired_mean, "mired_sigma": dm.mired_sigma},
         noise={"relative_error": relative_error, "absolute_error": absolute_error, "noise_scale": noise_scale,
-               "scale": scale, "white_level": white if math.isfinite(white) else None,
+               "scale": scale, "white_level": white if math.isfinite(white) else None, "flare_sd": flare_sd,
                "model_error": dict(MODEL_ERROR, common_mired=float(math.hypot(common[0], MODEL_ERROR["common_mired"])),
                                    common_duv=float(max(common[1], MODEL_ERROR["common_duv"])))},
     )
@@ -571,7 +619,8 @@ def _fit_fixed_camera(
     model.training = _training_summary(obs, present_all, len(sub), cct, n_iter, time.perf_counter() - t0)
     mired_all = 1e6 / cct
     model.identifiability = identifiability(
-        y, present, css, dm, rb, theta, coef, objective.w2 / noise_scale**2, mired_all[np.isfinite(mired_all)]
+        y, present, css, dm, rb, theta, coef, objective.w2 / noise_scale**2, mired_all[np.isfinite(mired_all)],
+        flare=objective.flare,
     )
     for msg in model.identifiability["warnings"]:
         warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)

@@ -188,6 +188,7 @@ class SceneModel:
             self.reflectance_basis(), relative_error=n["relative_error"], absolute_error=n["absolute_error"],
             noise_scale=n["noise_scale"], scale=n["scale"],
             white=(n.get("white_level", 1.0) or float("inf")) / n["scale"],  # models before it: 0…1 observations
+            flare_sd=float(n.get("flare_sd", 0.0)),  # the history's glare spread; models before it had no offset
         )
 
     @single_blas_thread

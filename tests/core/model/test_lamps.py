@@ -48,8 +48,9 @@ def test_lamp_lit_frames_are_flagged_and_their_white_follows_the_lamp(shared_dat
     # the lamp-lit frames: better than forcing them onto the daylight locus, and far better than gray-world
     assert np.median(err[lamp]) < np.median(daylight_only[lamp]), (err[lamp], daylight_only[lamp])
     assert np.median(err[lamp]) < 0.5 * np.median(grey_world[lamp]), (err[lamp], grey_world[lamp])
-    # the daylight frames gain too: the lamp-lit frames are left out of the reflectance fit
-    assert np.median(err[day]) < min(1.0, np.median(daylight_only[day]))
+    # the daylight frames gain too: the lamp-lit frames are left out of the reflectance fit (Canon 300D: 1.01° against
+    # 1.26°; 0.81° without the glare offset, which this glare-free simulation does not need)
+    assert np.median(err[day]) < min(1.1, 0.85 * np.median(daylight_only[day]))
     # a saved model judges new frames the same way
     again, cols = SceneModel.from_dict(model.to_dict()).estimate(obs)
     np.testing.assert_allclose(cols["non_daylight"], nd, atol=0.05)

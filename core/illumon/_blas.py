@@ -15,12 +15,12 @@ from typing import Any, TypeVar
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-__all__ = ["single_blas_thread", "limit_blas_threads"]
+__all__ = ["single_blas_thread", "limit_blas_threads", "blas_threads"]
 
 _controller: Any = None
 
 
-def _limit() -> Any:
+def _get_controller() -> Any:
     global _controller
     if _controller is None:
         try:
@@ -29,9 +29,23 @@ def _limit() -> Any:
             _controller = False
         else:
             _controller = ThreadpoolController()
-    if _controller is False:
+    return _controller
+
+
+def _limit() -> Any:
+    controller = _get_controller()
+    if controller is False:
         return None
-    return _controller.limit(limits=1, user_api="blas")
+    return controller.limit(limits=1, user_api="blas")
+
+
+def blas_threads() -> tuple[int, ...]:
+    """The threads each BLAS library loaded in this process uses now (threadpoolctl; empty without it): a matrix
+    product's sums are split over them, so its last bits depend on their number."""
+    controller = _get_controller()
+    if controller is False:
+        return ()
+    return tuple(int(lib.num_threads) for lib in controller.select(user_api="blas").lib_controllers)
 
 
 def single_blas_thread(func: F) -> F:

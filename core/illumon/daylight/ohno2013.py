@@ -22,6 +22,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
+from .._tables import cached_arrays
+
 __all__ = ["PlanckLocus", "planck_locus", "xy_from_cct_duv", "cct_duv_from_xy"]
 
 
@@ -49,6 +51,12 @@ def planck_locus() -> PlanckLocus:
     ----------
     .. [Ohno2013] Ohno, LEUKOS 2014: the Planckian table the CCT and Duv are measured against.
     """
+    # computed once a machine (~15 ms), then read from the disk cache bit for bit (:mod:`illumon._tables`)
+    return PlanckLocus(*cached_arrays("planck-locus", (), (__file__,), _planck_table))
+
+
+def _planck_table() -> tuple[NDArray[np.float64], ...]:
+    """:func:`planck_locus`'s four arrays, computed."""
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     wl = np.asarray(cmfs.wavelengths, dtype=float) * 1e-9
     xyz_bar = np.asarray(cmfs.values, dtype=float)
@@ -70,7 +78,7 @@ def planck_locus() -> PlanckLocus:
     # Rotate the tangent (direction of increasing mired, i.e. decreasing CCT) so that the normal points to +v.
     normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
     normal *= np.sign(normal[:, 1:2])
-    return PlanckLocus(mired, uv, d, normal)
+    return mired, uv, d, normal
 
 
 @lru_cache(maxsize=1)

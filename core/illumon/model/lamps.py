@@ -47,6 +47,7 @@ from scipy.interpolate import RegularGridInterpolator
 from scipy.special import ndtri
 
 from .._blas import single_blas_thread
+from .._tables import cached_arrays
 from ..daylight import CIEDaylight
 from .general import cie_lamp_spectra, general_whites
 
@@ -342,12 +343,15 @@ def _lattice_table(centres: NDArray[np.float64], logw: NDArray[np.float64], sd: 
     """:func:`_lattice_logdensity` on the nodes ``(start + i) · step``, ``i < count`` (per axis), computed on the
     range widened to whole multiples of :data:`TILE` nodes and remembered (the last :data:`_TABLES_KEPT`): a refit
     judges its history several times with the same camera, prior and lattice step over almost the same nodes. The
-    range computed depends on the request alone, so an answer never depends on what was computed before."""
+    range computed depends on the request alone, so an answer never depends on what was computed before. A table
+    computed by an earlier process on this machine is read from the disk cache (:mod:`illumon._tables`), bit for bit."""
     lo, hi = start // TILE * TILE, ((start + count - 1) // TILE + 1) * TILE
     key = (centres.tobytes(), logw.tobytes(), float(sd), step.tobytes(), lo.tobytes(), hi.tobytes())
     table = _recall(_tables, key)
     if table is None:
-        table = _lattice_logdensity([np.arange(lo[i], hi[i]) * step[i] for i in range(2)], centres, logw, sd)
+        (table,) = cached_arrays(  # read from disk when a process computed it before (issue 29: 15–45 ms each)
+            "lamp-lattice", (*key, str(centres.shape)), (__file__,),
+            lambda: (_lattice_logdensity([np.arange(lo[i], hi[i]) * step[i] for i in range(2)], centres, logw, sd),))
         table.flags.writeable = False
         _remember(_tables, key, table, _TABLES_KEPT)
     offset = start - lo

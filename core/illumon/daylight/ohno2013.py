@@ -104,9 +104,21 @@ def _uv_from_xy(xy: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def _locus_at(p: PlanckLocus, m: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
     """The locus point ``(u0, v0)`` and its unit normal ``(nu, nv)`` at reciprocal temperatures ``m``, interpolated
-    linearly in the table."""
-    return (np.interp(m, p.mired, p.uv[:, 0]), np.interp(m, p.mired, p.uv[:, 1]),
-            np.interp(m, p.mired, p.normal[:, 0]), np.interp(m, p.mired, p.normal[:, 1]))
+    linearly in the table: ``np.interp`` of each column, with the search for each point's table interval done once
+    for the four (issue 29: 2.5 × faster, ~15 ms of a 2k refit). The same values bit for bit: ``np.interp``'s own
+    arithmetic, ``(f[j+1] − f[j]) / (x[j+1] − x[j]) · (m − x[j]) + f[j]`` for ``x[j] ≤ m < x[j+1]``, the end values
+    outside the table and at its last node, NaN for NaN (``tests/core/daylight/test_ohno2013.py`` compares them)."""
+    x = np.asarray(m, dtype=float)
+    xp = p.mired
+    cols = np.stack([p.uv[:, 0], p.uv[:, 1], p.normal[:, 0], p.normal[:, 1]], axis=1)
+    j = np.clip(np.searchsorted(xp, x, side="right") - 1, 0, len(xp) - 2)
+    x0 = xp[j]
+    f0 = cols[j]
+    r = (cols[j + 1] - f0) / (xp[j + 1] - x0)[..., None] * (x - x0)[..., None] + f0
+    below, above = x < xp[0], x >= xp[-1]
+    if np.any(below) or np.any(above):
+        r = np.where(np.asarray(below)[..., None], cols[0], np.where(np.asarray(above)[..., None], cols[-1], r))
+    return r[..., 0], r[..., 1], r[..., 2], r[..., 3]
 
 
 def xy_from_cct_duv(cct: ArrayLike, duv: ArrayLike) -> NDArray[np.float64]:

@@ -18,6 +18,7 @@ F = TypeVar("F", bound=Callable[..., Any])
 __all__ = ["single_blas_thread", "limit_blas_threads", "blas_threads"]
 
 _controller: Any = None
+_blas_libs: list[Any] = []
 
 
 def _get_controller() -> Any:
@@ -29,12 +30,15 @@ def _get_controller() -> Any:
             _controller = False
         else:
             _controller = ThreadpoolController()
+            _blas_libs[:] = _controller.select(user_api="blas").lib_controllers
     return _controller
 
 
 def _limit() -> Any:
     controller = _get_controller()
-    if controller is False:
+    if controller is False or all(lib.num_threads == 1 for lib in _blas_libs):
+        # already one thread (the service and refit processes limit the whole process): nothing to limit or restore
+        # (threadpoolctl's limit and restore cost ~0.1 ms of a new frame's ~2 ms estimate; issue 29)
         return None
     return controller.limit(limits=1, user_api="blas")
 
@@ -45,11 +49,11 @@ def blas_threads() -> tuple[int, ...]:
     controller = _get_controller()
     if controller is False:
         return ()
-    return tuple(int(lib.num_threads) for lib in controller.select(user_api="blas").lib_controllers)
+    return tuple(int(lib.num_threads) for lib in _blas_libs)
 
 
 def single_blas_thread(func: F) -> F:
-    """Run ``func`` with BLAS limited to one thread (about 10 µs per call)."""
+    """Run ``func`` with BLAS limited to one thread (about 10 µs per call; ~1 µs when it runs one already)."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:

@@ -102,6 +102,24 @@ def _uv_from_xy(xy: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.stack([4 * x / den, 6 * y / den], axis=-1)
 
 
+_FEW_POINTS = 16
+"""At most this many points :func:`_locus_at` interpolates with four ``np.interp`` calls (the same values)."""
+
+_COLUMNS: dict[int, tuple[PlanckLocus, NDArray[np.float64]]] = {}
+
+
+def _columns(p: PlanckLocus) -> NDArray[np.float64]:
+    """``(u0, v0, nu, nv)`` of the table as one (N × 4) array, made once per table (kept with it)."""
+    hit = _COLUMNS.get(id(p))
+    if hit is None or hit[0] is not p:
+        hit = (p, np.stack([p.uv[:, 0], p.uv[:, 1], p.normal[:, 0], p.normal[:, 1]], axis=1))
+        hit[1].flags.writeable = False
+        if len(_COLUMNS) > 4:
+            _COLUMNS.clear()
+        _COLUMNS[id(p)] = hit
+    return hit[1]
+
+
 def _locus_at(p: PlanckLocus, m: NDArray[np.float64]) -> tuple[NDArray[np.float64], ...]:
     """The locus point ``(u0, v0)`` and its unit normal ``(nu, nv)`` at reciprocal temperatures ``m``, interpolated
     linearly in the table: ``np.interp`` of each column, with the search for each point's table interval done once
@@ -110,7 +128,10 @@ def _locus_at(p: PlanckLocus, m: NDArray[np.float64]) -> tuple[NDArray[np.float6
     outside the table and at its last node, NaN for NaN (``tests/core/daylight/test_ohno2013.py`` compares them)."""
     x = np.asarray(m, dtype=float)
     xp = p.mired
-    cols = np.stack([p.uv[:, 0], p.uv[:, 1], p.normal[:, 0], p.normal[:, 1]], axis=1)
+    if x.size <= _FEW_POINTS:  # a frame's own estimate: np.interp itself is quicker for a few points
+        return (np.interp(x, xp, p.uv[:, 0]), np.interp(x, xp, p.uv[:, 1]),
+                np.interp(x, xp, p.normal[:, 0]), np.interp(x, xp, p.normal[:, 1]))
+    cols = _columns(p)
     j = np.clip(np.searchsorted(xp, x, side="right") - 1, 0, len(xp) - 2)
     x0 = xp[j]
     f0 = cols[j]

@@ -589,13 +589,17 @@ def frame_lamp_posterior(
     return LampPosterior(nd, white, offset, offset_sd)
 
 
-def _frame_means(model, obs, theta: NDArray[np.float64]) -> NDArray[np.float64]:
+def _frame_means(model, obs, theta: NDArray[np.float64], solver=None) -> NDArray[np.float64]:  # noqa: ANN001
     """Each frame's average over the model's patches (F × 3, the model's scale), a missing patch filled with the
-    model's prediction under the frame's fitted daylight (so every frame averages the same scene)."""
+    model's prediction under the frame's fitted daylight (so every frame averages the same scene). ``solver``: the
+    model's :class:`~.solver.FrameSolver` over these patches (``model.solver`` of them, in their order) when the
+    caller has one: only its operators ``G`` and ``b(θ)`` are read, which depend on nothing else (issue 29: a new
+    frame's estimate built a second solver here, ~15 % of its time)."""
     index = {p: i for i, p in enumerate(model.patches)}
     shared = [(j, index[p]) for j, p in enumerate(obs.patches) if p in index]
     oj, mi = [s[0] for s in shared], [s[1] for s in shared]
-    solver = model.solver(mi)
+    if solver is None or solver.G.shape[0] != len(mi):
+        solver = model.solver(mi)
     values = np.asarray(obs.values, dtype=float)
     out = np.empty((len(values), 3))
     for i in range(0, len(values), _MEANS_CHUNK):  # frame by frame: chunks bound the F × P × 3 temporaries
@@ -713,16 +717,17 @@ def _set_lamp_whites(result, extra: dict, mask: NDArray[np.bool_], white: NDArra
     result.info["gain_hi"][mask] = result.gains[mask] + half
 
 
-def apply_lamps(model, obs, result, extra: dict) -> None:
+def apply_lamps(model, obs, result, extra: dict, solver=None) -> None:  # noqa: ANN001
     """Add ``non_daylight`` to a scene model's per-frame estimate of ``obs`` (in place) and, for frames more likely
     lit by a lamp than by daylight in a history at least half of whose frames are daylight, replace the white and gains by the
     general illuminant's (:func:`.general.general_whites`), its ``confidence`` from the scene-average colour's posterior
     spread. CCT and Duv stay the nearest daylight's. Without ``model.lamps`` (a model saved before it) nothing is
-    added."""
+    added. ``solver``: the estimate's own solver over ``obs``'s patches, reused for the frames' means
+    (:func:`_frame_means`)."""
     lamps = getattr(model, "lamps", None)
     if not lamps:
         return
-    means = _frame_means(model, obs, np.asarray(result.info["theta"], dtype=float))
+    means = _frame_means(model, obs, np.asarray(result.info["theta"], dtype=float), solver)
     lp = frame_lamp_posterior(means, model.sensitivities, model.daylight_model(), np.asarray(lamps["offset"]),
                               np.maximum(np.asarray(lamps["offset_sd"]), 0.01), prior=float(lamps.get("prior", LAMP_PRIOR)))
     nd = np.where(np.isfinite(lp.non_daylight), lp.non_daylight, float(lamps.get("prior", LAMP_PRIOR)))

@@ -13,8 +13,9 @@ a process whose BLAS runs two threads (the command line, ``benchmarks/real.py``)
 refit process's, which runs one (2e-15 in uv; found by this cache). So a changed source or upgraded library computes
 anew, and an answer does not depend on whether a table was read or computed. Files are written to a temporary name
 and renamed (readers never see a partial file); anything that fails — no cache folder, a folder that cannot be
-written, a damaged file — computes the table as before and goes on. Nothing is ever deleted: the tables are small (a
-lattice ~0.6 MB) and their names change only with their inputs or the code.
+written, a damaged file — computes the table as before and goes on. The folder is kept under :data:`MAX_BYTES`: after
+each write the files least recently used (read or written; a read touches its file) go first — a lattice is ~0.6 MB
+and a camera's change as its history's range moves, so without a bound a fleet's would only grow.
 """
 
 from __future__ import annotations
@@ -34,10 +35,14 @@ from numpy.typing import NDArray
 
 from ._blas import blas_threads
 
-__all__ = ["CACHE_ENV", "cache_dir", "cached_arrays"]
+__all__ = ["CACHE_ENV", "MAX_BYTES", "cache_dir", "cached_arrays"]
 
 CACHE_ENV = "ILLUMON_CACHE_DIR"
 """Environment variable naming the cache folder; set and empty, the cache is off (every table computed)."""
+
+MAX_BYTES = 64 << 20
+"""Size the cache folder is pruned to after each write (least recently used first): ~100 lamp lattices, the tables
+of ~50 cameras."""
 
 _sources: dict[str, bytes] = {}
 _lock = threading.Lock()
@@ -112,7 +117,12 @@ def cached_arrays(name: str, parts: Sequence[bytes | str | float | int], sources
         return tuple(compute())
     try:
         with np.load(path, allow_pickle=False) as z:
-            return tuple(z[f"a{i}"] for i in range(len(z.files)))
+            out = tuple(z[f"a{i}"] for i in range(len(z.files)))
+        try:
+            os.utime(path)  # recently used: pruned last
+        except OSError:
+            pass
+        return out
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
         pass  # absent or unreadable: computed below
     out = tuple(compute())
@@ -126,6 +136,28 @@ def cached_arrays(name: str, parts: Sequence[bytes | str | float | int], sources
         except BaseException:
             Path(tmp).unlink(missing_ok=True)
             raise
+        _prune(folder, MAX_BYTES)
     except OSError:
         pass  # a cache that cannot be written: the table is still right
     return out
+
+
+def _prune(folder: Path, max_bytes: int) -> None:
+    """Delete the least recently used tables of ``folder`` until the rest fit in ``max_bytes`` (files another process
+    removes meanwhile are skipped)."""
+    files = []
+    for f in folder.glob("*.npz"):
+        try:
+            st = f.stat()
+        except OSError:
+            continue
+        files.append((st.st_mtime, st.st_size, f))
+    total = sum(size for _, size, _ in files)
+    for _, size, f in sorted(files, key=lambda t: t[0]):
+        if total <= max_bytes:
+            break
+        try:
+            f.unlink()
+        except OSError:
+            continue
+        total -= size

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from illumon import _tables
@@ -95,3 +97,21 @@ def test_lattice_table_from_disk(cache):
     np.testing.assert_array_equal(first, second)
     axes = [np.arange(-64, 32) * step[0], np.arange(-64, 32) * step[1]]
     np.testing.assert_array_equal(second, lamps._lattice_logdensity(axes, centres, logw, 0.02)[24:94, 29:89])
+
+
+def test_pruned_least_recently_used(cache, monkeypatch):
+    """The folder is kept under MAX_BYTES after each write, least recently used first; reading a table uses it."""
+    monkeypatch.setattr(_tables, "MAX_BYTES", 3 * 8_500)  # three of these tables (~8.3 kB each)
+    compute, calls = _counting((np.zeros(1000),))
+    src = (_tables.__file__,)
+
+    def path(k: int):
+        return cache / f"t-{_tables._key('t', (k,), src)}.npz"
+
+    for k in range(3):
+        _tables.cached_arrays("t", (k,), src, compute)
+        os.utime(path(k), (1000.0 + k, 1000.0 + k))  # table k used at time 1000 + k
+    _tables.cached_arrays("t", (0,), src, compute)  # read: table 0 is now the most recently used
+    assert len(calls) == 3 and path(0).stat().st_mtime > 2000
+    _tables.cached_arrays("t", (3,), src, compute)  # a fourth: table 1, the least recently used, goes
+    assert len(calls) == 4 and not path(1).exists() and all(path(k).exists() for k in (0, 2, 3))

@@ -10,9 +10,13 @@ the parent that stored a 100k-frame history reached ~650 MiB) is reported as ``p
 before the refit (``imports``: the process, its imports and the engine), by the end of the read step (``to read``)
 and by the end of the fit and check (``to fit``): whatever the write step adds shows only in ``peak MiB``.
 ``check s`` is the tone-response check's part of ``fit+est s`` (issue 29); ``load`` the 1-minute load average after the row.
-``again s`` is the same refit run again in that process (after the peak is read): what a long-lived service process or
-Dask worker pays, whose per-process tables (Planckian locus, daylight-locus Duv, lamp lattices, lamp spectra) and lazy
-imports the first refit built (~0.1–0.15 s of a 2k refit's ``total s``).
+``cpu s`` is the CPU time (``time.process_time``) of ``total s``'s refit, which the machine's other load moves less
+than the wall clock. Tables a fresh process would build are read from illumon's disk cache (:mod:`illumon._tables`)
+when an earlier process on this machine built them; ``ILLUMON_CACHE_DIR=`` (empty) turns that off: then ``total s``
+is a first refit's on a new machine. ``again s`` is the same refit run again in that process (after the peak is read):
+what a long-lived service process or Dask worker pays, whose per-process tables (Planckian locus, daylight-locus Duv,
+lamp lattices, lamp spectra) and lazy imports the first refit built (~0.1–0.15 s of a 2k refit's ``total s`` before
+the disk cache, ~0.05 s with it).
 
 ``floor s`` is what issue 29 holds a refit against, a numpy batched solve of the same size: the camera's rows read
 with ``sqlite3`` and decoded into an F × 16 × 3 array, then one weighted linear least-squares solve per frame (three
@@ -180,11 +184,12 @@ def _refit_child(url: str, data_dir: str, cid: int, conn) -> None:  # noqa: ANN0
         peaks[done] = _peak_mib()
 
     progress(0.0)
-    t = time.perf_counter()
+    t, cpu = time.perf_counter(), time.process_time()
     summary = refit_camera(make_session_factory(engine), cid, data_dir=Path(data_dir),
                            max_frames=settings.refit_max_frames, method=settings.refit_method,
                            max_fit_frames=settings.refit_fit_frames, progress=progress)
     seconds = time.perf_counter() - t
+    summary["cpu_s"] = time.process_time() - cpu
     summary["peak_mib_steps"] = {"start": peaks.get(0.0), "read": peaks.get(0.1), "fit": peaks.get(0.8)}
     peak = _peak_mib()
     t = time.perf_counter()  # the same refit again: a service process's per-process tables are built by now
@@ -242,13 +247,13 @@ def one_camera(sizes: list[int], css, day, refl) -> list[dict]:
                "peak_mib_fit": summary["peak_mib_steps"]["fit"],
                "median_deg": float(np.median(err)), "p95_deg": float(np.percentile(err, 95)),
                "floor_s": floor, "floor_ratio": seconds / floor, "estimate_ms": summary["estimate_ms"],
-               "again_s": summary["again_s"]}
+               "again_s": summary["again_s"], "cpu_s": summary["cpu_s"]}
         out.append(row)
         print(f"{n:>7d} {seconds:8.2f} {row['read_s']:7.2f} {row['fit_estimate_s']:9.2f} {row['response_check_s']:8.2f} "
               f"{row['write_s']:7.2f} {floor:7.3f} {row['floor_ratio']:7.1f} {row['estimate_ms']:6.2f} "
               f"{row['peak_mib_start']:7.0f} {row['peak_mib_read']:7.0f} {row['peak_mib_fit']:7.0f} "
               f"{peak_mib:8.0f} {row['median_deg']:7.3f} {row['p95_deg']:7.3f} {row['again_s']:7.2f} "
-              f"{os.getloadavg()[0]:5.1f}", flush=True)
+              f"{row['cpu_s']:6.2f} {os.getloadavg()[0]:5.1f}", flush=True)
     return out
 
 
@@ -335,7 +340,7 @@ def main() -> None:
     print("\none camera, 16 patches: refit (read + scene model fit + estimate every frame + write)")
     print(f"{'frames':>7} {'total s':>8} {'read s':>7} {'fit+est s':>9} {'check s':>8} {'write s':>7} {'floor s':>7} "
           f"{'÷ floor':>7} {'est ms':>6} {'imports':>7} {'to read':>7} {'to fit':>7} {'peak MiB':>8} {'med °':>7} "
-          f"{'p95 °':>7} {'again s':>7} {'load':>5}")
+          f"{'p95 °':>7} {'again s':>7} {'cpu s':>6} {'load':>5}")
     single = one_camera(sizes, css, day, refl)
     if args.no_fleet:
         RESULTS.mkdir(exist_ok=True)

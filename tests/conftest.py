@@ -2,12 +2,20 @@
 
 from __future__ import annotations
 
+import atexit
+import os
+import shutil
+import tempfile
 import warnings
 
 import pytest
 from illumon.simulation import datasets
 
 warnings.filterwarnings("ignore", module="colour")
+
+if "ILLUMON_CACHE_DIR" not in os.environ:  # illumon._tables: a cache of this run's own, not the user's (~/.cache)
+    os.environ["ILLUMON_CACHE_DIR"] = _CACHE = tempfile.mkdtemp(prefix="illumon-test-cache-")
+    atexit.register(shutil.rmtree, _CACHE, True)
 
 
 @pytest.fixture(scope="session")

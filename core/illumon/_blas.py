@@ -15,12 +15,13 @@ from typing import Any, TypeVar
 
 F = TypeVar("F", bound=Callable[..., Any])
 
-__all__ = ["single_blas_thread", "limit_blas_threads"]
+__all__ = ["single_blas_thread", "limit_blas_threads", "blas_threads"]
 
 _controller: Any = None
+_blas_libs: list[Any] = []
 
 
-def _limit() -> Any:
+def _get_controller() -> Any:
     global _controller
     if _controller is None:
         try:
@@ -29,13 +30,30 @@ def _limit() -> Any:
             _controller = False
         else:
             _controller = ThreadpoolController()
-    if _controller is False:
+            _blas_libs[:] = _controller.select(user_api="blas").lib_controllers
+    return _controller
+
+
+def _limit() -> Any:
+    controller = _get_controller()
+    if controller is False or all(lib.num_threads == 1 for lib in _blas_libs):
+        # already one thread (the service and refit processes limit the whole process): nothing to limit or restore
+        # (threadpoolctl's limit and restore cost ~0.1 ms of a new frame's ~2 ms estimate; issue 29)
         return None
-    return _controller.limit(limits=1, user_api="blas")
+    return controller.limit(limits=1, user_api="blas")
+
+
+def blas_threads() -> tuple[int, ...]:
+    """The threads each BLAS library loaded in this process uses now (threadpoolctl; empty without it): a matrix
+    product's sums are split over them, so its last bits depend on their number."""
+    controller = _get_controller()
+    if controller is False:
+        return ()
+    return tuple(int(lib.num_threads) for lib in _blas_libs)
 
 
 def single_blas_thread(func: F) -> F:
-    """Run ``func`` with BLAS limited to one thread (about 10 µs per call)."""
+    """Run ``func`` with BLAS limited to one thread (about 10 µs per call; ~1 µs when it runs one already)."""
 
     @functools.wraps(func)
     def wrapper(*args: Any, **kwargs: Any) -> Any:

@@ -21,6 +21,7 @@ import numpy as np
 from colour.colorimetry import SDS_BASIS_FUNCTIONS_CIE_ILLUMINANT_D_SERIES
 from numpy.typing import ArrayLike, NDArray
 
+from .._tables import cached_arrays
 from ..spectra import GRID, WAVELENGTHS
 from .base import MIRED_RANGE, DaylightModel
 from .ohno2013 import cct_duv_from_xy, xy_from_cct_duv
@@ -125,7 +126,15 @@ def cie_d_cct(nominal: ArrayLike) -> NDArray[np.float64]:
 
 @lru_cache(maxsize=1)
 def _locus_duv_table() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Reciprocal temperature (ascending) and Duv of the CIE daylight locus at 4000 nominal temperatures, 2–50 kK."""
+    """Reciprocal temperature (ascending) and Duv of the CIE daylight locus at 4000 nominal temperatures, 2–50 kK:
+    computed once a machine, then read from the disk cache bit for bit (:mod:`illumon._tables`)."""
+    from . import ohno2013
+
+    return cached_arrays("daylight-locus-duv", (), (__file__, ohno2013.__file__), _locus_duv_computed)
+
+
+def _locus_duv_computed() -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """:func:`_locus_duv_table`, computed."""
     nominal = np.geomspace(2000.0, 50000.0, 4000)
     cct, duv = cct_duv_from_xy(daylight_locus_xy(nominal))
     mired = 1e6 / cct

@@ -61,7 +61,7 @@ from ..camera import angular_error_deg
 from ..camera.primaries import check_primaries
 from ..observations import Observations
 from ..retrieval import retrieve_illuminants
-from .candidate import Candidate
+from .candidate import NONE_MARGIN, RANK, Candidate
 from .correction import Diagnosis, corrected_observations, estimate_with_effect
 from .noise import CODEC_NOISE, dark_level, dark_level_set, history_dark_level
 from .spectral import lamp_shares, spectral_pedestal
@@ -80,34 +80,6 @@ if TYPE_CHECKING:
 
 __all__ = ["RANK", "NONE_MARGIN", "MIN_OFF_LOCUS_FRAMES", "SHORT_HISTORY_FRAMES", "Candidate", "diagnose", "min_frames",
            "short_history_hint"]
-
-RANK = 4
-"""Rank of the bilinear model: measured daylight seen by three channels needs four components above the noise."""
-
-NONE_MARGIN = {
-    "nonlinear_response": 25.0,
-    "black_offset": 10.0,
-    "clipping": 10.0,
-    "patch_change": 10.0,
-    "shadow": 20.0,
-    "off_locus_illuminant": 17.0,
-    "fluorescence": 3.0,
-}
-"""How much an extension's score must beat the base model's for the effect to be reported (ΔBIC for the bilinear
-effects; the spectral effects' scores are described in the module docstring). Set on development
-histories of both simulators, so that they hold beyond the project's own (12 per effect and simulator, development cameras,
-surfaces and daylight; margins searched on a grid for the most effects named with no false effect on clean histories): tone curve
-15 → 25 (clean raw-pipeline histories reach −18, weakest development tone curve −29), shadow 10 → 20 (a clean raw-pipeline history
-at −8), off-locus 4 → 14 (clean raw-pipeline histories reach −13: the daylight mixture has not seen those bodies'
-misfit; development lamps mostly below −30), fluorescence 2.3 → 3.0 (clean raw-pipeline ratios reach 3.8; this
-leaves one false effect in 12 development clean raw-pipeline histories and most fluorescent patches undetected).
-Re-checked after the dark-value fixes (:data:`.tone.ADAPTIVE_DARK`, the offset test above :data:`.noise.DARK_LEVEL`) on
-``benchmarks/diagnose.py --split dev`` (Nikon and Point Grey, development surfaces and daylight, seeds 3 000…; 12
-histories per effect and simulator, 28 clean, off-locus and fluorescent ones): off-locus 14 → 17 (clean raw-pipeline
-histories at −16.0, −15.5, −14.8, −14.5; no off-locus lamp of either simulator between −17 and −14); fluorescence kept
-at 3.0 (4.0 would remove one clean raw-pipeline false alarm of 28, at −3.8, and miss 5 of 28 fluorescent patches of the
-project's simulator); tone curve kept at 25 (clean histories now −16 and above on both, weakest tone curve −27)."""
-
 
 GLOBAL_EFFECTS = ("nonlinear_response", "black_offset", "clipping")
 """Bilinear effects that act on every value (unlike a patch change or shadow, which name their own patch and frames)

@@ -94,20 +94,27 @@ same). Later rounds (frames already left out) are unchanged."""
 
 def _reflectance_posterior(
     a: NDArray[np.float64], y: NDArray[np.float64], w2: NDArray[np.float64], lam: NDArray[np.float64],
-    mu: NDArray[np.float64],
+    mu: NDArray[np.float64], weighted: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """Kinoshita & Kiya eqs. 13–14 in basis coefficients, for every patch at once.
 
     ``a`` (F × 3 × K) maps coefficients to each frame's responses, ``w2`` (F × P × 3) are noise precisions (0 where
     missing), ``lam``/``mu`` the prior precision and mean. Returns means (P × K) and precisions (P × K × K). The sums
     over frames and channels are matrix products (the three-operand einsums they replace took 7 × as long).
+    ``weighted``: :func:`_weighted` of ``w2`` and ``y``, when the caller keeps it (they do not depend on ``a``).
     """
     f, c, k = a.shape
     rows = a.reshape(f * c, k)
-    wt = w2.transpose(1, 0, 2).reshape(w2.shape[1], f * c)
+    wt, wty = _weighted(w2, y) if weighted is None else weighted
     prec = (wt @ (rows[:, :, None] * rows[:, None, :]).reshape(f * c, k * k)).reshape(-1, k, k) + lam
-    rhs = (wt * y.transpose(1, 0, 2).reshape(wt.shape)) @ rows + lam @ mu
+    rhs = wty @ rows + lam @ mu
     return np.linalg.solve(prec, rhs[..., None])[..., 0], prec
+
+
+def _weighted(w2: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The precisions (P × F·3) and precision-weighted values :func:`_reflectance_posterior` sums over frames."""
+    wt = w2.transpose(1, 0, 2).reshape(w2.shape[1], -1)
+    return wt, wt * y.transpose(1, 0, 2).reshape(wt.shape)
 
 
 def fit_scene_model(
@@ -308,6 +315,7 @@ class _JointObjective:
         self.k_ops, self.w_ops = imaging_operators(css, dm.basis, rb)
         self.lam = np.linalg.inv(rb.prior_covariance)
         self.mu = rb.prior_mean
+        self._weighted: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # _weighted(w2, yz), kept
 
     def operators(self, th: NDArray[np.float64]) -> NDArray[np.float64]:
         """Per-frame maps (F × 3 × K) from reflectance coefficients to camera values."""
@@ -400,10 +408,13 @@ class _JointObjective:
     def cost(self, am: NDArray[np.float64], th: NDArray[np.float64], noise: float = 1.0
              ) -> tuple[float, NDArray[np.float64]]:
         """``self(th)`` given its operators ``am``."""
-        w2 = self.w2 / noise**2
+        # (x / 1.0 is x: the alternation's ~190 evaluations share the weights and their sums' inputs, issue 29)
+        w2 = self.w2 if noise == 1.0 else self.w2 / noise**2
         if self.flare is None:
             y, prior = self.yz, 0.0
-            s, _ = _reflectance_posterior(am, y, w2, self.lam, self.mu)
+            if noise == 1.0 and self._weighted is None:
+                self._weighted = _weighted(w2, y)
+            s, _ = _reflectance_posterior(am, y, w2, self.lam, self.mu, self._weighted if noise == 1.0 else None)
         else:
             off, s, prior = self._offsets(am, w2)
             y = self.yz - off[:, None, :]

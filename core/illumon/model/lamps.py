@@ -47,6 +47,7 @@ from scipy.interpolate import RegularGridInterpolator
 from scipy.special import ndtri
 
 from .._blas import single_blas_thread
+from .._tables import cached_arrays
 from ..daylight import CIEDaylight
 from .general import cie_lamp_spectra, general_whites
 
@@ -239,6 +240,13 @@ CHUNK_POINTS = 1 << 20
 share over the offset posterior's support, frames outside the lattice)."""
 
 
+_EXACT_CHUNK = 256
+"""Points :func:`_exact_loglik` evaluates at once. Every point's value is computed on its own (its row of the
+temporaries), so the chunk changes no value; 256 points × ~450 centres keep the temporaries within ~2 MB, where 4 096
+made ~30 MB ones that a fresh process page-faulted in (a 2k refit's per-frame lamp test: ~25 ms more in a fresh
+process than in the next refit; 10.8 → 9.3 ms a call once warm; issue 29)."""
+
+
 def _exact_loglik(u: NDArray[np.float64], centres: NDArray[np.float64], logw: NDArray[np.float64],
                   sd: float) -> NDArray[np.float64]:
     """log Σ_j w_j N(u; c_j, sd² I) at every point of ``u`` (… × 2), centre by centre (the log-sum-exp in numpy:
@@ -246,10 +254,10 @@ def _exact_loglik(u: NDArray[np.float64], centres: NDArray[np.float64], logw: ND
     norm = -math.log(2 * math.pi * sd**2)
     uu = u.reshape(-1, 2)
     out = np.empty(len(uu))
-    for i in range(0, len(uu), 4096):
-        x = logw[None] - (0.5 / sd**2) * ((uu[i:i + 4096, None, :] - centres[None]) ** 2).sum(-1)
+    for i in range(0, len(uu), _EXACT_CHUNK):
+        x = logw[None] - (0.5 / sd**2) * ((uu[i:i + _EXACT_CHUNK, None, :] - centres[None]) ** 2).sum(-1)
         top = x.max(axis=1)
-        out[i:i + 4096] = np.log(np.exp(x - top[:, None]).sum(axis=1)) + top + norm
+        out[i:i + _EXACT_CHUNK] = np.log(np.exp(x - top[:, None]).sum(axis=1)) + top + norm
     return out.reshape(u.shape[:-1])
 
 
@@ -342,12 +350,15 @@ def _lattice_table(centres: NDArray[np.float64], logw: NDArray[np.float64], sd: 
     """:func:`_lattice_logdensity` on the nodes ``(start + i) · step``, ``i < count`` (per axis), computed on the
     range widened to whole multiples of :data:`TILE` nodes and remembered (the last :data:`_TABLES_KEPT`): a refit
     judges its history several times with the same camera, prior and lattice step over almost the same nodes. The
-    range computed depends on the request alone, so an answer never depends on what was computed before."""
+    range computed depends on the request alone, so an answer never depends on what was computed before. A table
+    computed by an earlier process on this machine is read from the disk cache (:mod:`illumon._tables`), bit for bit."""
     lo, hi = start // TILE * TILE, ((start + count - 1) // TILE + 1) * TILE
     key = (centres.tobytes(), logw.tobytes(), float(sd), step.tobytes(), lo.tobytes(), hi.tobytes())
     table = _recall(_tables, key)
     if table is None:
-        table = _lattice_logdensity([np.arange(lo[i], hi[i]) * step[i] for i in range(2)], centres, logw, sd)
+        (table,) = cached_arrays(  # read from disk when a process computed it before (issue 29: 15–45 ms each)
+            "lamp-lattice", (*key, str(centres.shape)), (__file__,),
+            lambda: (_lattice_logdensity([np.arange(lo[i], hi[i]) * step[i] for i in range(2)], centres, logw, sd),))
         table.flags.writeable = False
         _remember(_tables, key, table, _TABLES_KEPT)
     offset = start - lo
@@ -578,13 +589,17 @@ def frame_lamp_posterior(
     return LampPosterior(nd, white, offset, offset_sd)
 
 
-def _frame_means(model, obs, theta: NDArray[np.float64]) -> NDArray[np.float64]:
+def _frame_means(model, obs, theta: NDArray[np.float64], solver=None) -> NDArray[np.float64]:  # noqa: ANN001
     """Each frame's average over the model's patches (F × 3, the model's scale), a missing patch filled with the
-    model's prediction under the frame's fitted daylight (so every frame averages the same scene)."""
+    model's prediction under the frame's fitted daylight (so every frame averages the same scene). ``solver``: the
+    model's :class:`~.solver.FrameSolver` over these patches (``model.solver`` of them, in their order) when the
+    caller has one: only its operators ``G`` and ``b(θ)`` are read, which depend on nothing else (issue 29: a new
+    frame's estimate built a second solver here, ~15 % of its time)."""
     index = {p: i for i, p in enumerate(model.patches)}
     shared = [(j, index[p]) for j, p in enumerate(obs.patches) if p in index]
     oj, mi = [s[0] for s in shared], [s[1] for s in shared]
-    solver = model.solver(mi)
+    if solver is None or solver.G.shape[0] != len(mi):
+        solver = model.solver(mi)
     values = np.asarray(obs.values, dtype=float)
     out = np.empty((len(values), 3))
     for i in range(0, len(values), _MEANS_CHUNK):  # frame by frame: chunks bound the F × P × 3 temporaries
@@ -702,16 +717,17 @@ def _set_lamp_whites(result, extra: dict, mask: NDArray[np.bool_], white: NDArra
     result.info["gain_hi"][mask] = result.gains[mask] + half
 
 
-def apply_lamps(model, obs, result, extra: dict) -> None:
+def apply_lamps(model, obs, result, extra: dict, solver=None) -> None:  # noqa: ANN001
     """Add ``non_daylight`` to a scene model's per-frame estimate of ``obs`` (in place) and, for frames more likely
     lit by a lamp than by daylight in a history at least half of whose frames are daylight, replace the white and gains by the
     general illuminant's (:func:`.general.general_whites`), its ``confidence`` from the scene-average colour's posterior
     spread. CCT and Duv stay the nearest daylight's. Without ``model.lamps`` (a model saved before it) nothing is
-    added."""
+    added. ``solver``: the estimate's own solver over ``obs``'s patches, reused for the frames' means
+    (:func:`_frame_means`)."""
     lamps = getattr(model, "lamps", None)
     if not lamps:
         return
-    means = _frame_means(model, obs, np.asarray(result.info["theta"], dtype=float))
+    means = _frame_means(model, obs, np.asarray(result.info["theta"], dtype=float), solver)
     lp = frame_lamp_posterior(means, model.sensitivities, model.daylight_model(), np.asarray(lamps["offset"]),
                               np.maximum(np.asarray(lamps["offset_sd"]), 0.01), prior=float(lamps.get("prior", LAMP_PRIOR)))
     nd = np.where(np.isfinite(lp.non_daylight), lp.non_daylight, float(lamps.get("prior", LAMP_PRIOR)))

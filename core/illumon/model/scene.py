@@ -228,7 +228,7 @@ class SceneModel:
                                            len(shared), reflectances))
         res, cols = out.result(obs)
         if self.lamps:
-            apply_lamps(self, obs, res, cols)
+            apply_lamps(self, obs, res, cols, solver)  # its frame means need only this solver's operators
         return res, cols
 
 

@@ -60,7 +60,7 @@ def check_response(
         and 3 regions) or the test fails.
     """
     from illumon._blas import single_blas_thread
-    from illumon.diagnosis.fit import NONE_MARGIN, RANK
+    from illumon.diagnosis.candidate import NONE_MARGIN, RANK  # not .fit: the whole diagnosis's imports
     from illumon.diagnosis.noise import CODEC_NOISE
     from illumon.diagnosis.stages import tone_stage
 

@@ -31,10 +31,26 @@ def test_planck_locus_matches_colour_blackbody():
 def test_locus_table_is_plancks_law_bit_for_bit() -> None:
     """The table's blackbody spectra, computed in one buffer (issue 29), equal the plain expression bit for bit (the
     table computed afresh, so its matrix product runs with the same BLAS threads as the reference's)."""
-    planck_locus = ohno2013.planck_locus.__wrapped__
+    mired, uv = ohno2013._planck_table()[:2]  # computed, not read from the disk cache (illumon._tables)
     cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
     wl = np.asarray(cmfs.wavelengths, dtype=float) * 1e-9
-    t = 1e6 / planck_locus().mired
+    t = 1e6 / mired
     xyz = (1.0 / (wl[None, :] ** 5 * np.expm1(1.4388e-2 / (wl[None, :] * t[:, None])))) @ np.asarray(cmfs.values)
     den = xyz[:, 0] + 15 * xyz[:, 1] + 3 * xyz[:, 2]
-    np.testing.assert_array_equal(planck_locus().uv, np.stack([4 * xyz[:, 0] / den, 6 * xyz[:, 1] / den], axis=1))
+    np.testing.assert_array_equal(uv, np.stack([4 * xyz[:, 0] / den, 6 * xyz[:, 1] / den], axis=1))
+
+
+def test_locus_interpolation_is_np_interp_bit_for_bit() -> None:
+    """The four columns interpolated with one interval search (issue 29) equal ``np.interp`` of each, bit for bit:
+    inside the table, on its nodes, at and beyond its ends, for NaN and ±inf, in any shape."""
+    p = ohno2013.planck_locus()
+    rng = np.random.default_rng(0)
+    cases = [rng.uniform(20, 600, 3000), rng.uniform(0, 1100, (7, 50)), p.mired[rng.integers(0, p.mired.size, 500)],
+             1e6 / (1e6 / rng.uniform(5, 1000, 1000)), np.array([5.0, 1000.0, 4.999, 1000.0001, p.mired[-1]]),
+             np.array([np.nan, np.inf, -np.inf, 150.0]), np.array(150.3)]
+    for m in cases:
+        got = ohno2013._locus_at(p, m)
+        want = [np.interp(m, p.mired, col) for col in (p.uv[:, 0], p.uv[:, 1], p.normal[:, 0], p.normal[:, 1])]
+        for g, w in zip(got, want, strict=True):
+            assert g.shape == np.shape(w)
+            np.testing.assert_array_equal(g, w)

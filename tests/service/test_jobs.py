@@ -216,7 +216,6 @@ def test_refit_all_in_forked_workers_equals_serial(tmp_path):
     import subprocess
     import sys
 
-
     _store_cameras(tmp_path, 3, 40)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
 

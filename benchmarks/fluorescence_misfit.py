@@ -5,10 +5,12 @@ the reflectance prior weakened.
 Run: ``python benchmarks/fluorescence_misfit.py SIM SEED CAMERA`` (``SIM`` ``rawsim`` or ``imgsim``, a clean
 development history: ``SEED`` 3 000…, ``CAMERA`` the one :mod:`benchmarks.diagnose` ``--split dev`` gives it, e.g.
 ``rawsim 3002 Nikon_D300s``, ``imgsim 3005 Nikon_D40``). Prints, per variant, the ratio
-:func:`illumon.diagnosis.stages.spectral_stage` compares with ``NONE_MARGIN["fluorescence"]`` (best patch's gain over
-the runner-up's, at least the median of χ²₃; the stage's weights without the measured standard errors), the two
-patches and the best patch's emission share, and each surface's squared Mahalanobis distance under the reflectance
-prior (the coefficients of its projection on the basis):
+:func:`illumon.diagnosis.stages.spectral_stage` compared with ``NONE_MARGIN["fluorescence"]`` before issue 28's
+branch ``diag-clean`` (best patch's in-sample gain over the runner-up's under the Gaussian reflectance prior, at least
+the median of χ²₃; the stage's weights without the measured standard errors), the two patches and the best patch's
+emission share, and each surface's squared Mahalanobis distance under the reflectance prior (the coefficients of its
+projection on the basis); then the ratio the stage compares now on the observed values
+(:func:`illumon.diagnosis.spectral.studentised_fluorescence_ratio` with the Student-t prior). Variants:
 
 * ``observed``: the history's values;
 * ``exact``: ``Σλ E_f R_p C`` at the history's exposure (no noise, no pipeline);
@@ -43,7 +45,7 @@ def ratio(obs: Observations, values: NDArray[np.float64], css: NDArray[np.float6
         base.prob.Lambda = lam * prior_factor
         try:
             fg, _, share = spectral.generic_fluorescence_gains(
-                base, local_sd=spectral.LOCAL_REFLECTANCE_SD / np.sqrt(prior_factor))
+                base, local_sd=spectral.LOCAL_REFLECTANCE_SD / np.sqrt(prior_factor), prior_dof=None)
         finally:
             base.prob.Lambda = lam
     p, q = np.argsort(-fg)[:2]
@@ -82,6 +84,11 @@ def main() -> int:
     print(f"exact       {ratio(obs, render(refl, light), css)}")
     print(f"in span     {ratio(obs, render((rb.functions @ coef).T, light_in), css)}")
     print(f"prior / 10  {ratio(obs, obs.values, css, 0.1)}")
+    with dark_level_set(history_dark_level(obs.values, None)):
+        base = stages.refined_spectral_base(obs, css)
+        r, p, _, scale = spectral.studentised_fluorescence_ratio(base, spectral.generic_fluorescence_gains(base)[0],
+                                                                 float(chi2.median(3)), stages.REFINE_ITERS)
+    print(f"now         studentised ratio {r:5.2f}  best patch {p}, scale {scale:.1f} (Student-t prior)")
     return 0
 
 

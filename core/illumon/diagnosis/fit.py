@@ -37,10 +37,15 @@ noise, sets the scale of their gains, so each is measured against the history it
   percentile of the score on 200 clean development histories of the project's simulator, −3.6); 14 with both
   simulators (clean raw-pipeline histories reach −13).
 * **Fluorescence** (:func:`.spectral.generic_fluorescence_gains`, Han et al. 2012 eqs. 1–2): the best patch's gain
-  from an emission of free colour driven by a generic short-wave band, divided by the runner-up patch's gain (at
-  least the median of χ²₃); score minus that ratio. Margin 2.3 when set on the project's simulator alone (the 98th
-  percentile of the ratio on 200 clean development histories of the project's simulator); 3.0 with both simulators
-  (see :data:`NONE_MARGIN`).
+  from an emission of free colour driven by a generic short-wave band, divided by the largest gain of any other patch
+  (at least the median of χ²₃); score minus that ratio. The gains are externally studentised
+  (:func:`.spectral.studentised_fluorescence_ratio`: each patch against the lights, reflectances and noise scale
+  re-fitted without it, the other patches also without the best one) and the reflectances' prior is a Student t
+  (:data:`.spectral.REFLECTANCE_PRIOR_DOF`, fitted to the measured reflectances), so neither a surface the lights
+  fitted with it misfit nor one the Gaussian prior shrinks reads as fluorescent, and a fluorescent patch no longer
+  raises the other patches' gains through the lights it bent. Margin 2.3 when set on the project's simulator alone
+  (the 98th percentile of the ratio on 200 clean development histories of the project's simulator); 3.0 with both
+  simulators (see :data:`NONE_MARGIN`), kept for the studentised ratio.
 
 Off-locus light is tested first (its misfit can make a patch look fluorescent, not the reverse), with the best
 fluorescent-looking patch left out when its ratio passes the margin. The illuminants are then re-estimated with the

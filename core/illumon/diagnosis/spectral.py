@@ -24,7 +24,9 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import copy
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from importlib import resources
 
@@ -44,7 +46,8 @@ from .noise import dark_level as current_dark_level
 __all__ = [
     "SpectralBase", "fit_spectral_base", "refine_with_measured_daylight", "off_locus_gains", "fluorescence_gains",
     "generic_fluorescence_gains", "excitation_bands", "EXCITATION_CENTRES_NM", "daylight_mixture",
-    "LOCAL_REFLECTANCE_SD", "local_reflectance_functions", "spectral_pedestal",
+    "LOCAL_REFLECTANCE_SD", "local_reflectance_functions", "spectral_pedestal", "without_patches",
+    "studentised_fluorescence_ratio", "REFLECTANCE_PRIOR_DOF",
 ]
 
 
@@ -414,9 +417,26 @@ def local_reflectance_functions(spacing_nm: float = 15.0, width_nm: float = 10.0
     return np.exp(-0.5 * ((WAVELENGTHS[:, None] - centres[None, :]) / width_nm) ** 2)
 
 
+REFLECTANCE_PRIOR_DOF = 5.4
+"""Degrees of freedom of the Student-t reflectance prior in the fluorescence test (:func:`generic_fluorescence_gains`):
+the maximum-likelihood ν of a multivariate t with the shipped prior's mean and covariance over the 1 835 measured
+reflectances the basis and prior were built from (each set weighted equally, as in ``tools/build_bases.py``;
+``tools/reflectance_prior_dof.py``). Measured surfaces are heavy-tailed under the Gaussian prior — 6.7 % of them lie
+beyond its 99 % point of χ²₈ — so a Gaussian prior shrinks an unusual surface towards the mean much harder than the
+population warrants, and an emission of free colour, which has no prior, took up the misfit that shrinkage left."""
+
+REFLECTANCE_PRIOR_ROUNDS = 3
+"""Re-weighting rounds of the Student-t prior (each patch's prior precision × ``(ν + K) / (ν + d²)``, ``d²`` its
+coefficients' squared Mahalanobis distance under the Gaussian prior: the EM steps towards the t prior's posterior
+mode)."""
+
+
 def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | None = None,
-                               local_sd: float = LOCAL_REFLECTANCE_SD) -> tuple[NDArray[np.float64], NDArray[np.int64],
-                                                                               NDArray[np.float64]]:
+                               local_sd: float = LOCAL_REFLECTANCE_SD,
+                               patches: Sequence[int] | None = None,
+                               prior_dof: float | None = REFLECTANCE_PRIOR_DOF) -> tuple[NDArray[np.float64],
+                                                                                       NDArray[np.int64],
+                                                                                       NDArray[np.float64]]:
     """Per patch, the drop of whitened misfit (units of ``phi``) when the patch adds an emission of unknown colour.
 
     Han et al. (CVPR 2012, eqs. 1–2): the emitted light is a fixed spectrum scaled by the light the fluorophore
@@ -427,9 +447,13 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
     colour temperature: the evidence grows with the history's range of skies. Frames are the measured-daylight re-fit
     (``base.day_spectra``, exposure included), the patch's reflectance is re-fitted (Gaussian prior on the basis
     coefficients, plus local departures :func:`local_reflectance_functions` with prior σ ``local_sd``) with and
-    without the emission.
+    without the emission. With ``prior_dof`` the basis coefficients' prior is a Student t of that many degrees of
+    freedom (:data:`REFLECTANCE_PRIOR_DOF`) with the Gaussian prior's mean and covariance: each patch's prior
+    precision is scaled by ``(ν + K) / (ν + d²)`` at its reflectance without the emission (:data:`REFLECTANCE_PRIOR_ROUNDS`
+    re-weightings), and the same prior serves the fit with the emission; ``None``: the Gaussian prior.
     Returns the best gain over bands per patch, the band index and the emission's share of the patch's signal per
-    channel (median over frames, P × 3).
+    channel (median over frames, P × 3); with ``patches`` given, only those patches are tested (the others' entries
+    are 0).
 
     References
     ----------
@@ -443,22 +467,33 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
     m, _ = imaging_operators(base.sensitivities, spectra.T, prob.rb)  # F × 3 × K
     q = spectra @ bands.T  # F × B absorbed light per band (eq. 1)
     lam, mu = prob.Lambda, prob.mu
+    kb = lam.shape[0]  # the basis coefficients come first
     if local_sd > 0:  # local departures from the basis, N(0, local_sd²) each, in the null and the alternative alike
         bumps = local_reflectance_functions()
         m = np.concatenate([m, np.einsum("lc,fl,lj->fcj", base.sensitivities, spectra, bumps)], axis=-1)
-        k, nb = lam.shape[0], bumps.shape[1]
-        lam = np.block([[lam, np.zeros((k, nb))], [np.zeros((nb, k)), np.eye(nb) / local_sd**2]])
+        nb = bumps.shape[1]
+        basis_block = np.block([[lam, np.zeros((kb, nb))], [np.zeros((nb, kb)), np.zeros((nb, nb))]])
+        lam = np.block([[lam, np.zeros((kb, nb))], [np.zeros((nb, kb)), np.eye(nb) / local_sd**2]])
         mu = np.concatenate([mu, np.zeros(nb)])
+    else:
+        basis_block = lam.copy()
+    lam_basis = prob.Lambda
     gains = np.zeros(prob.P)
     best = np.zeros(prob.P, dtype=np.int64)
     share = np.zeros((prob.P, 3))
     eye = np.eye(3)
-    for p in range(prob.P):
+    for p in range(prob.P) if patches is None else patches:
         w = prob.W[:, p]  # F × 3
         d = (w[..., None] * m).reshape(-1, m.shape[-1])  # 3F × K
         y = (w * prob.Y[:, p]).ravel()
-        nmat = d.T @ d + lam
-        sig = np.linalg.solve(nmat, d.T @ y + lam @ mu)
+        lam_p = lam
+        for _ in range(REFLECTANCE_PRIOR_ROUNDS if prior_dof else 0):
+            sig = np.linalg.solve(d.T @ d + lam_p, d.T @ y + lam_p @ mu)
+            dev = sig[:kb] - mu[:kb]
+            scale = (prior_dof + kb) / (prior_dof + float(dev @ lam_basis @ dev))
+            lam_p = lam + (scale - 1.0) * basis_block
+        nmat = d.T @ d + lam_p
+        sig = np.linalg.solve(nmat, d.T @ y + lam_p @ mu)
         res = y - d @ sig
         for bi in range(bands.shape[0]):
             g = (w[:, :, None] * q[:, bi, None, None] * eye[None]).reshape(-1, 3)  # 3F × 3, one column per channel
@@ -471,3 +506,58 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
                 level = np.median(prob.Y[ok, p], axis=0) if ok.any() else np.ones(3)
                 share[p] = np.median(q[ok, bi, None], axis=0) * x / np.maximum(level, 1e-9)
     return gains, best, share
+
+
+def without_patches(base: SpectralBase, patches: Sequence[int], iters: int = 3) -> SpectralBase:
+    """``base`` with the frames' measured-daylight lights, the reflectances and the noise scale ``phi`` re-fitted
+    without ``patches`` (:func:`refine_with_measured_daylight`, ``iters`` rounds from ``base``'s reflectances); the
+    values and weights of every patch are kept, so the left-out patches can be tested against the re-fit. ``base`` is
+    not changed."""
+    prob = copy.copy(base.prob)
+    w = base.prob.W.copy()
+    w[:, list(patches)] = 0.0
+    prob.W = w
+    out = replace(base, prob=prob)
+    refine_with_measured_daylight(out, iters=iters)
+    out.prob = base.prob
+    return out
+
+
+def studentised_fluorescence_ratio(base: SpectralBase, gains: NDArray[np.float64], floor: float,
+                                   iters: int = 3) -> tuple[float, int, float, float]:
+    """The fluorescence test's statistic with externally studentised gains: the best patch's gain over the largest
+    gain any other patch shows under the same test.
+
+    The in-sample gains ``gains`` (:func:`generic_fluorescence_gains` on ``base``) pick the patch ``p``. Its gain is
+    then measured against the frames' lights, reflectances and noise scale re-fitted without it
+    (:func:`without_patches`) — a fluorescent patch bends the lights fitted with it, which lowers its own gain and
+    raises every other patch's — and each other patch ``q`` is tested the same way against the fit without ``p`` and
+    ``q``: under the alternative "``p`` fluoresces" ``p`` says nothing about the lights or the noise, and every patch
+    is judged by a fit it took no part in (as externally studentised residuals are, so a surface the lights happen to
+    fit badly is no more likely to be the largest than any other). The scale is the largest such ``q`` gain (at least
+    ``floor``): one patch fluoresces, the others show what the spectral model's misfit alone gives.
+
+    Parameters
+    ----------
+    base
+        The refined spectral fit (:func:`refine_with_measured_daylight`).
+    gains
+        Its in-sample fluorescence gains (P,).
+    floor
+        The smallest scale (the gain of 3 non-negative parameters on noise alone).
+    iters
+        Rounds of the re-fits.
+
+    Returns
+    -------
+    tuple
+        The ratio, the patch ``p``, its gain (units of the re-fit's ``phi``) and the scale.
+    """
+    p = int(np.argmax(gains))
+    gain_p = float(generic_fluorescence_gains(without_patches(base, [p], iters), patches=[p])[0][p])
+    scale = floor
+    for q in range(gains.size):
+        if q != p and base.prob.present[:, q].any():
+            g = generic_fluorescence_gains(without_patches(base, [p, q], iters), patches=[q])[0][q]
+            scale = max(scale, float(g))
+    return gain_p / scale, p, gain_p, scale

@@ -24,6 +24,7 @@ from .spectral import (
     lamp_shares,
     off_locus_gains,
     refine_with_measured_daylight,
+    studentised_fluorescence_ratio,
 )
 from .tone import tone_candidate
 
@@ -417,11 +418,17 @@ def spectral_stage(obs: Observations, sensitivities: NDArray[np.float64],
     # generic short-wave absorption band beats reflectance alone the most. One patch fluoresces: its gain must stand
     # out from the runner-up's, which measures how much an ordinary patch gains from the spectral model's own misfit
     # (at least the median of χ²₃, the gain of 3 non-negative parameters on noise alone)
+    # (:func:`.spectral.studentised_fluorescence_ratio`: each patch's gain against the lights and noise re-fitted
+    # without it, the others' also without the best patch)
     fg, fband, share = generic_fluorescence_gains(base)
-    p = int(np.argmax(fg))
-    fscale = max(float(np.sort(fg)[-2]) if fg.size > 1 else 0.0, float(chi2.median(3)))
+    floor = float(chi2.median(3))
+    if fg.size > 1:
+        fratio, p, _, fscale = studentised_fluorescence_ratio(base, fg, floor, REFINE_ITERS)
+    else:
+        p, fscale = 0, floor
+        fratio = float(fg[0]) / floor
     _, fb, _, names = fluorescence_gains(base)
-    fluor = Candidate("fluorescence", -float(fg[p] / fscale),
+    fluor = Candidate("fluorescence", -float(fratio),
                       {"excitation_band_nm": float(EXCITATION_CENTRES_NM[int(fband[p])]),
                        "emission_share": [round(float(v), 4) for v in share[p]],
                        "closest_shipped_fluorophore": names[int(fb[p])], "gain_scale": round(fscale, 3)}, patch=p)

@@ -431,12 +431,13 @@ def test_tone_curve_whose_misfit_looks_like_lamp_light_stays_a_tone_curve(shared
 def test_off_locus_light_takes_priority_over_fluorescence(shared_data):
     """A lamp-lit development history (raw pipeline, Nikon development camera, development surfaces and daylight) in
     which both spectral effects pass their margins: the lamp's misfit makes a patch look fluorescent, not the
-    reverse, so the off-locus light is named."""
+    reverse, so the off-locus light is named. (Seed 3007 was this history until the fluorescence test's gains were
+    studentised: its patch no longer passes, 1.9 against 3.0; ``benchmarks/diagnose.py --split dev``'s off-locus
+    history 9006, Nikon D50, is the one of its 30 where both still pass.)"""
     import rawsim
 
-    seed = 3007
-    h = rawsim.hide_effect_raw("off_locus_illuminant", rawsim.DEV_CAMERAS[seed % len(rawsim.DEV_CAMERAS)], seed,
-                               split="dev")
+    seed = 9006
+    h = rawsim.hide_effect_raw("off_locus_illuminant", "Nikon_D50", seed, split="dev")
     d = diagnose(h.observations, h.sensitivities, reestimate=False)
     scores = {c.effect: c.score for c in d.candidates}
     assert scores["fluorescence"] < -NONE_MARGIN["fluorescence"]  # the fluorescence stage alone would name a patch

@@ -70,20 +70,18 @@ def _relative_posterior_sd(jac: NDArray[np.float64], f: int, dm: CIEDaylight, rb
             cols[rows[:, :, c], (np.arange(f) * 3 + c)[:, None]] = sqrt_w2[:, :, c] * flare[:, None, c]
         jac = np.concatenate([jac, cols], axis=1)
     info = jac.T @ jac
-    prior = np.zeros(info.shape[0])
-    ones = np.eye(f) - 1.0 / f
+    centre = np.eye(f) - 1.0 / f  # takes away the frames' mean
     for k, (sigma, between) in enumerate(((dm.mired_sigma, dm.mired_between), (dm.duv_sigma, dm.duv_between))):
         idx = np.arange(f) * 3 + k
         # −2 log prior of N(m·1, σ_w² I + σ_b² 11ᵀ): σ_w⁻² on the frames' departures from their mean (the
         # common level, weaker, is projected out below anyway), in the columns' units
-        info[idx[:, None], idx[None, :]] += ones * (steps[idx[0]] ** 2 / (sigma**2 - between**2))
+        info[idx[:, None], idx[None, :]] += centre * (steps[idx[0]] ** 2 / (sigma**2 - between**2))
     lam = np.linalg.inv(rb.prior_covariance) * 0.1**2
     for q in range(n_p):
         i0 = 3 * f + q * rb.size
         info[i0 : i0 + rb.size, i0 : i0 + rb.size] += lam
-    if flare is not None:
-        prior[3 * f + n_p * rb.size :] = 1.0  # the offsets' columns are in units of their prior scale
-    info[np.diag_indices_from(info)] += prior
+    i0 = 3 * f + n_p * rb.size  # the offsets' columns (if any) are in units of their prior scale
+    info[np.arange(i0, info.shape[0]), np.arange(i0, info.shape[0])] += 1.0
     # a level common to the frames (each parameter's) is the gauge and the prior's business: pin it
     for k in range(3):
         idx = np.arange(f) * 3 + k
@@ -94,7 +92,7 @@ def _relative_posterior_sd(jac: NDArray[np.float64], f: int, dm: CIEDaylight, rb
         return math.inf, math.inf
     out = []
     for k in range(2):
-        c = ones @ cov[k::3, k::3] @ ones
+        c = centre @ cov[k::3, k::3] @ centre
         out.append(float(steps[k] * math.sqrt(max(np.linalg.eigvalsh(c)[-1], 0.0))))
     return out[0], out[1]
 

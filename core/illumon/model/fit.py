@@ -103,11 +103,7 @@ def _reflectance_posterior(
     over frames and channels are matrix products (the three-operand einsums they replace took 7 × as long).
     ``weighted``: :func:`_weighted` of ``w2`` and ``y``, when the caller keeps it (they do not depend on ``a``).
     """
-    f, c, k = a.shape
-    rows = a.reshape(f * c, k)
-    wt, wty = _weighted(w2, y) if weighted is None else weighted
-    prec = (wt @ (rows[:, :, None] * rows[:, None, :]).reshape(f * c, k * k)).reshape(-1, k, k) + lam
-    rhs = wty @ rows + lam @ mu
+    prec, rhs = _normal_equations(a, _weighted(w2, y) if weighted is None else weighted, lam, mu)
     return np.linalg.solve(prec, rhs[..., None])[..., 0], prec
 
 
@@ -115,6 +111,18 @@ def _weighted(w2: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[NDArray[
     """The precisions (P × F·3) and precision-weighted values :func:`_reflectance_posterior` sums over frames."""
     wt = w2.transpose(1, 0, 2).reshape(w2.shape[1], -1)
     return wt, wt * y.transpose(1, 0, 2).reshape(wt.shape)
+
+
+def _normal_equations(a: NDArray[np.float64], weighted: tuple[NDArray[np.float64], NDArray[np.float64]],
+                      lam: NDArray[np.float64], mu: NDArray[np.float64]
+                      ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Every patch's reflectance precision (P × K × K) and information (P × K) given the frames' operators ``a``
+    (F × 3 × K) and :func:`_weighted` sums, the prior included."""
+    f, c, k = a.shape
+    rows = a.reshape(f * c, k)
+    wt, wty = weighted
+    prec = (wt @ (rows[:, :, None] * rows[:, None, :]).reshape(f * c, k * k)).reshape(-1, k, k) + lam
+    return prec, wty @ rows + lam @ mu
 
 
 def fit_scene_model(
@@ -323,10 +331,22 @@ class _JointObjective:
         m = np.einsum("fk,kcj->fcj", a, self.k_ops) / (a @ self.w_ops)[:, 1, None, None]
         return np.exp(th[:, 2])[:, None, None] * m
 
+    def _weights(self, noise: float) -> tuple[NDArray[np.float64], tuple[NDArray[np.float64], NDArray[np.float64]]]:
+        """The values' precisions at ``noise`` and their :func:`_weighted` sums, kept for ``noise`` 1 (the
+        alternation's ~190 evaluations share them, issue 29; ``x / 1.0`` is ``x``)."""
+        if noise != 1.0:
+            w2 = self.w2 / noise**2
+            return w2, _weighted(w2, self.yz)
+        if self._weighted is None:
+            self._weighted = _weighted(self.w2, self.yz)
+        return self.w2, self._weighted
+
     def reflectances(self, th: NDArray[np.float64], noise: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Reflectance posterior means (P × K) and precisions (P × K × K) given ``θ``."""
-        am, w2 = self.operators(th), self.w2 / noise**2
-        y = self.yz if self.flare is None else self.yz - self._offsets(am, w2)[0][:, None, :]
+        am, (w2, weighted) = self.operators(th), self._weights(noise)
+        if self.flare is None:
+            return _reflectance_posterior(am, self.yz, w2, self.lam, self.mu, weighted)
+        y = self.yz - self._offsets(am, weighted)[0][:, None, :]
         return _reflectance_posterior(am, y, w2, self.lam, self.mu)
 
     def residuals(self, th: NDArray[np.float64], coef: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -340,22 +360,21 @@ class _JointObjective:
         off = (self.w2 * r).sum(axis=1) / (self.w2.sum(axis=1) + 1.0 / self.flare**2)
         return r - off[:, None, :]
 
-    def _offsets(self, am: NDArray[np.float64], w2: NDArray[np.float64]
+    def _offsets(self, am: NDArray[np.float64], weighted: tuple[NDArray[np.float64], NDArray[np.float64]]
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], float]:
         """Each frame's additive offset (F × 3, ``u ⊙ φ`` of :func:`~illumon.model.solver.flare_scales`) and the
         reflectances (P × K) that minimise the objective jointly: the offsets' block (diagonal: one amount per frame
         and channel, meeting no other) eliminated first, leaving one dense system in the P·K reflectance coefficients
         (a system in the offsets would grow with the history; this one does not). Returns the offsets, the
-        reflectances and the amounts' prior cost ``Σ φ²``."""
+        reflectances and the amounts' prior cost ``Σ φ²``, given the values' :func:`_weighted` sums."""
         f, c, k = am.shape
-        n_p = w2.shape[1]
         u = self.flare
+        wt, wty = weighted  # P × (F·3)
+        n_p = wt.shape[0]
         rows = am.reshape(f * c, k)
-        wt = w2.transpose(1, 0, 2).reshape(n_p, f * c)  # P × (F·3)
-        prec = (wt @ (rows[:, :, None] * rows[:, None, :]).reshape(f * c, k * k)).reshape(-1, k, k) + self.lam
-        rhs = (wt * self.yz.transpose(1, 0, 2).reshape(wt.shape)) @ rows + self.lam @ self.mu  # P × K
-        d = (u**2 * w2.sum(axis=1) + 1.0).reshape(f * c)  # the amounts' precision
-        r_o = (u * (w2 * self.yz).sum(axis=1)).reshape(f * c)
+        prec, rhs = _normal_equations(am, weighted, self.lam, self.mu)  # P × K × K, P × K
+        d = u.reshape(f * c) ** 2 * wt.sum(axis=0) + 1.0  # the amounts' precision
+        r_o = u.reshape(f * c) * wty.sum(axis=0)
         cross = ((wt * u.reshape(f * c))[:, :, None] * rows[None]).transpose(0, 2, 1).reshape(n_p * k, f * c)
         system = -(cross / d) @ cross.T
         idx = np.arange(n_p)[:, None] * k + np.arange(k)
@@ -382,12 +401,12 @@ class _JointObjective:
         if self.flare is None or flare_sd <= 0:
             return 0.0
         unit = self.flare / flare_sd
-        am, w2 = self.operators(th), self.w2 / noise**2
+        am, (w2, weighted) = self.operators(th), self._weights(noise)
         sd, w_sum = flare_sd, w2.sum(axis=1)
         told = 3 * max(unit.shape[0] - 1, 0)
         for _ in range(iterations):
             self.flare = unit * sd
-            off, _, _ = self._offsets(am, w2)
+            off, _, _ = self._offsets(am, weighted)
             seen = float(np.sum((off / self.flare) ** 2 + 1.0 / (self.flare**2 * w_sum + 1.0))) * sd**2
             new = float(np.clip(math.sqrt((strength * flare_sd**2 + seen) / (strength + told)), *bounds))
             done = abs(new - sd) <= 1e-3 * flare_sd
@@ -408,15 +427,12 @@ class _JointObjective:
     def cost(self, am: NDArray[np.float64], th: NDArray[np.float64], noise: float = 1.0
              ) -> tuple[float, NDArray[np.float64]]:
         """``self(th)`` given its operators ``am``."""
-        # (x / 1.0 is x: the alternation's ~190 evaluations share the weights and their sums' inputs, issue 29)
-        w2 = self.w2 if noise == 1.0 else self.w2 / noise**2
+        w2, weighted = self._weights(noise)
         if self.flare is None:
             y, prior = self.yz, 0.0
-            if noise == 1.0 and self._weighted is None:
-                self._weighted = _weighted(w2, y)
-            s, _ = _reflectance_posterior(am, y, w2, self.lam, self.mu, self._weighted if noise == 1.0 else None)
+            s, _ = _reflectance_posterior(am, y, w2, self.lam, self.mu, weighted)
         else:
-            off, s, prior = self._offsets(am, w2)
+            off, s, prior = self._offsets(am, weighted)
             y = self.yz - off[:, None, :]
         r = y - (am.reshape(-1, am.shape[2]) @ s.T).reshape(am.shape[0], 3, -1).transpose(0, 2, 1)
         d = s - self.mu

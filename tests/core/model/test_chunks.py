@@ -215,7 +215,7 @@ def test_joint_objective_glare_offsets_are_the_exact_joint_minimum(lamp_history,
     for extra in (np.zeros_like(y), glare):
         obj = _JointObjective(y + extra, present, model.sensitivities, dm, rb, 0.02, 0.002)
         am = obj.operators(theta)
-        off, coef, _ = obj._offsets(am, obj.w2)
+        off, coef, _ = obj._offsets(am, obj._weights(1.0)[1])
         r = obj.yz - off[:, None, :] - np.einsum("fcj,pj->fpc", am, coef)
         grad_s = -np.einsum("fcj,fpc->pj", am, obj.w2 * r) + (coef - obj.mu) @ obj.lam
         u = obj.flare  # F × 3: o = u ⊙ φ

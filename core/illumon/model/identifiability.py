@@ -139,9 +139,10 @@ def identifiability(
             d = pred(xp) - r0
             jac[owner, col[:, None]] = d[owner] / h[:, None] * steps[col][:, None]
     sv = np.linalg.svd(jac, compute_uv=False)
-    # Three directions are not fixed by the data of any history: the exposure/reflectance scale (exact gauge) and a
-    # common shift of every frame's temperature and Duv (absorbed by reflectance changes, set by the priors).
-    # The condition of the rest says whether the data determine the illuminants relative to each other.
+    # Three directions are not fixed by the data of any history (the exposure/reflectance scale and reflectance
+    # directions the camera cannot see); the condition of the rest is reported. It does not say whether the
+    # illuminants are determined (its smallest directions are mostly reflectance coefficients): the posterior
+    # spread below does.
     cond = float(sv[0] / max(sv[-4], 1e-300)) if sv.size > 4 else math.inf
     sv_tail = [float(v / sv[0]) for v in sv[-4:]]
     rel_mired, rel_duv = _relative_posterior_sd(jac, f, dm, rb, steps, np.sqrt(w2[sel]),

@@ -7,7 +7,7 @@ per-patch noise covariance). The daylight parameters (reciprocal CCT and offset 
 exposure then follow from a 3-parameter Gauss–Newton on ``(b(θ) − b̂)ᵀ A (b(θ) − b̂)`` plus the Gaussian daylight
 prior, with its Laplace covariance.
 
-With :data:`illumon.camera.formation.FLARE_SD` > 0 (off by default) every frame also carries an additive offset
+With :data:`illumon.camera.formation.FLARE_SD` > 0 (the default) every frame also carries an additive offset
 ``o`` common to its patches (veiling glare): ``y_p = Σ_k b_k G_k[p] + o``, ``o`` Gaussian around 0, integrated out of
 the linear solve in closed form (the Schur complement of its 3 × 3 block), so ``b̂`` and ``A`` are what the patches'
 contrasts say, whatever the glare.

@@ -472,12 +472,10 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
         bumps = local_reflectance_functions()
         m = np.concatenate([m, np.einsum("lc,fl,lj->fcj", base.sensitivities, spectra, bumps)], axis=-1)
         nb = bumps.shape[1]
-        basis_block = np.block([[lam, np.zeros((kb, nb))], [np.zeros((nb, kb)), np.zeros((nb, nb))]])
         lam = np.block([[lam, np.zeros((kb, nb))], [np.zeros((nb, kb)), np.eye(nb) / local_sd**2]])
         mu = np.concatenate([mu, np.zeros(nb)])
-    else:
-        basis_block = lam.copy()
-    lam_basis = prob.Lambda
+    basis_block = np.zeros_like(lam)  # the Student-t re-weighting scales the basis coefficients' prior only
+    basis_block[:kb, :kb] = prob.Lambda
     gains = np.zeros(prob.P)
     best = np.zeros(prob.P, dtype=np.int64)
     share = np.zeros((prob.P, 3))
@@ -490,7 +488,7 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
         for _ in range(REFLECTANCE_PRIOR_ROUNDS if prior_dof else 0):
             sig = np.linalg.solve(d.T @ d + lam_p, d.T @ y + lam_p @ mu)
             dev = sig[:kb] - mu[:kb]
-            scale = (prior_dof + kb) / (prior_dof + float(dev @ lam_basis @ dev))
+            scale = (prior_dof + kb) / (prior_dof + float(dev @ prob.Lambda @ dev))
             lam_p = lam + (scale - 1.0) * basis_block
         nmat = d.T @ d + lam_p
         sig = np.linalg.solve(nmat, d.T @ y + lam_p @ mu)

@@ -190,6 +190,7 @@ def run_case(sim: str, camera: str, case: str, seed: int, hours: float = 0.0, me
             "non_daylight": np.asarray(extra.get("non_daylight", np.zeros(len(err)))).tolist(),
             "calibration": model.camera["calibration"], "primaries": model.camera.get("primaries", "camera"),
             "camera_log_gain": float(model.noise["model_error"].get("camera_log_gain", 0.0)),
+            "camera_glare_log": float(model.noise["model_error"].get("camera_glare_log", 0.0)),
             "laplace_scale": float(model.noise["model_error"].get("laplace_scale", 1.0))}
 
 

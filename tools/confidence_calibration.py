@@ -2,12 +2,15 @@
 
 ``confidence`` is the probability a frame's camera white is within 1° of the truth (:mod:`illumon.model.intervals`):
 ``1 − exp(−ρ² / tr)`` with ``tr`` the angular variance of the white — the Laplace posterior of the frame's light,
-scaled by ``a²``, plus ``2 · s²``, ``s`` the camera model's own log-gain spread
-(:data:`illumon.camera.calibration.STATED_WHITE_SPREAD` holds ``(a, s)``). This tool reads the rows that
-``benchmarks/unmeasured.py`` writes (every frame's error, ``confidence`` and the ``a``, ``s`` it was stated with),
-backs out each frame's Laplace part and, per regime (calibration × primaries), chooses ``(a, s)``: among the pairs
-with which the mean stated confidence equals the fraction of frames within 1°, the one with the largest Bernoulli
-likelihood of which frames were. Reference frames (frame 0 of a reference case: confidence from
+scaled by ``a²``, plus ``2 · (s² + k² g²)``, ``s`` the camera model's own log-gain spread and ``g`` what the
+reference frames' veiling glare leaves uncertain in this history's white (``camera_glare_log``,
+:func:`illumon.camera.calibration._glare_white_sd`; 0 without a reference)
+(:data:`illumon.camera.calibration.STATED_WHITE_SPREAD` holds ``(a, s, k)``). This tool reads the rows that
+``benchmarks/unmeasured.py`` writes (every frame's error, ``confidence``, the ``a`` and total spread it was stated
+with, and ``g``), backs out each frame's Laplace part and, per regime (calibration × primaries), chooses ``(a, s, k)``:
+among the triples with which the mean stated confidence equals the fraction of frames within 1°, the one with the
+largest Bernoulli likelihood of which frames were (which rewards stating less where the glare moved the white more).
+Reference frames (frame 0 of a reference case: confidence from
 :data:`~illumon.camera.calibration.REFERENCE_WHITE_SD_DEG`) keep theirs.
 
 Regimes and the cases they are chosen on (the raw ``none`` case, not ``none+matrix``: a camera with no reference
@@ -56,9 +59,10 @@ REGIMES = {
 RENDERED = ("rendered", "awb", "lamps")
 
 
-def _frames(rows: list[dict], cases: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(tr without the camera's spread, error, is-a-reference-frame) over the frames of ``cases``."""
-    base, err, ref = [], [], []
+def _frames(rows: list[dict], cases: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(tr without the camera's spread, error, is-a-reference-frame, the history's glare spread ``g``) over the
+    frames of ``cases``."""
+    base, err, ref, glare = [], [], [], []
     for r in rows:
         if r["case"] not in cases:
             continue
@@ -70,48 +74,58 @@ def _frames(rows: list[dict], cases: tuple[str, ...]) -> tuple[np.ndarray, np.nd
         base.append(np.clip(tr, 0.0, None))
         err.append(np.asarray(r["err"], dtype=float))
         ref.append(is_ref)
-    return np.concatenate(base), np.concatenate(err), np.concatenate(ref)
+        glare.append(np.full(len(c), float(r.get("camera_glare_log", 0.0))))
+    return np.concatenate(base), np.concatenate(err), np.concatenate(ref), np.concatenate(glare)
 
 
-def stated(a: float, s: float, base: np.ndarray, ref: np.ndarray, ref_conf: float) -> np.ndarray:
-    """Every frame's stated confidence with the Laplace part scaled by ``a`` and the camera spread ``s`` (reference
-    frames keep theirs)."""
-    tr = a**2 * base + 2 * (MODEL_ERROR["log_gain"] ** 2 + s**2)
+def stated(a: float, s: float, base: np.ndarray, ref: np.ndarray, ref_conf: float, k: float = 0.0,
+           glare: np.ndarray | float = 0.0) -> np.ndarray:
+    """Every frame's stated confidence with the Laplace part scaled by ``a``, the camera spread ``s`` and ``k`` times
+    the history's glare spread ``glare`` (reference frames keep theirs)."""
+    tr = a**2 * base + 2 * (MODEL_ERROR["log_gain"] ** 2 + s**2 + (k * np.asarray(glare)) ** 2)
     return np.where(ref, ref_conf, 1.0 - np.exp(-RHO2 / np.clip(tr, 1e-30, None)))
 
 
-def mean_confidence(s: float, base: np.ndarray, ref: np.ndarray, ref_conf: float, a: float = 1.0) -> float:
+def mean_confidence(s: float, base: np.ndarray, ref: np.ndarray, ref_conf: float, a: float = 1.0, k: float = 0.0,
+                    glare: np.ndarray | float = 0.0) -> float:
     """Mean stated confidence over the frames (see :func:`stated`)."""
-    return float(np.mean(stated(a, s, base, ref, ref_conf)))
+    return float(np.mean(stated(a, s, base, ref, ref_conf, k, glare)))
 
 
 SCALES = np.round(np.exp(np.linspace(np.log(0.5), np.log(12.0), 41)), 3)
 """Laplace scales tried (the Laplace posterior understates what the model leaves out by a factor)."""
 
+GLARE_FACTORS = np.round(np.linspace(0.0, 1.5, 16), 2)
+"""Factors ``k`` tried on the reference frames' glare spread (``camera_glare_log``: what the reference fit's offset
+prior leaves uncertain in the white; 0 where there is no reference)."""
+
 
 def solve(rows: list[dict], cases: tuple[str, ...]) -> dict:
-    """The Laplace scale ``a`` and camera spread ``s`` (log units) for ``cases``' frames: among the pairs with which
-    the mean stated confidence equals the fraction within 1° (calibration in the large), the one with the largest
-    Bernoulli likelihood of which frames were within (a proper score: it rewards telling good frames from bad)."""
-    base, err, ref = _frames(rows, cases)
+    """The Laplace scale ``a``, camera spread ``s`` (log units) and glare factor ``k`` for ``cases``' frames: among the
+    triples with which the mean stated confidence equals the fraction within 1° (calibration in the large), the one
+    with the largest Bernoulli likelihood of which frames were within (a proper score: it rewards telling good frames
+    from bad, and so the histories whose reference frame had more glare)."""
+    base, err, ref, glare = _frames(rows, cases)
     ref_conf = float(1.0 - np.exp(-RHO2 / (2 * math.radians(0.25) ** 2)))
     hit = err < 1.0
     within = float(np.mean(hit))
     best = None
-    for a in SCALES:
-        f = lambda s, a=a: mean_confidence(s, base, ref, ref_conf, a) - within  # noqa: E731
-        if f(0.0) < 0 or f(0.5) > 0:
-            continue  # no spread makes this scale calibrated in the large
-        s = brentq(f, 0.0, 0.5, xtol=1e-6)
-        c = np.clip(stated(a, s, base, ref, ref_conf)[~ref], 1e-9, 1 - 1e-9)
-        loglik = float(np.sum(np.where(hit[~ref], np.log(c), np.log1p(-c))))
-        if best is None or loglik > best[0]:
-            best = (loglik, float(a), float(s))
+    factors = GLARE_FACTORS if np.any(glare > 0) else np.zeros(1)
+    for k in factors:
+        for a in SCALES:
+            f = lambda s, a=a, k=k: mean_confidence(s, base, ref, ref_conf, a, k, glare) - within  # noqa: E731
+            if f(0.0) < 0 or f(0.5) > 0:
+                continue  # no spread makes this scale calibrated in the large
+            s = brentq(f, 0.0, 0.5, xtol=1e-6)
+            c = np.clip(stated(a, s, base, ref, ref_conf, k, glare)[~ref], 1e-9, 1 - 1e-9)
+            loglik = float(np.sum(np.where(hit[~ref], np.log(c), np.log1p(-c))))
+            if best is None or loglik > best[0]:
+                best = (loglik, float(a), float(s), float(k))
     if best is None:  # stated below the truth even at the smallest scale and no spread
-        best = (float("nan"), float(SCALES[0]), 0.0)
-    _, a, s = best
-    return {"a": a, "s": s, "within": within, "frames": int(len(err)),
-            "stated_at_s": mean_confidence(s, base, ref, ref_conf, a), "loglik": best[0]}
+        best = (float("nan"), float(SCALES[0]), 0.0, 0.0)
+    _, a, s, k = best
+    return {"a": a, "s": s, "k": k, "within": within, "frames": int(len(err)),
+            "stated_at_s": mean_confidence(s, base, ref, ref_conf, a, k, glare), "loglik": best[0]}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -130,13 +144,14 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             return 2
         rows += d["rows"]
-    print(f"{'regime':16} {'chosen on':28} {'frames':>6} {'within 1°':>9} {'a':>6} {'s (log)':>8} {'stated':>7}")
+    print(f"{'regime':16} {'chosen on':28} {'frames':>6} {'within 1°':>9} {'a':>6} {'s (log)':>8} {'k':>5} "
+          f"{'stated':>7}")
     for (prim, kind), cases in REGIMES.items():
         if not any(r["case"] in cases for r in rows):
             continue
         out = solve(rows, cases)
         print(f"{prim + ' / ' + kind:16} {', '.join(cases):28} {out['frames']:6d} {out['within']:9.3f} "
-              f"{out['a']:6.3f} {out['s']:8.4f} {out['stated_at_s']:7.3f}")
+              f"{out['a']:6.3f} {out['s']:8.4f} {out['k']:5.2f} {out['stated_at_s']:7.3f}")
     return 0
 
 

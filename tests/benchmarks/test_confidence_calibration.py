@@ -9,10 +9,12 @@ import numpy as np
 import pytest
 
 
-def _rows(a_true: float, s_true: float, n: int = 60, seed: int = 0, s_stated: float = 0.11) -> list[dict]:
+def _rows(a_true: float, s_true: float, n: int = 60, seed: int = 0, s_stated: float = 0.11, k_true: float = 0.0,
+          case: str = "none") -> list[dict]:
     """Histories whose frames state confidence with spread ``s_stated`` (and no Laplace scale) on top of a Laplace part
-    that differs between histories, and whose errors are drawn as a model with ``a_true``, ``s_true`` says (Rayleigh,
-    σ² = tr / 2); each row also carries the true probabilities."""
+    that differs between histories, and whose errors are drawn as a model with ``a_true``, ``s_true`` and ``k_true``
+    times the history's glare spread ``g`` (0…0.03) says (Rayleigh, σ² = tr / 2); each row also carries the true
+    probabilities."""
     from illumon.model.intervals import MODEL_ERROR
 
     rng = np.random.default_rng(seed)
@@ -20,11 +22,14 @@ def _rows(a_true: float, s_true: float, n: int = 60, seed: int = 0, s_stated: fl
     extra = 2 * MODEL_ERROR["log_gain"] ** 2
     for _ in range(n):
         base = np.full(30, rng.uniform(2e-6, 3e-4))  # rad², the history's Laplace variance
+        glare = rng.uniform(0.0, 0.03) if k_true else 0.0
         stated = 1 - np.exp(-math.radians(1) ** 2 / (base + extra + 2 * s_stated**2))
-        tr = a_true**2 * base + extra + 2 * s_true**2
+        tr = a_true**2 * base + extra + 2 * s_true**2 + 2 * (k_true * glare) ** 2
         err = np.degrees(np.sqrt(tr / 2 * rng.chisquare(2, 30)))
-        rows.append({"case": "none", "confidence": stated.tolist(), "err": err.tolist(), "camera_log_gain": s_stated,
-                     "truth": (1 - np.exp(-math.radians(1) ** 2 / tr)).tolist()})
+        if case != "none":  # frame 0 shows the reference: its confidence is the reference's own, its error small
+            err[0] = 0.2
+        rows.append({"case": case, "confidence": stated.tolist(), "err": err.tolist(), "camera_log_gain": s_stated,
+                     "camera_glare_log": glare, "truth": (1 - np.exp(-math.radians(1) ** 2 / tr)).tolist()})
     return rows
 
 
@@ -35,12 +40,34 @@ def test_solve_states_the_probabilities_the_errors_were_drawn_with(a_true, s_tru
     rows = _rows(a_true, s_true)
     out = tool.solve(rows, ("none",))
     assert abs(out["stated_at_s"] - out["within"]) < 1e-3  # calibrated in the large
-    base, _, ref = tool._frames(rows, ("none",))
+    base, _, ref, glare = tool._frames(rows, ("none",))
+    assert out["k"] == 0.0 and not np.any(glare)  # no reference, no glare term
     got = tool.stated(out["a"], out["s"], base, ref, 1.0)
     truth = np.concatenate([r["truth"] for r in rows])
     assert np.mean(np.abs(got - truth)) < 0.04  # and frame by frame
     as_stated = np.concatenate([r["confidence"] for r in rows])
     assert np.mean(np.abs(as_stated - truth)) > 0.1  # what the rows stated was far off: the test can fail
+
+
+def test_solve_finds_the_glare_factor_the_errors_were_drawn_with():
+    """Grey-card histories whose errors grow with their glare spread (``k_true`` 0.8): the tool's ``k`` follows it,
+    and a fit without the glare term (``k`` 0) states the frames' probabilities worse."""
+    import confidence_calibration as tool
+
+    rows = _rows(1.5, 0.004, n=120, seed=3, k_true=0.8, case="grey")
+    out = tool.solve(rows, ("grey",))
+    assert abs(out["stated_at_s"] - out["within"]) < 1e-3
+    assert 0.5 <= out["k"] <= 1.1
+    base, _, ref, glare = tool._frames(rows, ("grey",))
+    truth = np.concatenate([np.asarray(r["truth"])[1:] for r in rows])
+    got = tool.stated(out["a"], out["s"], base, ref, 1.0, out["k"], glare)[~ref]
+    assert np.mean(np.abs(got - truth)) < 0.04
+    # the best (a, s) with k = 0, calibrated in the large, misses frame by frame by more
+    within = out["within"]
+    best = min((abs(tool.mean_confidence(s0, base, ref, 1.0, a) - within), a, s0)
+               for a in tool.SCALES for s0 in np.linspace(0.0, 0.03, 61))
+    flat = tool.stated(best[1], best[2], base, ref, 1.0)[~ref]
+    assert np.mean(np.abs(flat - truth)) > np.mean(np.abs(got - truth)) + 0.02
 
 
 def test_refuses_score_split_rows(tmp_path, capsys):

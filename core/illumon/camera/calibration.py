@@ -80,26 +80,28 @@ functions' under daylight away from D65 — 0.0074–0.044 for the 24 measured c
 every 7th Granada spectrum). The history's common level adds its own, larger uncertainty
 (:func:`illumon.model.level.anchor_common_level`)."""
 
-STATED_WHITE_SPREAD = {("camera", "grey"): (2.45, 0.0057), ("camera", "chart"): (2.09, 0.0089),
-                       ("camera", "none"): (2.09, 0.0079), ("srgb", "grey"): (2.45, 0.0155),
-                       ("srgb", "chart"): (1.65, 0.0180), ("srgb", "none"): (0.74, 0.0092)}
-"""What a camera nobody measured states about its camera white, per ``(primaries, calibration)``: ``(a, s)`` — the
-Laplace posterior's spread scaled by ``a`` (it leaves out how the camera, the priors and the scene depart from the
-model) plus the camera's own spread ``s`` (log r/g, b/g) — in its gain intervals and ``confidence``. Chosen on the
-development split with the glare offset on (:data:`~illumon.camera.formation.FLARE_SD` 0.05), over histories with
-and without veiling glare pooled (``python benchmarks/unmeasured.py --split dev --seeds 1 --out dev.json``, the
-same with ``--flare --out dev_flare.json``, then ``python tools/confidence_calibration.py dev.json dev_flare.json``:
-14 development cameras × 1 seed × both simulators × with and without glare; each history learns its own glare
-spread, but the confidence hardly follows it: a grey card states 0.84 on the glare-free histories, where 95 % are
-within 1°, and 0.82 on the glared ones, where 71 % are — calibrated over both, not within each): among the pairs with
-which the mean stated confidence equals the fraction of frames within 1°, the one with the largest likelihood of which
-frames were. They replace, in the intervals only, the physical spreads above — :data:`CAMERA_WHITE_SD` ``none``
-(0.11) is the measured cameras' spread *before* the scene's average colour moved the channel scales and stated 0.01
-where 15 % of frames were within 1°; a grey card's 0.005 stated 0.99 where 96 % were; a chart on rendered output
-(``chart+rendered``, ``chart+awb``, added 2026-11-26) stated 0.46–0.49 where 25–38 % were. The priors, the lamp test and the
-estimates keep the physical values (``camera["white_sd_log"]``); measured cameras and unlisted regimes keep theirs
-with ``a = 1``. ``("camera", "none")``: ``a`` is further scaled by :func:`scene_calibrated_scale` of the scene the
-channel scales were read from (chosen on scenes of measured surfaces, for which the scale is 1)."""
+STATED_WHITE_SPREAD = {("camera", "grey"): (1.52, 0.0040, 0.6), ("camera", "chart"): (2.09, 0.0067, 0.4),
+                       ("camera", "none"): (2.09, 0.0095, 0.0), ("srgb", "grey"): (2.09, 0.0144, 0.5),
+                       ("srgb", "chart"): (0.50, 0.0184, 0.1), ("srgb", "none"): (0.805, 0.0038, 0.0)}
+"""What a camera nobody measured states about its camera white, per ``(primaries, calibration)``: ``(a, s, k)`` —
+the Laplace posterior's spread scaled by ``a`` (it leaves out how the camera, the priors and the scene depart from
+the model) plus the camera's own spread ``s`` (log r/g, b/g) and ``k`` times what the reference frames' veiling glare
+leaves uncertain in this history (:func:`_glare_white_sd`, from the glare spread the history learned) — in its gain
+intervals and ``confidence``. Chosen on the development split with the glare offset on
+(:data:`~illumon.camera.formation.FLARE_SD` 0.05), over histories with and without veiling glare pooled (``python
+benchmarks/unmeasured.py --split dev --seeds 1 --out dev.json``, the same with ``--flare --out dev_flare.json``,
+then ``python tools/confidence_calibration.py dev.json dev_flare.json``: 14 development cameras × 1 seed × both
+simulators × with and without glare): among the triples with which the mean stated confidence equals the fraction
+of frames within 1°, the one with the largest likelihood of which frames were. Before ``k`` (2026-11-26), a grey card
+on sensor RGB stated 0.80 on the glare-free histories, where 90 % were within 1°, and 0.79 on the glared ones, where
+65 % were; with it 0.90 and 0.74 (``illumon``; ``rawsim`` 0.93 where 100 %, 0.76 where 76 %). They replace, in the
+intervals only, the physical spreads above — :data:`CAMERA_WHITE_SD` ``none`` (0.11) is the measured cameras'
+spread *before* the scene's average colour moved the channel scales and stated 0.01 where 15 % of frames were
+within 1°; a grey card's 0.005 stated 0.99 where 96 % were; a chart on rendered output (``chart+rendered``,
+``chart+awb``) stated 0.46–0.49 where 25–38 % were. The priors, the lamp test and the estimates keep the physical
+values (``camera["white_sd_log"]``); measured cameras and unlisted regimes keep theirs with ``a = k = 1``.
+``("camera", "none")``: ``a`` is further scaled by :func:`scene_calibrated_scale` of the scene the channel scales
+were read from (chosen on scenes of measured surfaces, for which the scale is 1)."""
 
 
 CLIPPED = 0.995
@@ -392,6 +394,7 @@ def calibrate_scene_model(
     theta_first = np.array(theta, dtype=float, copy=True)
     change, it = 0.0, 0
     s_scene = None  # how precisely a scene average set the channel scales (no reference, sensor RGB)
+    glare_sd = 0.0  # how far the reference frames' glare leaves the camera white (log r/g, b/g)
     if ids:
         values, frames, spectra, neutral = _reference_data(obs, scene, ids, known)
         dm = model.daylight_model()
@@ -408,13 +411,16 @@ def calibrate_scene_model(
             model, theta = fit(scene, base @ t)
             if change < tol_deg:
                 break
+        glare_sd = _glare_white_sd(base, spectra, dm.spectra(theta[frames, :2]), values[frames], kind == "grey",
+                                   neutral, _reference_offset_sd(obs, frames, model.noise.get("flare_sd", 0.0)))
     if kind == "none" and primaries == "camera":
         # A rendered camera's own white balance already set its channel scales; its prior is in the daylight model.
         t, s_scene = _scene_average_transform(scene, base, model, theta)
         model, theta = fit(scene, base @ t)
         it = 1
     model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()
-    _record_camera_uncertainty(model, kind, primaries, measured=sensitivities is not None, scene_sd=s_scene)
+    _record_camera_uncertainty(model, kind, primaries, measured=sensitivities is not None, scene_sd=s_scene,
+                               glare_sd=glare_sd)
     if ids and primaries == "srgb":
         model.noise["mired_offset"] = _reporting_offset(theta_first, theta)
     model.history_estimate = model.estimate(scene)  # with the camera's uncertainty in its intervals
@@ -449,21 +455,60 @@ def _reporting_offset(theta_first: NDArray[np.float64], theta: NDArray[np.float6
     and the last is kept as a reporting offset (CCT, Duv, spectrum)."""
     return float(np.nanmedian(theta_first[:, 0] - theta[:, 0]))
 
+
+def _reference_offset_sd(obs: Observations, frames: NDArray[np.int64], flare_sd: float) -> NDArray[np.float64] | None:
+    """Prior spread of the reference frames' additive offsets (len(frames) × 3): the history's learned glare spread
+    times each frame's mean value in each channel over every patch it shows, references included (as the scene
+    fit's :func:`~illumon.model.solver.flare_scales`); ``None`` without glare."""
+    if not flare_sd > 0:
+        return None
+    v = np.asarray(obs.values, dtype=float)[frames]
+    seen = np.all(np.isfinite(v), axis=-1)
+    mean = np.where(seen[..., None], v, 0.0).sum(axis=1) / np.maximum(seen.sum(axis=1), 1)[:, None]
+    return flare_sd * np.clip(mean, 0.0, None)
+
+
+def _glare_white_sd(base: NDArray[np.float64], spectra: NDArray[np.float64], illuminants: NDArray[np.float64],
+                    values: NDArray[np.float64], diagonal: bool, neutral: NDArray[np.bool_],
+                    offset_sd: NDArray[np.float64] | None, step: float = 0.1) -> float:
+    """How far veiling glare in the reference frames moves the camera white ``T`` is fitted to (log r/g and b/g,
+    pooled, one standard deviation): light scattered in the lens adds a fraction of each frame's mean radiance to the
+    references as to everything else (:data:`illumon.camera.formation.FLARE_SD`), which ``T`` takes for the camera's
+    own. Each reference frame's offset, ``offset_sd`` (:func:`_reference_offset_sd`: the history's learned glare
+    spread along the frame's mean colour), is added to its references in turn and the D65 white's shift, scaled from
+    a ``step`` of it, summed in quadrature: little when the scene's mean has the references' colour or a chart's
+    dark and light patches fix it, most for a grey card among coloured surfaces."""
+    if offset_sd is None:
+        return 0.0
+    def white(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        t, _ = camera_transform_Kinoshita2023(base, spectra, illuminants, v, diagonal=diagonal, neutral=neutral)
+        return _log_chroma(_d65_white(base @ t))
+    w0, var = white(values), 0.0
+    for f in range(values.shape[0]):
+        moved = values.copy()
+        moved[f] = moved[f] + step * offset_sd[f]
+        var += float(np.sum(((white(moved) - w0) / step) ** 2))
+    return math.sqrt(var / 2)
+
+
 def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bool,
-                               scene_sd: float | None = None) -> None:
+                               scene_sd: float | None = None, glare_sd: float = 0.0) -> None:
     """The camera's own uncertainty after calibration, in the model: ``camera["white_sd_log"]`` and the model errors
     ``camera_log_gain`` and ``camera_mired`` its intervals widen by. Rendered output: a grey card pins channel scales,
     but not how a real camera's matrix departs from the sRGB functions away from the card's light (a chart's 3 × 3
     does). ``scene_sd``: how precisely the scene average set the channel scales, where it did
-    (:func:`scene_calibrated_scale`)."""
+    (:func:`scene_calibrated_scale`). ``glare_sd``: what the reference frames' veiling glare leaves uncertain in the
+    camera white (:func:`_glare_white_sd`), added in quadrature to the stated spread (``camera_glare_log``)."""
     white_sd = SRGB_CAMERA_WHITE_SD if (kind in ("none", "grey") and primaries == "srgb") else CAMERA_WHITE_SD[kind]
     model.camera["white_sd_log"] = white_sd
     mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)["measured" if measured else kind]
-    scale, stated = (1.0, white_sd) if measured else STATED_WHITE_SPREAD.get((primaries, kind), (1.0, white_sd))
+    scale, stated, glare_k = ((1.0, white_sd, 1.0) if measured
+                              else STATED_WHITE_SPREAD.get((primaries, kind), (1.0, white_sd, 1.0)))
     if scene_sd is not None:  # the scene average calibrated the channel scales: as well as it read
         scale *= scene_calibrated_scale(scene_sd)
-    model.noise["model_error"] = dict(model.noise.get("model_error", {}), camera_log_gain=stated,
-                                      camera_mired=mired_sd, laplace_scale=scale)
+    model.noise["model_error"] = dict(model.noise.get("model_error", {}),
+                                      camera_log_gain=math.hypot(stated, glare_k * glare_sd),
+                                      camera_glare_log=glare_sd, camera_mired=mired_sd, laplace_scale=scale)
 
 
 REFERENCE_WHITE_SD_DEG = 0.25

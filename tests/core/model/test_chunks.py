@@ -201,7 +201,7 @@ def test_joint_objective_glare_offsets_are_the_exact_joint_minimum(lamp_history,
     reflectance system after the offsets' block is eliminated, not an alternation), and the offsets follow the data
     (a glare added to one frame comes back as that frame's offset)."""
     from illumon.camera import formation
-    from illumon.model.fit import _JointObjective
+    from illumon.model.fit import _JointObjective, _normal_equations
 
     monkeypatch.setattr(formation, "FLARE_SD", 0.05)
     obs, _, model = lamp_history
@@ -214,8 +214,9 @@ def test_joint_objective_glare_offsets_are_the_exact_joint_minimum(lamp_history,
     offsets = []
     for extra in (np.zeros_like(y), glare):
         obj = _JointObjective(y + extra, present, model.sensitivities, dm, rb, 0.02, 0.002)
-        am = obj.operators(theta)
-        off, coef, _ = obj._offsets(am, obj._weights(1.0)[1])
+        am, beta = obj._operators(theta)
+        off, coef, _, prec = obj._offsets(beta, obj._weights(1.0)[1])
+        np.testing.assert_allclose(prec, _normal_equations(am, obj._weights(1.0)[1], obj.lam, obj.mu)[0], rtol=1e-12)
         r = obj.yz - off[:, None, :] - np.einsum("fcj,pj->fpc", am, coef)
         grad_s = -np.einsum("fcj,fpc->pj", am, obj.w2 * r) + (coef - obj.mu) @ obj.lam
         u = obj.flare  # F × 3: o = u ⊙ φ

@@ -431,8 +431,8 @@ class _JointObjective:
             coef = np.linalg.solve(system, rhs.reshape(-1))
         coef = coef.reshape(n_p, k)
         # each amount given the reflectances: (r_o − u Σ_p w ŷ) / d, ŷ the patches' predicted values
-        pred = (beta @ np.einsum("icj,pj->icp", self.k_ops, coef).reshape(nb, 3 * n_p)).reshape(f, 3, n_p)
-        phi = (r_o - u * np.einsum("cpf,fcp->fc", w_c, pred)) / d
+        pred = ((self.k_ops.reshape(nb * 3, k) @ coef.T).reshape(nb, 3 * n_p).T @ beta.T).reshape(3, n_p, f)
+        phi = (r_o - u * (w_c * pred).sum(axis=1).T) / d
         return u * phi, coef, float((phi**2).sum()), prec
 
     def learn_flare_sd(self, th: NDArray[np.float64], noise: float, flare_sd: float,

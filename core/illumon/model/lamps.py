@@ -606,7 +606,7 @@ def _frame_means(model, obs, theta: NDArray[np.float64], solver=None) -> NDArray
         y = values[i:i + _MEANS_CHUNK, oj] / model.noise["scale"]
         th = np.where(np.isfinite(theta[i:i + _MEANS_CHUNK]), theta[i:i + _MEANS_CHUNK], 0.0)
         b = solver._b(th[:, 0], th[:, 1], th[:, 2])
-        pred = np.einsum("pck,fk->fpc", solver.G, b)
+        pred = (b @ solver.G.reshape(-1, 3).T).reshape(len(b), -1, 3)  # Σ_k G[p, c, k] b[f, k]
         present = np.all(np.isfinite(y), axis=-1)
         filled = np.where(present[..., None], y, pred)
         part = filled.mean(axis=1)

@@ -118,7 +118,7 @@ def _relative_posterior_sd(jac: NDArray[np.float64], f: int, dm: CIEDaylight, rb
         idx = np.arange(f) * 3 + k
         info[idx[:, None], idx[None, :]] += 1.0 / f
     try:
-        cov = np.linalg.inv(info)[: 3 * f, : 3 * f]
+        cov = np.linalg.solve(info, np.eye(len(info))[:, : 3 * f])[: 3 * f]  # the frames' block of the inverse
     except np.linalg.LinAlgError:
         return math.inf, math.inf
     out = []

@@ -326,6 +326,7 @@ class _JointObjective:
         self.mu = rb.prior_mean
         self._weighted: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None  # _weighted(w2, yz), kept
         self._offset_kept: tuple | None = None  # (weighted, flare, _offset_sums of them)
+        self._noisy: tuple | None = None  # (noise, _weights(noise)) of the last noise other than 1
 
     def operators(self, th: NDArray[np.float64]) -> NDArray[np.float64]:
         """Per-frame maps (F × 3 × K) from reflectance coefficients to camera values."""
@@ -342,10 +343,14 @@ class _JointObjective:
 
     def _weights(self, noise: float) -> tuple[NDArray[np.float64], tuple[NDArray[np.float64], NDArray[np.float64]]]:
         """The values' precisions at ``noise`` and their :func:`_weighted` sums, kept for ``noise`` 1 (the
-        alternation's ~190 evaluations share them, issue 29; ``x / 1.0`` is ``x``)."""
+        alternation's ~190 evaluations share them, issue 29; ``x / 1.0`` is ``x``) and for the last other ``noise``
+        (the measured noise level's evaluations: :meth:`common_shift_sd`'s nine share them and :meth:`_offsets`'
+        sums of them)."""
         if noise != 1.0:
-            w2 = self.w2 / noise**2
-            return w2, _weighted(w2, self.yz)
+            if self._noisy is None or self._noisy[0] != noise:
+                w2 = self.w2 / noise**2
+                self._noisy = (noise, (w2, _weighted(w2, self.yz)))
+            return self._noisy[1]
         if self._weighted is None:
             self._weighted = _weighted(self.w2, self.yz)
         return self.w2, self._weighted

@@ -258,7 +258,7 @@ def _exact_loglik(u: NDArray[np.float64], centres: NDArray[np.float64], logw: ND
     for i in range(0, len(uu), _EXACT_CHUNK):
         # logw − ((u₀ − c₀)² + (u₁ − c₁)²) / (2 sd²) a coordinate at a time, in place: the same operations in the
         # same order as summing the squared differences' last axis (of length 2), without the points × centres × 2
-        # temporaries (5 × faster)
+        # temporaries (1.6 × faster on the 2k refit benchmark's frames, 5 × on 2 000 points and 450 centres)
         x = uu[i:i + _EXACT_CHUNK, 0, None] - c0
         x *= x
         d1 = uu[i:i + _EXACT_CHUNK, 1, None] - c1

@@ -126,6 +126,19 @@ def _normal_equations(a: NDArray[np.float64], weighted: tuple[NDArray[np.float64
     return prec, wty @ rows + lam @ mu
 
 
+def _mean_green(y: NDArray[np.float64], present: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Each frame's mean green over its present patches (F; 1 for a frame without any): ``np.mean`` of each frame's
+    values bit for bit, the frames with the same number of patches at once (their patches gathered in order, summed
+    over an axis of that length as ``np.mean`` sums them; a Python loop over a 300-frame fit's frames took ~5 ms)."""
+    count = present.sum(axis=1)
+    level = np.ones(len(y))
+    for k in np.unique(count[count > 0]).tolist():
+        rows = np.flatnonzero(count == k)
+        which = np.argsort(~present[rows], axis=1, kind="stable")[:, :k]  # the present patches, in order
+        level[rows] = y[rows[:, None], which, 1].sum(axis=1) / k
+    return level
+
+
 def fit_scene_model(
     obs: Observations,
     sensitivities: NDArray[np.float64] | None,
@@ -501,11 +514,12 @@ class _JointObjective:
         return float(c), s
 
     def start(self, mired0: NDArray[np.float64], y: NDArray[np.float64], present: NDArray[np.bool_]) -> NDArray[np.float64]:
-        """Gray-world temperatures on the locus, exposures from the frames' levels."""
+        """Gray-world temperatures on the locus, exposures from the frames' levels (each frame's mean green over
+        its patches, 1 without any)."""
         zero = np.zeros_like(mired0)
         typical = np.einsum("fcj,j->fc", self.operators(np.stack([mired0, zero, zero], 1)), self.mu)
-        level = np.array([np.mean(y[f, present[f], 1]) if present[f].any() else 1.0 for f in range(len(mired0))])
-        return np.stack([mired0, zero, np.log(np.maximum(level, 1e-6) / np.maximum(typical[:, 1], 1e-9))], 1)
+        return np.stack([mired0, zero, np.log(np.maximum(_mean_green(y, present), 1e-6)
+                                              / np.maximum(typical[:, 1], 1e-9))], 1)
 
     def common_shift_sd(self, theta: NDArray[np.float64], noise: float) -> NDArray[np.float64]:
         """Laplace standard deviations of a shift common to every frame (reciprocal temperature, Duv offset): the

@@ -254,10 +254,22 @@ def _exact_loglik(u: NDArray[np.float64], centres: NDArray[np.float64], logw: ND
     norm = -math.log(2 * math.pi * sd**2)
     uu = u.reshape(-1, 2)
     out = np.empty(len(uu))
+    c0, c1 = np.ascontiguousarray(centres[:, 0]), np.ascontiguousarray(centres[:, 1])
     for i in range(0, len(uu), _EXACT_CHUNK):
-        x = logw[None] - (0.5 / sd**2) * ((uu[i:i + _EXACT_CHUNK, None, :] - centres[None]) ** 2).sum(-1)
+        # logw − ((u₀ − c₀)² + (u₁ − c₁)²) / (2 sd²) a coordinate at a time, in place: the same operations in the
+        # same order as summing the squared differences' last axis (of length 2), without the points × centres × 2
+        # temporaries (1.6 × faster on the 2k refit benchmark's frames, 5 × on 2 000 points and 450 centres)
+        x = uu[i:i + _EXACT_CHUNK, 0, None] - c0
+        x *= x
+        d1 = uu[i:i + _EXACT_CHUNK, 1, None] - c1
+        d1 *= d1
+        x += d1
+        x *= 0.5 / sd**2
+        np.subtract(logw, x, out=x)
         top = x.max(axis=1)
-        out[i:i + _EXACT_CHUNK] = np.log(np.exp(x - top[:, None]).sum(axis=1)) + top + norm
+        x -= top[:, None]
+        np.exp(x, out=x)
+        out[i:i + _EXACT_CHUNK] = np.log(x.sum(axis=1)) + top + norm
     return out.reshape(u.shape[:-1])
 
 
@@ -606,7 +618,7 @@ def _frame_means(model, obs, theta: NDArray[np.float64], solver=None) -> NDArray
         y = values[i:i + _MEANS_CHUNK, oj] / model.noise["scale"]
         th = np.where(np.isfinite(theta[i:i + _MEANS_CHUNK]), theta[i:i + _MEANS_CHUNK], 0.0)
         b = solver._b(th[:, 0], th[:, 1], th[:, 2])
-        pred = np.einsum("pck,fk->fpc", solver.G, b)
+        pred = (b @ solver.G.reshape(-1, 3).T).reshape(len(b), -1, 3)  # Σ_k G[p, c, k] b[f, k]
         present = np.all(np.isfinite(y), axis=-1)
         filled = np.where(present[..., None], y, pred)
         part = filled.mean(axis=1)

@@ -7,6 +7,10 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
+from illumon._blas import single_blas_thread
+from illumon.diagnosis.candidate import NONE_MARGIN, RANK  # not .fit: the whole diagnosis's imports
+from illumon.diagnosis.noise import CODEC_NOISE
+from illumon.diagnosis.stages import tone_stage
 from illumon.observations import Observations
 from numpy.typing import NDArray
 
@@ -59,11 +63,6 @@ def check_response(
         ``checked`` is false (and ``reason`` says why) when the history is too short (the test needs 6 frames
         and 3 regions) or the test fails.
     """
-    from illumon._blas import single_blas_thread
-    from illumon.diagnosis.candidate import NONE_MARGIN, RANK  # not .fit: the whole diagnosis's imports
-    from illumon.diagnosis.noise import CODEC_NOISE
-    from illumon.diagnosis.stages import tone_stage
-
     obs = frames if isinstance(frames, Observations) else build_observations(frames, region_ids)
     keep = np.flatnonzero(obs.present.sum(axis=1) >= 3)
     if keep.size > max_frames:

@@ -201,7 +201,7 @@ def test_joint_objective_glare_offsets_are_the_exact_joint_minimum(lamp_history,
     reflectance system after the offsets' block is eliminated, not an alternation), and the offsets follow the data
     (a glare added to one frame comes back as that frame's offset)."""
     from illumon.camera import formation
-    from illumon.model.fit import _JointObjective
+    from illumon.model.fit import _JointObjective, _normal_equations
 
     monkeypatch.setattr(formation, "FLARE_SD", 0.05)
     obs, _, model = lamp_history
@@ -214,8 +214,9 @@ def test_joint_objective_glare_offsets_are_the_exact_joint_minimum(lamp_history,
     offsets = []
     for extra in (np.zeros_like(y), glare):
         obj = _JointObjective(y + extra, present, model.sensitivities, dm, rb, 0.02, 0.002)
-        am = obj.operators(theta)
-        off, coef, _ = obj._offsets(am, obj._weights(1.0)[1])
+        am, beta = obj._operators(theta)
+        off, coef, _, prec = obj._offsets(beta, obj._weights(1.0)[1])
+        np.testing.assert_allclose(prec, _normal_equations(am, obj._weights(1.0)[1], obj.lam, obj.mu)[0], rtol=1e-12)
         r = obj.yz - off[:, None, :] - np.einsum("fcj,pj->fpc", am, coef)
         grad_s = -np.einsum("fcj,fpc->pj", am, obj.w2 * r) + (coef - obj.mu) @ obj.lam
         u = obj.flare  # F × 3: o = u ⊙ φ
@@ -227,3 +228,17 @@ def test_joint_objective_glare_offsets_are_the_exact_joint_minimum(lamp_history,
     rise = (offsets[1][3] - offsets[0][3]) / glare[3, 0]
     others = np.abs(np.delete(offsets[1] - offsets[0], 3, axis=0)).max() / glare[3, 0].max()
     assert np.all((rise > 0.5) & (rise < 1.2)) and others < 0.2, (rise, others)
+
+
+def test_mean_green_is_each_frames_np_mean_bit_for_bit():
+    """The joint objective's start reads each frame's mean green over its present patches, the frames with the same
+    number of patches at once: the values of ``np.mean`` frame by frame, to the last bit (1 where none is seen)."""
+    from illumon.model.fit import _mean_green
+
+    rng = np.random.default_rng(7)
+    y = rng.lognormal(-1.0, 0.8, (400, 16, 3))
+    present = rng.random((400, 16)) > rng.uniform(0.0, 0.6, (400, 1))
+    present[:3] = False
+    present[3, :] = True
+    want = np.array([np.mean(y[f, present[f], 1]) if present[f].any() else 1.0 for f in range(len(y))])
+    assert np.array_equal(_mean_green(y, present), want)

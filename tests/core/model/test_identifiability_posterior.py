@@ -47,3 +47,28 @@ def test_noise_that_swamps_the_changes_is_reported(monkeypatch):
     assert not ident["determined"] and ident["relative_mired_sd"] > 22.5, ident
     res, _ = model.estimate(hist.observations)
     assert np.median(angular_error_deg(res.white, hist.true_white)) > 1.0
+
+
+def test_information_from_its_blocks_equals_the_dense_product():
+    """``_information`` builds ``JᵀJ`` (with each frame's offset columns) from the blocks that are not zero by
+    construction: the dense product over every row gives the same matrix, to rounding, with and without offsets."""
+    import sys
+
+    import illumon.model  # noqa: F401 - the package's name ``identifiability`` is the function
+
+    ident = sys.modules["illumon.model.identifiability"]
+    rng = np.random.default_rng(4)
+    f, n_p, nk = 5, 4, 8
+    jac = np.zeros((f * n_p * 3, 3 * f + n_p * nk))
+    rows = np.arange(jac.shape[0]).reshape(f, n_p, 3)
+    for i in range(f):  # a frame's parameters move its rows, a patch's coefficients its rows
+        jac[rows[i].ravel()[:, None], 3 * i + np.arange(3)] = rng.normal(size=(n_p * 3, 3))
+    for q in range(n_p):
+        jac[rows[:, q].ravel()[:, None], 3 * f + q * nk + np.arange(nk)] = rng.normal(size=(f * 3, nk))
+    offsets = rng.uniform(0.1, 1.0, (f, n_p, 3))
+    cols = np.zeros((jac.shape[0], 3 * f))  # an offset moves its frame's rows in its channel
+    for c in range(3):
+        cols[rows[:, :, c], (np.arange(f) * 3 + c)[:, None]] = offsets[:, :, c]
+    full = np.concatenate([jac, cols], axis=1)
+    np.testing.assert_allclose(ident._information(jac, f, nk, offsets), full.T @ full, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(ident._information(jac, f, nk, None), jac.T @ jac, rtol=0, atol=1e-13)

@@ -222,6 +222,22 @@ def test_a_table_over_points_that_share_a_coordinate_is_built():
     assert np.allclose(dens(u), lamps._exact_loglik(u, centres, logw, 0.03), atol=1e-3)
 
 
+def test_exact_mixture_is_the_plain_log_sum_exp_bit_for_bit():
+    """``_exact_loglik`` works a coordinate at a time in place; its values are those of the plain expression (the
+    squared differences summed over their last axis, then the log-sum-exp) to the last bit, over several chunks."""
+    import math
+
+    from illumon.model import lamps
+
+    rng = np.random.default_rng(5)
+    centres, logw, sd = rng.normal(0.0, 0.2, (37, 2)), rng.normal(-3.0, 1.0, 37), 0.03
+    u = rng.normal(0.0, 0.25, (600, 2))
+    x = logw[None] - (0.5 / sd**2) * ((u[:, None, :] - centres[None]) ** 2).sum(-1)
+    top = x.max(axis=1)
+    plain = np.log(np.exp(x - top[:, None]).sum(axis=1)) + top - math.log(2 * math.pi * sd**2)
+    assert np.array_equal(lamps._exact_loglik(u, centres, logw, sd), plain)
+
+
 @pytest.mark.parametrize("white", [(1.0, 1.0, 1.0), (1.6, 1.0, 0.45), (0.7, 1.0, 1.5)])
 @pytest.mark.parametrize("sd", [(0.02, 0.02), (0.04, 0.015)])
 def test_log_chroma_confidence_is_the_probability_of_being_within_one_degree(white, sd):

@@ -80,9 +80,9 @@ functions' under daylight away from D65 — 0.0074–0.044 for the 24 measured c
 every 7th Granada spectrum). The history's common level adds its own, larger uncertainty
 (:func:`illumon.model.level.anchor_common_level`)."""
 
-STATED_WHITE_SPREAD = {("camera", "grey"): (1.52, 0.0040, 0.6), ("camera", "chart"): (2.09, 0.0067, 0.4),
+STATED_WHITE_SPREAD = {("camera", "grey"): (1.52, 0.0039, 0.6), ("camera", "chart"): (2.09, 0.0048, 0.6),
                        ("camera", "none"): (2.09, 0.0095, 0.0), ("srgb", "grey"): (2.09, 0.0144, 0.5),
-                       ("srgb", "chart"): (0.50, 0.0184, 0.1), ("srgb", "none"): (0.805, 0.0038, 0.0)}
+                       ("srgb", "chart"): (1.30, 0.0187, 0.0), ("srgb", "none"): (0.805, 0.0038, 0.0)}
 """What a camera nobody measured states about its camera white, per ``(primaries, calibration)``: ``(a, s, k)`` —
 the Laplace posterior's spread scaled by ``a`` (it leaves out how the camera, the priors and the scene depart from
 the model) plus the camera's own spread ``s`` (log r/g, b/g) and ``k`` times what the reference frames' veiling glare
@@ -470,24 +470,32 @@ def _reference_offset_sd(obs: Observations, frames: NDArray[np.int64], flare_sd:
 
 def _glare_white_sd(base: NDArray[np.float64], spectra: NDArray[np.float64], illuminants: NDArray[np.float64],
                     values: NDArray[np.float64], diagonal: bool, neutral: NDArray[np.bool_],
-                    offset_sd: NDArray[np.float64] | None, step: float = 0.1) -> float:
+                    offset_sd: NDArray[np.float64] | None, step: float = 0.01) -> float:
     """How far veiling glare in the reference frames moves the camera white ``T`` is fitted to (log r/g and b/g,
     pooled, one standard deviation): light scattered in the lens adds a fraction of each frame's mean radiance to the
     references as to everything else (:data:`illumon.camera.formation.FLARE_SD`), which ``T`` takes for the camera's
     own. Each reference frame's offset, ``offset_sd`` (:func:`_reference_offset_sd`: the history's learned glare
-    spread along the frame's mean colour), is added to its references in turn and the D65 white's shift, scaled from
-    a ``step`` of it, summed in quadrature: little when the scene's mean has the references' colour or a chart's
-    dark and light patches fix it, most for a grey card among coloured surfaces."""
+    spread along the frame's mean colour), is added to its references in turn and the D65 white's derivative along
+    it (central differences of ± ``step`` of it) summed in quadrature: little when the scene's mean has the
+    references' colour or a chart's dark and light patches fix it, most for a grey card among coloured surfaces.
+    Only the values the fit uses move: a value censored at 0 (a colour matrix took it below) or at the white level
+    stays censored, as its weight would otherwise jump in or out of the fit (on a development chart under an
+    automatic white balance, a channel at 0 lifted into the fit by the step made the "derivative" 0.33 instead of
+    0.02); and the step is small, as a chart's robust weights can settle elsewhere after a larger one (a development
+    chart: 0.109 with a step of 0.05, 0.0358 with 0.02, 0.01 and 0.005)."""
     if offset_sd is None:
         return 0.0
+
     def white(v: NDArray[np.float64]) -> NDArray[np.float64]:
         t, _ = camera_transform_Kinoshita2023(base, spectra, illuminants, v, diagonal=diagonal, neutral=neutral)
         return _log_chroma(_d65_white(base @ t))
-    w0, var = white(values), 0.0
+
+    used = np.isfinite(values) & (values > 1e-3 * np.nanmax(values)) & (values < CLIPPED)
+    var = 0.0
     for f in range(values.shape[0]):
-        moved = values.copy()
-        moved[f] = moved[f] + step * offset_sd[f]
-        var += float(np.sum(((white(moved) - w0) / step) ** 2))
+        delta = np.zeros_like(values)
+        delta[f] = np.where(used[f], step * offset_sd[f], 0.0)
+        var += float(np.sum(((white(values + delta) - white(values - delta)) / (2 * step)) ** 2))
     return math.sqrt(var / 2)
 
 

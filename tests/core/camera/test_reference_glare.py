@@ -38,8 +38,8 @@ def _neutral(refs: dict) -> np.ndarray:
 @pytest.mark.parametrize("kind", ["grey", "chart"])
 def test_glare_spread_is_the_white_shift_an_offset_of_that_size_makes(shared_data, kind):
     """``_glare_white_sd`` is the D65 white's shift (log r/g, b/g, pooled) when the reference frame gains the offset
-    its prior spread describes (linearised: the central difference over ± that offset agrees to a few per cent), and 0
-    without glare."""
+    its prior spread describes (linearised: the central difference over ± that offset agrees to 1 % for a grey card,
+    4 % for a chart), and 0 without glare."""
     css = datasets.load_camera("Nikon_D5100")
     base = prior_sensitivities()
     scene = np.random.default_rng(5).uniform(0.05, 0.8, (10, 61)) * np.linspace(1.3, 0.7, 61)  # bluish surfaces
@@ -55,7 +55,7 @@ def test_glare_spread_is_the_white_shift_an_offset_of_that_size_makes(shared_dat
         return _log_chroma(_d65_white(base @ t))
 
     shift = (white(values + osd[0]) - white(values - osd[0])) / 2  # the central difference over ± one spread
-    assert sd == pytest.approx(float(np.sqrt(np.sum(shift**2) / 2)), rel=0.03)
+    assert sd == pytest.approx(float(np.sqrt(np.sum(shift**2) / 2)), rel=0.06)
     assert sd > 1e-3  # coloured surfaces: the glare is not the references' colour
     assert _reference_offset_sd(obs, np.array([0]), 0.0) is None
     assert _glare_white_sd(base, spectra, e, values, kind == "grey", neutral, None) == 0.0
@@ -75,3 +75,21 @@ def test_glare_moves_a_grey_card_more_than_a_chart(shared_data, tilt):
         sds[kind] = _glare_white_sd(base, spectra, e, values, kind == "grey", neutral,
                                     _reference_offset_sd(obs, np.array([0]), 0.05))
     assert sds["grey"] > 1.3 * sds["chart"]
+
+
+def test_a_channel_censored_at_0_stays_out_of_the_glare_derivative(shared_data):
+    """A chart channel a colour matrix took below 0 (clipped to 0) is out of the fit; the step along the glare must not
+    lift it in (a jump, not a derivative: 0.33 instead of 0.02 on a development history)."""
+    css = datasets.load_camera("Nikon_D5100")
+    base = prior_sensitivities()
+    scene = np.random.default_rng(5).uniform(0.05, 0.8, (10, 61))
+    refs = colourchecker_references()
+    e, spectra, values, obs = _frame0(refs, scene, css)
+    neutral = _neutral(refs)
+    osd = _reference_offset_sd(obs, np.array([0]), 0.12)  # the largest glare spread a history learns
+    clean = _glare_white_sd(base, spectra, e, values, False, neutral, osd, step=0.1)
+    clipped = values.copy()
+    clipped[0, [2, 13], 0] = 0.0  # blue and its neighbour: red clipped at 0
+    assert clipped[0, 2, 0] + 0.1 * osd[0, 0] > 1e-3 * np.nanmax(clipped)  # the step would lift it into the fit
+    got = _glare_white_sd(base, spectra, e, clipped, False, neutral, osd, step=0.1)
+    assert 0.5 * clean < got < 2.0 * clean

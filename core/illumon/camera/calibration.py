@@ -94,7 +94,7 @@ then ``python tools/confidence_calibration.py dev.json dev_flare.json``: 14 deve
 simulators × with and without glare): among the triples with which the mean stated confidence equals the fraction
 of frames within 1°, the one with the largest likelihood of which frames were. Before ``k`` (2026-11-26), a grey card
 on sensor RGB stated 0.80 on the glare-free histories, where 90 % were within 1°, and 0.79 on the glared ones, where
-65 % were; with it 0.90 and 0.74 (``illumon``; ``rawsim`` 0.93 where 100 %, 0.76 where 76 %). They replace, in the
+65 % were; with it 0.90 and 0.74 (``illumon``; ``rawsim`` 0.93 where 100 %, 0.75 where 76 %). They replace, in the
 intervals only, the physical spreads above — :data:`CAMERA_WHITE_SD` ``none`` (0.11) is the measured cameras'
 spread *before* the scene's average colour moved the channel scales and stated 0.01 where 15 % of frames were
 within 1°; a grey card's 0.005 stated 0.99 where 96 % were; a chart on rendered output (``chart+rendered``,

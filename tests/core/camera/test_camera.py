@@ -120,9 +120,11 @@ def test_unmeasured_camera_calibrations(shared_data):
     Measured at commit time (median / max): grey 0.13 / 1.13, chart 0.76 / 3.10, none 4.54 / 5.10 (gray-world
     median 8.36). Confidence means what it says (``STATED_WHITE_SPREAD``, chosen on the development split over
     histories with and without veiling glare, half each): these glare-free histories are where it understates —
-    pooled over the three, stated / within 1°: grey 0.88 / 1.00 (0.965 / 0.99 when it was chosen on glare-free
-    histories alone), chart 0.74 / 0.84, none 0.17 / 0.17 — so a grey card may state up to 0.15 less than it
-    delivers here, never more than 0.05 above it."""
+    pooled over the three, stated / within 1°: grey 0.85 / 1.00 (0.88 before the reference frames' glare term, which
+    these histories' learned glare spread of 0.025 cannot rule out: 0.99, 0.87 and 0.70 by history, the last a card
+    among surfaces whose mean is far from grey; 0.965 / 0.99 when it was chosen on glare-free histories alone),
+    chart 0.87 / 0.84, none 0.17 / 0.17 — so a grey card may state up to 0.2 less than it delivers here, never more
+    than 0.05 above it."""
     err: dict[str, list] = {"grey": [], "chart": [], "none": []}
     gw, conf = [], {k: [] for k in err}
     for camera, seed in (("Nikon_D700", 11), ("Nikon_D80", 5), ("Nikon_D5100", 2)):
@@ -141,8 +143,9 @@ def test_unmeasured_camera_calibrations(shared_data):
     assert np.median(e["chart"]) < 1.0 and e["chart"].max() < 3.5
     assert np.median(e["none"]) < np.median(np.concatenate(gw))
     # honest confidence: what a reference pins shows in it, and the stated probability is the frequency
-    assert c["none"] < c["chart"] < c["grey"]
-    assert -0.15 < c["grey"] - np.mean(e["grey"] < 1.0) < 0.05
+    assert c["none"] < min(c["chart"], c["grey"])
+    assert -0.2 < c["grey"] - np.mean(e["grey"] < 1.0) < 0.05
+    assert abs(c["chart"] - np.mean(e["chart"] < 1.0)) < 0.1
     assert abs(c["none"] - np.mean(e["none"] < 1.0)) < 0.1
     assert CAMERA_WHITE_SD["none"] > CAMERA_WHITE_SD["chart"] > CAMERA_WHITE_SD["grey"]
 

@@ -12,6 +12,9 @@ benchmark counts how often that verdict names lamp light
 
 ``--primaries camera``: sensor RGB instead — ``none`` (daylight over measured surfaces), ``pale`` (daylight over pale
 surfaces) and ``raw+lamps`` (the lamps of ``none+lamps`` seen as raw output), judged with ``primaries="camera"``;
+``--primaries camera --rendered``: the rendered cases above judged as sensor RGB — what the real MIMO scenes are
+(16-bit linear output of a raw converter, which looks raw and is what an outside check runs with the default
+``camera``), a case the sensor-RGB cases, all raw, hid;
 
 from ``benchmarks/unmeasured.py``'s renderer (both simulators, ``illumon`` and ``rawsim``), each 30-frame history cut
 into disjoint windows of ``--frames`` consecutive frames (every window judged; the full 30 frames too). The diagnosis
@@ -22,6 +25,7 @@ development data, ``--split score`` (Canon, Hasselblad, Pentax, Phase One; score
 out.
 
     python benchmarks/short_histories.py [--split dev|score] [--seeds 2] [--frames 2,3,6] [--primaries camera]
+        [--rendered]
 
 Prints a table and writes ``benchmarks/results/short_histories.json``.
 """
@@ -70,15 +74,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--frames", default="2,3,6,30", help="window lengths, comma-separated (30: the whole history)")
     ap.add_argument("--primaries", choices=["srgb", "camera"], default="srgb",
                     help="srgb: rendered histories; camera: sensor-RGB ones")
+    ap.add_argument("--rendered", action="store_true",
+                    help="with --primaries camera: the rendered cases (none+rendered, none+awb, none+lamps) as sensor RGB")
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent / "results" / "short_histories.json"))
     args = ap.parse_args(argv)
+    cases = CASES["srgb" if args.rendered else args.primaries]
     sizes = [int(v) for v in args.frames.split(",")]
     cams = rawsim.SCORE_CAMERAS if args.split == "score" else rawsim.DEV_CAMERAS
     css = np.clip(srgb_sensitivities(), 0.0, None)
     counts: dict[tuple[str, int], list[int]] = {}
     for sim in ("illumon", "rawsim"):
         for cam in cams:
-            for case in CASES[args.primaries]:
+            for case in cases:
                 for seed in range(args.seeds):
                     obs, _, _ = unmeasured.render(sim, cam, case, seed)
                     for size in sizes:
@@ -88,10 +95,11 @@ def main(argv: list[str] | None = None) -> int:
                             c[1] += 1
     split = ("development (dev cameras, surfaces, Granada 0–1299)" if args.split == "dev"
              else "score (held out: score cameras, surfaces, Granada 1300–2599)")
-    print(f"split: {split}; {args.seeds} seed(s) × {len(cams)} cameras × 2 simulators; primaries {args.primaries}")
+    print(f"split: {split}; {args.seeds} seed(s) × {len(cams)} cameras × 2 simulators; primaries {args.primaries}"
+          + ("; rendered histories" if args.rendered else ""))
     print(f"{'case':<15} {'light':<9} " + " ".join(f"{f'{s} frames':>14}" for s in sizes))
     rows = []
-    for case, lamp in CASES[args.primaries].items():
+    for case, lamp in cases.items():
         cells = []
         for size in sizes:
             k, n = counts[(case, size)]
@@ -100,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{case:<15} {'lamps' if lamp else 'daylight':<9} " + " ".join(f"{c:>14}" for c in cells))
     print("off_locus_illuminant named: on daylight a false alarm, on lamps a hit")
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    report = {"split": args.split, "seeds": args.seeds, "primaries": args.primaries, "rows": rows}
+    report = {"split": args.split, "seeds": args.seeds, "primaries": args.primaries, "rendered": args.rendered,
+              "rows": rows}
     Path(args.out).write_text(json.dumps(report, indent=1) + "\n")
     print(f"wrote {args.out}")
     return 0

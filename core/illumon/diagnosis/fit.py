@@ -308,7 +308,7 @@ def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[D
             judged = corrected_observations(judged, d)
     verdict = _level_verdict(judged, css, primaries)
     if check_primaries(primaries) == "camera":
-        verdict = _sensor_rgb_verdict(verdict, _level_verdict(judged, None, primaries))
+        verdict = _sensor_rgb_verdict(verdict, _level_verdict(judged, None, primaries), judged)
     if verdict is None:
         return None
     model, p, nd = verdict
@@ -361,7 +361,7 @@ def _level_verdict(obs: Observations, css: NDArray[np.float64] | None, primaries
     return model, float(model.noise.get("unbalanced", 0.0) or 0.0), nd
 
 
-def _sensor_rgb_verdict(given: Verdict | None, unmeasured: Verdict | None) -> Verdict | None:
+def _sensor_rgb_verdict(given: Verdict | None, unmeasured: Verdict | None, obs: Observations) -> Verdict | None:
     """Sensor RGB's whole-history verdict from two level tests of the estimator (:mod:`illumon.model.level`): with the
     sensitivities given, as a measured camera's (its daylight whites ± 0.02), and as a camera nobody measured (the
     scene average against the daylight and the CIE lamps' whites through the measured cameras' mean, each within their
@@ -378,15 +378,27 @@ def _sensor_rgb_verdict(given: Verdict | None, unmeasured: Verdict | None) -> Ve
 
     So the history is lamp-lit throughout when both say so (probability the smaller of the two; the frames as the
     unmeasured test judges them: on a history lit by lamps throughout it judged every frame lamp-lit where it judged
-    the history so, the measured test 16–24 of 30). Otherwise the frames are judged with a model that found the
-    history daylight (the given sensitivities' where they did: unchanged from before the unmeasured test), for
-    :func:`_lamp_lit_frames`. The real MIMO lamp-lit scenes (development) given the clipped sRGB functions: 0.997 and
-    0.95–0.97. None where either model cannot be fitted."""
+    the history so, the measured test 16–24 of 30). The real MIMO lamp-lit scenes (development) given the clipped sRGB
+    functions: 0.997 and 0.95–0.97. Otherwise (the probability of the test that found the history daylight) a frame
+    is lamp-lit, for :func:`_lamp_lit_frames`, when both tests judge it so on its own against their history's
+    scene-average offset (:func:`illumon.model.lamps.frame_verdicts`: the smaller ``non_daylight``; a test that found
+    the history lamp-lit as a whole would otherwise lend every frame that probability). The frames of one test alone
+    fail as the histories do: output a raw converter rendered, read as sensor RGB (what the MIMO scenes are) through
+    the clipped sRGB functions — whose daylight locus is compressed (log r/g moves 0.20 from 11 000 to 5 600 K, 0.34
+    through the unclipped functions) — reads a day's sky changes as lamps (``benchmarks/short_histories.py
+    --primaries camera --rendered``). None where either model cannot be fitted."""
+    from ..model.lamps import frame_verdicts
+
     if given is None or unmeasured is None:
         return None
     if given[1] > 0.5 and unmeasured[1] > 0.5:
         return unmeasured[0], min(given[1], unmeasured[1]), unmeasured[2]
-    return given if given[1] <= 0.5 else unmeasured
+    model, p, _ = given if given[1] <= 0.5 else unmeasured
+    each = []
+    for verdict in (given, unmeasured):
+        own = frame_verdicts(verdict[0], obs)
+        each.append(verdict[2] if own is None else own)
+    return model, p, np.minimum(each[0], each[1])
 
 
 def _lamp_share_column(obs: Observations, css: NDArray[np.float64], idx: list[int]) -> list[float | None]:

@@ -64,6 +64,7 @@ __all__ = [
     "apply_lamps",
     "log_chroma_confidence",
     "non_daylight_column",
+    "frame_verdicts",
 ]
 
 MIN_DAYLIGHT_FRAMES = 6
@@ -739,10 +740,7 @@ def apply_lamps(model, obs, result, extra: dict, solver=None) -> None:  # noqa: 
     lamps = getattr(model, "lamps", None)
     if not lamps:
         return
-    means = _frame_means(model, obs, np.asarray(result.info["theta"], dtype=float), solver)
-    lp = frame_lamp_posterior(means, model.sensitivities, model.daylight_model(), np.asarray(lamps["offset"]),
-                              np.maximum(np.asarray(lamps["offset_sd"]), 0.01), prior=float(lamps.get("prior", LAMP_PRIOR)))
-    nd = np.where(np.isfinite(lp.non_daylight), lp.non_daylight, float(lamps.get("prior", LAMP_PRIOR)))
+    lp, nd = _judged_frames(model, obs, np.asarray(result.info["theta"], dtype=float), solver)
     extra["non_daylight"] = nd
     if _unbalanced_whites(model, lp, result, extra):
         return
@@ -764,6 +762,29 @@ def apply_lamps(model, obs, result, extra: dict, solver=None) -> None:  # noqa: 
     if not lamp.any():
         return
     _set_lamp_whites(result, extra, lamp, spectral, lamps["offset_sd"])
+
+
+def _judged_frames(model, obs, theta: NDArray[np.float64], solver=None  # noqa: ANN001
+                   ) -> tuple[LampPosterior, NDArray[np.float64]]:
+    """Every frame of ``obs`` judged on its own against the history's scene-average offset (``model.lamps``,
+    :func:`frame_lamp_posterior`) at the fitted lights ``theta``: the posterior and each frame's ``non_daylight`` (the
+    prior where a frame has no scene average)."""
+    lamps = model.lamps
+    prior = float(lamps.get("prior", LAMP_PRIOR))
+    means = _frame_means(model, obs, theta, solver)
+    lp = frame_lamp_posterior(means, model.sensitivities, model.daylight_model(), np.asarray(lamps["offset"]),
+                              np.maximum(np.asarray(lamps["offset_sd"]), 0.01), prior=prior)
+    return lp, np.where(np.isfinite(lp.non_daylight), lp.non_daylight, prior)
+
+
+def frame_verdicts(model, obs) -> NDArray[np.float64] | None:  # noqa: ANN001
+    """Each frame's ``non_daylight`` judged on its own against the scene-average offset of the history ``obs`` the
+    model was fitted on — before :func:`apply_lamps` raises every frame of a history judged lamp-lit as a whole to the
+    history's probability (a camera nobody measured, or rendered output: :func:`_unbalanced_whites`). Where the
+    history is daylight the two agree. ``None`` without ``model.lamps`` or a history estimate."""
+    if not getattr(model, "lamps", None) or model.history_estimate is None:
+        return None
+    return _judged_frames(model, obs, np.asarray(model.history_estimate[0].info["theta"], dtype=float))[1]
 
 
 def non_daylight_column(obs, sensitivities: NDArray[np.float64], daylight: CIEDaylight | None = None) -> NDArray[np.float64]:

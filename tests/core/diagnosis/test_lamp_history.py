@@ -195,3 +195,66 @@ def test_lamps_lighting_most_frames_are_named_from_the_frames_verdicts(camera, s
     assert all(v >= 0.5 for v in par["non_daylight"])
     clean = hide_effect("none", camera, seed, frames=36)
     assert diagnose(clean.observations, css, reestimate=False).effects == []
+
+
+def _rendered_as_sensor_rgb(case: str, seed: int, sim: str, camera: str):
+    """``benchmarks/unmeasured.py``'s rendered history (a raw converter's white balance and colour matrix) on a
+    development camera, to be read as sensor RGB: what the real MIMO scenes are (16-bit linear output of a raw
+    converter, run with the default ``--primaries camera``)."""
+    import unmeasured
+
+    return unmeasured.render(sim, camera, case, seed)[0]
+
+
+@pytest.mark.parametrize(("case", "seed", "sim", "camera", "given_frames"), [
+    ("none+rendered", 1, "illumon", "Nikon_D200", 12),
+    ("none+rendered", 2, "rawsim", "Nikon_Z6_ssf", 28),
+    ("none+awb", 2, "illumon", "Nikon_D200", 30),
+])
+def test_rendered_daylight_read_as_sensor_rgb_is_not_off_locus(shared_data, case, seed, sim, camera, given_frames):
+    """Daylight through a raw converter, read as sensor RGB with the clipped sRGB functions given: the measured
+    camera's test judges a day's sky changes lamps frame by frame (those functions' daylight locus is compressed:
+    log r/g moves 0.20 between 11 000 and 5 600 K, 0.34 through the unclipped functions), and main named off-locus
+    light from those frames (``found_by: frames``, ``given_frames`` of 30; in the last two the unmeasured test's
+    history probability 0.52–0.55 lent every frame its value). A frame is lamp-lit only when both tests judge it so
+    on its own: none is named."""
+    from illumon.diagnosis.fit import _lamp_lit_history, _level_verdict
+    from illumon.model.lamps import frame_verdicts
+
+    obs = _rendered_as_sensor_rgb(case, seed, sim, camera)
+    css = _clipped_srgb()
+    given = _level_verdict(obs, css, "camera")
+    unmeasured = _level_verdict(obs, None, "camera")
+    assert given[1] < 0.5  # neither test calls the history lamp-lit throughout with the other
+    assert int(np.sum(given[2] >= 0.5)) == pytest.approx(given_frames, abs=1)  # the failure: its frames alone
+    assert int(np.sum(frame_verdicts(unmeasured[0], obs) >= 0.5)) <= 2
+    assert _lamp_lit_history(obs, css, [], "camera") is None
+
+
+def test_frame_verdicts_are_each_frames_own(shared_data):
+    """A camera nobody measured, a history its level test calls lamp-lit as a whole by a hair (rendered daylight read
+    as sensor RGB, 0.52): the estimator lends every frame that probability; judged on its own against the history's
+    offset no frame is lamp-lit. For a history judged daylight the two are the same."""
+    from illumon.model import fit_scene_model
+    from illumon.model.lamps import frame_verdicts
+
+    obs = _rendered_as_sensor_rgb("none+awb", 2, "illumon", "Nikon_D200")
+    model = fit_scene_model(obs, None, primaries="camera")
+    assert 0.5 < model.noise["unbalanced"] < 0.6
+    assert np.min(model.history_estimate[1]["non_daylight"]) >= model.noise["unbalanced"]
+    assert np.max(frame_verdicts(model, obs)) < 0.5
+    day = _rendered_as_sensor_rgb("none+awb", 1, "illumon", "Nikon_D200")
+    model = fit_scene_model(day, None, primaries="camera")
+    assert model.noise.get("unbalanced", 0.0) < 0.5
+    np.testing.assert_allclose(frame_verdicts(model, day), model.history_estimate[1]["non_daylight"], atol=1e-12)
+
+
+def test_rendered_lamps_read_as_sensor_rgb_are_off_locus_with_every_frame(shared_data):
+    """The lamp-lit twin (every frame CIE lamps, the MIMO scenes' case as an outside check runs it): both tests call
+    the history lamp-lit (0.85 and 1.00), every frame named."""
+    from illumon.diagnosis.fit import _lamp_lit_history
+
+    obs = _rendered_as_sensor_rgb("none+lamps", 0, "illumon", "Nikon_D200")
+    lamp = _lamp_lit_history(obs, _clipped_srgb(), [], "camera")
+    assert lamp is not None and lamp.parameters["found_by"] == "scene_level"
+    assert lamp.parameters["frames"] == obs.frames and min(lamp.parameters["non_daylight"]) >= 0.5

@@ -1,0 +1,113 @@
+"""A light booth: the CCT a chart-calibrated camera nobody measured reads, when the booth's lamps are not daylight.
+
+The outside checks found an industrial camera in a lamp light box read a D65 frame with a ColorChecker in view as
+17 000–25 000 K (issue 26: "after a chart calibration a D65 lamp reads 5900–7200 K"). This simulator puts that set-up
+into the project's own data: a ColorChecker seen by a fixed sensor-RGB camera (``rawsim``, 12-bit, noise) under a light
+booth's lamps — CIE FL3.15 (a D65 simulator), A, FL11 (TL84-like), FL2 (cool white), FL3.14 (a D50 simulator),
+colour-science's spectra — the chart's 18 colour patches the static scene, the whole chart known in frame 0 (the D65
+simulator), fitted as ``illumon fit --known … --primaries camera`` does for a camera registered without
+sensitivities. Rows vary which lamps the history holds, so the cause shows: every frame the D65 simulator (control),
+one tungsten frame, two fluorescent frames, the whole booth.
+
+**Development** cameras only (:data:`rawsim.DEV_CAMERAS`); nothing was chosen on this benchmark yet. Printed per row:
+the D65-simulator frame's CCT (median over cameras, and the range), the median reciprocal-temperature error over
+every frame (MK⁻¹, estimated − true: a common shift shows as the same sign on every lamp), the median camera-white
+error (degrees) and whether frame 0's 95 % CCT interval holds its truth.
+
+``python benchmarks/lightbox.py [--cameras N]`` prints the table and writes ``benchmarks/results/lightbox.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path[:0] = [str(ROOT / "core"), str(Path(__file__).resolve().parent)]
+
+import colour  # noqa: E402
+import rawsim  # noqa: E402
+from illumon.camera import angular_error_deg, colourchecker_references  # noqa: E402
+from illumon.daylight.cie import xy_from_spectrum  # noqa: E402
+from illumon.daylight.ohno2013 import cct_duv_from_xy  # noqa: E402
+from illumon.model import fit_scene_model  # noqa: E402
+from illumon.observations import Observations  # noqa: E402
+from illumon.simulation import datasets  # noqa: E402
+from illumon.spectra import WAVELENGTHS  # noqa: E402
+
+LAMPS = {"D65 simulator": "FL3.15", "A": "A", "TL84": "FL11", "cool white": "FL2", "D50 simulator": "FL3.14"}
+"""The booth's lamps: colour-science's CIE illuminant names."""
+
+HISTORIES = {
+    "D65 simulator only": ["D65 simulator"] * 6,
+    "+ tungsten": ["D65 simulator", "A", "D65 simulator", "D65 simulator", "D65 simulator", "D65 simulator"],
+    "+ two fluorescents": ["D65 simulator", "TL84", "cool white", "D65 simulator", "D65 simulator", "D65 simulator"],
+    "the whole booth": ["D65 simulator", "A", "TL84", "cool white", "D50 simulator", "D65 simulator"],
+}
+"""Each history's frames (frame 0 shows the known chart under the D65 simulator)."""
+
+
+def lamp(name: str) -> np.ndarray:
+    """A lamp's spectrum on illumon's grid."""
+    sd = colour.SDS_ILLUMINANTS[LAMPS[name]]
+    return np.interp(WAVELENGTHS, sd.wavelengths, sd.values)
+
+
+def run(camera: str, frames: list[str], seed: int = 0) -> dict:
+    """One booth history of ``camera``: its fit's CCTs against the lamps', camera-white errors."""
+    css = datasets.load_camera(camera)
+    refs = colourchecker_references()
+    spectra = np.stack(list(refs.values()))
+    e = np.stack([lamp(f) for f in frames])
+    h = rawsim.simulate_raw_history(css, e, spectra, rng=np.random.default_rng(seed), bits=12)
+    values = h.linear_output.copy()
+    known = values.copy()
+    known[1:] = np.nan  # the chart known in frame 0 only; its colour patches are the scene in every frame
+    obs = Observations([f"f{i}" for i in range(len(frames))], [f"scene{i:02d}" for i in range(18)] + list(refs),
+                       np.concatenate([values[:, :18], known], axis=1), [""] * len(frames))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = fit_scene_model(obs, None, known_reflectances=refs)
+    res, extra = model.history_estimate
+    true = np.array([cct_duv_from_xy(xy_from_spectrum(x[None]))[0][0] for x in e])
+    cct = np.asarray(res.cct, dtype=float)
+    return {"camera": camera, "frames": frames, "cct": cct.tolist(), "true_cct": true.tolist(),
+            "mired_err": (1e6 / cct - 1e6 / true).tolist(),
+            "white_err": angular_error_deg(res.white, h.true_white).tolist(),
+            "frame0_in_95": bool(extra["cct_lo"][0] <= true[0] <= extra["cct_hi"][0]),
+            "transform_diag": np.diag(np.asarray(model.camera["transform"])).tolist()}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cameras", type=int, default=len(rawsim.DEV_CAMERAS), help="development cameras (all)")
+    ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "lightbox.json"))
+    args = ap.parse_args(argv)
+    cameras = list(rawsim.DEV_CAMERAS[: args.cameras])
+    print(f"split: development ({len(cameras)} cameras: {', '.join(cameras)}); chart known in frame 0 (D65 simulator, "
+          "FL3.15, 6504 K); sensor RGB, no sensitivities")
+    print(f"{'history':22} {'frame 0 CCT K: median (range)':32} {'MK⁻¹ err, all frames':>20} {'white °':>8} "
+          f"{'f0 in 95 %':>10}")
+    rows = []
+    for name, frames in HISTORIES.items():
+        got = [run(c, frames) for c in cameras]
+        rows.append({"history": name, "results": got})
+        f0 = np.array([g["cct"][0] for g in got])
+        mired = np.concatenate([g["mired_err"] for g in got])
+        white = np.concatenate([g["white_err"] for g in got])
+        inside = np.mean([g["frame0_in_95"] for g in got])
+        print(f"{name:22} {np.median(f0):8.0f} ({f0.min():.0f}–{f0.max():.0f}){'':9} {np.median(mired):+20.1f} "
+              f"{np.median(white):8.2f} {inside:10.2f}")
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps({"split": "dev", "cameras": cameras, "rows": rows}, indent=1))
+    print(f"wrote {args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

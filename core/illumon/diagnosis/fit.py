@@ -56,6 +56,7 @@ change is reported.
 from __future__ import annotations
 
 import copy
+import warnings
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -64,6 +65,8 @@ from numpy.typing import NDArray
 from .._blas import single_blas_thread
 from ..camera import angular_error_deg
 from ..camera.primaries import check_primaries
+from ..model import fit_scene_model
+from ..model.lamps import frame_verdicts
 from ..observations import Observations
 from ..retrieval import retrieve_illuminants
 from .candidate import NONE_MARGIN, RANK, Candidate
@@ -343,10 +346,6 @@ def _level_verdict(obs: Observations, css: NDArray[np.float64] | None, primaries
     measured), the posterior probability that the history is lit by lamps throughout (``noise["unbalanced"]``,
     :func:`illumon.model.level.common_level_posterior`) and every frame's ``non_daylight``; None where the model
     cannot be fitted."""
-    import warnings
-
-    from ..model import fit_scene_model
-
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
@@ -387,8 +386,6 @@ def _sensor_rgb_verdict(given: Verdict | None, unmeasured: Verdict | None, obs: 
     the clipped sRGB functions — whose daylight locus is compressed (log r/g moves 0.20 from 11 000 to 5 600 K, 0.34
     through the unclipped functions) — reads a day's sky changes as lamps (``benchmarks/short_histories.py
     --primaries camera --rendered``). None where either model cannot be fitted."""
-    from ..model.lamps import frame_verdicts
-
     if given is None or unmeasured is None:
         return None
     if given[1] > 0.5 and unmeasured[1] > 0.5:

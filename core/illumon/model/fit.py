@@ -427,7 +427,7 @@ class _JointObjective:
 
     def _offsets(self, beta: NDArray[np.float64], weighted: tuple[NDArray[np.float64], NDArray[np.float64]]
                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], float, NDArray[np.float64]]:
-        """Each frame's additive offset (F × 3, ``u ⊙ φ`` of :func:`~illumon.model.solver.flare_scales`) and the
+        """Each frame's additive offset (F × 3, ``u ⊙ φ`` of :func:`~illumon.camera.formation.flare_scales`) and the
         reflectances (P × K) that minimise the objective jointly: the offsets' block (diagonal: one amount per frame
         and channel, meeting no other) eliminated first, leaving one dense system in the P·K reflectance coefficients
         (a system in the offsets would grow with the history; this one does not). Returns the offsets, the
@@ -479,7 +479,7 @@ class _JointObjective:
         the maximum a posteriori spread by expectation–maximisation with ``θ`` held.
 
         Each offset ``o = s · m · φ`` (``m`` the frame's mean value in the channel,
-        :func:`~illumon.model.solver.flare_scales`) has posterior mean ``φ̄`` and variance ≈ ``1 / d`` (its own
+        :func:`~illumon.camera.formation.flare_scales`) has posterior mean ``φ̄`` and variance ≈ ``1 / d`` (its own
         block; the coupling with the reflectances left out), and ``s²`` has a scaled inverse-χ² prior of
         ``strength`` degrees of freedom at ``flare_sd²``: ``s² ← (strength · flare_sd² + s² Σ (φ̄² + 1/d)) /
         (strength + 3 (F − 1))`` — the history's mean offset is its patches' (learned into their reflectances), so
@@ -604,9 +604,9 @@ def _frame_costs(objective: _JointObjective, theta: NDArray[np.float64], coef: N
     return r2.sum(axis=(1, 2)) / np.maximum((objective.w2 > 0).sum(axis=(1, 2)), 1)
 
 
-def _frames_explained(objective: _JointObjective, theta: NDArray[np.float64], coef: NDArray[np.float64],
-                      present: NDArray[np.bool_]) -> NDArray[np.bool_] | None:
-    """The frames to learn the reflectances from, or ``None`` to keep them all: frames no daylight explains left out.
+def _frames_explained(costs: NDArray[np.float64], present: NDArray[np.bool_]) -> NDArray[np.bool_] | None:
+    """The frames to learn the reflectances from, or ``None`` to keep them all: frames no daylight explains left out,
+    given each frame's misfit ``costs`` (:func:`_frame_costs`) and its patches ``present``.
 
     Issue 26, a light booth: a fluorescent frame (FL2, FL11) in a history the joint fit explains with daylight is
     explained by bending the static patches' shared reflectances, and that moves the common temperature of every
@@ -623,7 +623,6 @@ def _frames_explained(objective: _JointObjective, theta: NDArray[np.float64], co
     (every daylight history's estimates unchanged, bit for bit). None is left out when fewer than half the frames, or
     not every patch, would remain — so a history lit mostly by lamps (the whole booth: its median frame a lamp's) is
     not helped; every frame is still estimated by the per-frame solver afterwards."""
-    costs = _frame_costs(objective, theta, coef)
     out = costs > max(FRAME_COST_RATIO * float(np.median(costs)), FRAME_COST_FLOOR)
     if not out.any() or (~out).sum() < max(2, 0.5 * len(out)) or not np.all(present[~out].any(axis=0)):
         return None
@@ -710,7 +709,8 @@ def _fit_fixed_camera(
     theta, coef, n_iter = _alternate(objective, theta, (css, dm, rb, relative_error, absolute_error), y, present,
                                      iterations, tol)
     for _ in range(ROBUST_ROUNDS):  # frames no daylight explains, left out of the reflectances (_frames_explained)
-        keep = _frames_explained(objective, theta, coef, present)
+        costs = _frame_costs(objective, theta, coef)
+        keep = _frames_explained(costs, present)
         if keep is None:
             break
         k_extra = None if extra is None else extra[keep]
@@ -718,8 +718,7 @@ def _fit_fixed_camera(
                                 white / scale)
         k_theta, k_coef, k_iter = _alternate(k_obj, theta[keep], (css, dm, rb, relative_error, absolute_error),
                                              y[keep], present[keep], iterations, tol)
-        before = float(np.median(_frame_costs(objective, theta, coef)[keep]))
-        if float(np.median(_frame_costs(k_obj, k_theta, k_coef))) * FRAME_REFIT_GAIN > before:
+        if float(np.median(_frame_costs(k_obj, k_theta, k_coef))) * FRAME_REFIT_GAIN > float(np.median(costs[keep])):
             break  # the kept frames fit (about) as well with them: not frames that bent the reflectances
         sub, y, present, extra = sub[keep], y[keep], present[keep], k_extra
         objective, theta, coef, n_iter = k_obj, k_theta, k_coef, k_iter

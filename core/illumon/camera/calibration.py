@@ -42,7 +42,7 @@ from ..daylight import CIEDaylight
 from ..observations import Observations
 from ..priors import default_camera_prior
 from ..priors.scene_average import expected_offset, scene_average_evidence
-from .formation import angular_error_deg
+from .formation import angular_error_deg, flare_scales
 from .references import neutral_references, references_kind
 
 __all__ = ["CAMERA_MIRED_SD", "CAMERA_WHITE_SD", "STATED_WHITE_SPREAD", "CameraCalibration", "prior_sensitivities",
@@ -224,7 +224,7 @@ def camera_transform_Kinoshita2023(
     xs = [values[..., c][ok] for c in range(3)]
     weights = [np.where((x > 1e-3 * x.max()) & (x < CLIPPED), 1.0 / (relative_error * np.maximum(x, 1e-12)), 0.0)
                for x in xs]
-    good = ok[..., None] & (values > 1e-3 * np.nanmax(values)) & (values < CLIPPED)
+    good = _fitted_values(values)
     t = np.eye(3)
     sd = np.zeros((3, 3))
     robust_w = [np.ones_like(x) for x in xs]
@@ -258,6 +258,13 @@ def camera_transform_Kinoshita2023(
         t = t @ np.diag(_neutral_scales(values, np.einsum("fpj,jc->fpc", u, t), ok & np.asarray(neutral)[None, :]))
     norm = _d65_white(base)[1] / _d65_white(base @ t)[1]
     return t * norm, sd * abs(norm)
+
+
+def _fitted_values(values: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """The reference values (F × P × 3) :func:`camera_transform_Kinoshita2023` fits: its patch seen in every
+    channel, not censored at the black level (at or below 1e-3 of the brightest) nor at white (:data:`CLIPPED`)."""
+    ok = np.all(np.isfinite(values), axis=-1) & (values.max(axis=-1) > 0)
+    return ok[..., None] & (values > 1e-3 * np.nanmax(values)) & (values < CLIPPED)
 
 
 def _neutral_scales(values: NDArray[np.float64], pred: NDArray[np.float64], mask: NDArray[np.bool_]) -> NDArray[np.float64]:
@@ -457,15 +464,12 @@ def _reporting_offset(theta_first: NDArray[np.float64], theta: NDArray[np.float6
 
 
 def _reference_offset_sd(obs: Observations, frames: NDArray[np.int64], flare_sd: float) -> NDArray[np.float64] | None:
-    """Prior spread of the reference frames' additive offsets (len(frames) × 3): the history's learned glare spread
-    times each frame's mean value in each channel over every patch it shows, references included (as the scene
-    fit's :func:`~illumon.model.solver.flare_scales`); ``None`` without glare."""
-    if not flare_sd > 0:
-        return None
+    """Prior spread of the reference frames' additive offsets (len(frames) × 3): the scene fit's own
+    (:func:`~illumon.camera.formation.flare_scales`: the history's learned glare spread times each frame's mean value
+    in each channel), over every patch the frame shows, references included; ``None`` without glare."""
     v = np.asarray(obs.values, dtype=float)[frames]
-    seen = np.all(np.isfinite(v), axis=-1)
-    mean = np.where(seen[..., None], v, 0.0).sum(axis=1) / np.maximum(seen.sum(axis=1), 1)[:, None]
-    return flare_sd * np.clip(mean, 0.0, None)
+    seen = np.broadcast_to(np.all(np.isfinite(v), axis=-1)[..., None], v.shape)
+    return flare_scales(v, seen, flare_sd, 0.0)
 
 
 def _glare_white_sd(base: NDArray[np.float64], spectra: NDArray[np.float64], illuminants: NDArray[np.float64],
@@ -490,7 +494,7 @@ def _glare_white_sd(base: NDArray[np.float64], spectra: NDArray[np.float64], ill
         t, _ = camera_transform_Kinoshita2023(base, spectra, illuminants, v, diagonal=diagonal, neutral=neutral)
         return _log_chroma(_d65_white(base @ t))
 
-    used = np.isfinite(values) & (values > 1e-3 * np.nanmax(values)) & (values < CLIPPED)
+    used = _fitted_values(values)
     var = 0.0
     for f in range(values.shape[0]):
         delta = np.zeros_like(values)

@@ -17,6 +17,7 @@ from numpy.typing import ArrayLike, NDArray
 
 __all__ = [
     "FLARE_SD",
+    "flare_scales",
     "render",
     "camera_white",
     "gains_from_white",
@@ -26,12 +27,30 @@ __all__ = [
 
 FLARE_SD = 0.05
 """Prior standard deviation of a frame's additive offset (veiling glare, flare), as a fraction of the frame's mean
-patch value in each channel (:func:`illumon.model.solver.flare_scales`); 0: the model has no offset. The development
+patch value in each channel (:func:`flare_scales`); 0: the model has no offset. The development
 photographs (``benchmarks/real.py``'s ``sony-raw``) show offsets of 3–19 % of the frame's mean patch value, changing
 from frame to frame (spread about their mean 0.047–0.058; ``python benchmarks/flare.py``); with 0.05 every real set
 gains (``docs/methods.md``, *Veiling glare*). On glare-free simulated histories it costs a little (a few tenths of a
 degree on single frames); ``confidence`` (``STATED_WHITE_SPREAD``) is calibrated with it, on histories with and
 without glare. Benchmarks set it to compare (``benchmarks/unmeasured.py --flare-sd 0``: the model without it)."""
+
+
+def flare_scales(values: NDArray[np.float64], weighted: NDArray[np.bool_], flare_sd: float, floor: float
+                 ) -> NDArray[np.float64] | None:
+    """Each frame's prior standard deviation of its additive offset in each channel (F × 3), or ``None`` when
+    ``flare_sd`` is 0: the offset is ``o_c = u_c φ_c`` with ``φ`` standard normal a priori.
+
+    The offset of frame ``f`` in channel ``c`` is Gaussian around 0 with standard deviation ``flare_sd`` times the
+    frame's mean weighted value in that channel (at least ``floor``): light scattered in the lens adds a fraction of
+    the scene's mean radiance to every patch, and that fraction changes with what surrounds the patches. One amount
+    per channel (the glare's colour is its surroundings', which the patches need not share): a single amount along
+    the patches' mean colour read the development photographs' ``sony-raw`` 3.9° off without a reference, where
+    one per channel read 1.9° (both with ``flare_sd`` 0.12, in a state of the fit before its noise level took the
+    offsets out)."""
+    if flare_sd <= 0:
+        return None
+    n = np.maximum(weighted.sum(axis=1), 1)
+    return np.maximum(np.where(weighted, values, 0.0).sum(axis=1) / n, floor) * flare_sd
 
 
 def render(sensitivities: ArrayLike, illuminant: ArrayLike, reflectances: ArrayLike) -> NDArray[np.float64]:

@@ -22,6 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..camera import formation
+from ..camera.formation import flare_scales
 from ..daylight import CIEDaylight
 from ..priors import ReflectanceBasis
 from ..retrieval.common import CENSORED, NEAR_WHITE, censored, imaging_operators
@@ -78,24 +79,6 @@ def _solve3(a: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.float6
             except np.linalg.LinAlgError:
                 out[i] = np.linalg.lstsq(a[i], z[i], rcond=None)[0]
         return out
-
-
-def flare_scales(values: NDArray[np.float64], weighted: NDArray[np.bool_], flare_sd: float, floor: float
-                 ) -> NDArray[np.float64] | None:
-    """Each frame's prior standard deviation of its additive offset in each channel (F × 3), or ``None`` when
-    ``flare_sd`` is 0: the offset is ``o_c = u_c φ_c`` with ``φ`` standard normal a priori.
-
-    The offset of frame ``f`` in channel ``c`` is Gaussian around 0 with standard deviation ``flare_sd`` times the
-    frame's mean weighted value in that channel (at least ``floor``): light scattered in the lens adds a fraction of
-    the scene's mean radiance to every patch, and that fraction changes with what surrounds the patches. One amount
-    per channel (the glare's colour is its surroundings', which the patches need not share): a single amount along
-    the patches' mean colour read the development photographs' ``sony-raw`` 3.9° off without a reference, where
-    one per channel read 1.9° (both with ``flare_sd`` 0.12, in a state of the fit before its noise level took the
-    offsets out)."""
-    if flare_sd <= 0:
-        return None
-    n = np.maximum(weighted.sum(axis=1), 1)
-    return np.maximum(np.where(weighted, values, 0.0).sum(axis=1) / n, floor) * flare_sd
 
 
 def _without_offset(a: NDArray[np.float64], z: NDArray[np.float64], u: NDArray[np.float64],

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..priors.camera import smooth_kernel
 from ..spectra import WAVELENGTHS
 
 __all__ = [
@@ -88,12 +89,6 @@ def second_difference(n: int) -> NDArray[np.float64]:
     for i in range(n - 2):
         d[i, i : i + 3] = (1.0, -2.0, 1.0)
     return d
-
-
-def smooth_kernel(length_nm: float) -> NDArray[np.float64]:
-    """Squared-exponential correlation (61 × 61) between grid wavelengths with length scale ``length_nm``."""
-    dl = WAVELENGTHS[:, None] - WAVELENGTHS[None, :]
-    return np.exp(-0.5 * (dl / length_nm) ** 2)
 
 
 def rmse_per_channel(estimate: ArrayLike, truth: ArrayLike) -> NDArray[np.float64]:

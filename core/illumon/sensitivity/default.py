@@ -22,18 +22,10 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import lsq_linear, minimize
 
 from ..priors import CameraPrior, DaylightPrior, default_camera_prior, default_daylight_prior
-from .common import SensitivityResult, chart_operator, check_chart, finish, smooth_kernel
+from ..priors.camera import SMOOTH_FLOOR, camera_prior_covariance
+from .common import SensitivityResult, chart_operator, check_chart, finish
 
 __all__ = ["sensitivities_illumon", "camera_prior_covariance", "SMOOTH_FLOOR", "NEAR_CLIP"]
-
-
-SMOOTH_FLOOR = 1.6e-3
-"""Variance of the smooth prior floor outside the PCA span of the training cameras. Chosen leave-one-manufacturer-out
-on the development cameras (``benchmarks/rawsim.py``: Nikon and Point Grey, each manufacturer held out in turn, charts
-of the linear model and of the raw pipeline under development daylight): mean RMSE 0.046 at 1e-4 (the former
-value, chosen leave-one-camera-out), 0.042 at 4e-4, 0.038 at 1.6e-3, 0.039 at 6.4e-3, 0.047 at 2.5e-2 (length
-30 nm; 60 nm and 20 nm were worse). A prior that has not seen the manufacturer must let curves leave the span of the
-others' more freely."""
 
 
 NEAR_CLIP = 0.95
@@ -44,14 +36,6 @@ measured (a clipped value can only be lower than the truth). Found on raw-pipeli
 of a camera whose blue channel saturates on the white patch while the exposure is metered on green (Point Grey
 Grasshopper2); the 5 % margin covers the ~2σ of a patch's pixel spread (texture and noise) of the
 development charts."""
-
-
-def camera_prior_covariance(
-    prior: CameraPrior, floor: float = SMOOTH_FLOOR, length_nm: float = 30.0
-) -> NDArray[np.float64]:
-    """Prior covariance (183 × 183) of stacked sensitivities: PCA part plus a smooth per-channel floor."""
-    pca = (prior.components * prior.variances) @ prior.components.T
-    return pca + floor * np.kron(np.eye(3), smooth_kernel(length_nm)) + 1e-8 * np.eye(pca.shape[0])
 
 
 def sensitivities_illumon(

@@ -39,6 +39,7 @@ from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
 from illumon.simulation import datasets  # noqa: E402
 from illumon.spectra import WAVELENGTHS  # noqa: E402
+from unmeasured import camera_prior_without  # noqa: E402
 
 LAMPS = {"D65 simulator": "FL3.15", "A": "A", "TL84": "FL11", "cool white": "FL2", "D50 simulator": "FL3.14"}
 """The booth's lamps: colour-science's CIE illuminant names."""
@@ -72,7 +73,8 @@ def run(camera: str, frames: list[str], seed: int = 0) -> dict:
                        np.concatenate([values[:, :18], known], axis=1), [""] * len(frames))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        model = fit_scene_model(obs, None, known_reflectances=refs)
+        prior = camera_prior_without(camera)  # the camera under test is never in its prior
+        model = fit_scene_model(obs, None, known_reflectances=refs, camera_prior_mean=prior.mean, camera_prior=prior)
     res, extra = model.history_estimate
     true = np.array([cct_duv_from_xy(xy_from_spectrum(x[None]))[0][0] for x in e])
     cct = np.asarray(res.cct, dtype=float)

@@ -56,6 +56,7 @@ import sys
 import time
 import warnings
 from datetime import datetime, timedelta, timezone
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -73,7 +74,7 @@ from illumon.camera import (  # noqa: E402
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
-from illumon.priors import max_normalise  # noqa: E402
+from illumon.priors import CameraPrior, build_camera_prior, max_normalise  # noqa: E402
 from illumon.retrieval.common import grey_world  # noqa: E402
 from illumon.simulation import (
     datasets,  # noqa: E402
@@ -85,6 +86,14 @@ CASES = ("grey", "chart+matrix", "none", "none+matrix", "none+rendered", "grey+r
 GOALS = {"grey": (1.0, 3.0), "chart+matrix": (1.0, 3.0), "none": (2.5, None)}
 RENDERED = ("rendered", "awb", "none+lamps")
 FRAMES, PATCHES = 30, 10
+
+
+@lru_cache(maxsize=8)
+def camera_prior_without(camera: str) -> CameraPrior:
+    """The camera prior (:class:`illumon.priors.CameraPrior`) of the measured cameras of every other manufacturer:
+    what a chart's reading of its frame's light integrates the camera over (:mod:`illumon.camera.chart_light`)."""
+    own = rawsim.manufacturer(camera)
+    return build_camera_prior([datasets.load_camera(n) for n in datasets.camera_names() if rawsim.manufacturer(n) != own])
 
 
 def prior_mean_without(camera: str) -> np.ndarray:
@@ -174,7 +183,8 @@ def run_case(sim: str, camera: str, case: str, seed: int, hours: float = 0.0, me
             model = fit_scene_model(obs, None, known_reflectances=known or None, primaries="srgb")
         else:
             model = fit_scene_model(obs, None, known_reflectances=known or None,
-                                    camera_prior_mean=prior_mean_without(camera))
+                                    camera_prior_mean=prior_mean_without(camera),
+                                    camera_prior=camera_prior_without(camera))
     seconds = time.perf_counter() - t0
     res, extra = model.history_estimate
     err = angular_error_deg(res.white, white)

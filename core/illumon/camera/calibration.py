@@ -40,8 +40,9 @@ from numpy.typing import NDArray
 from ..bayes import GaussianPrior, gaussian_posterior
 from ..daylight import CIEDaylight
 from ..observations import Observations
-from ..priors import default_camera_prior
+from ..priors import CameraPrior, default_camera_prior
 from ..priors.scene_average import expected_offset, scene_average_evidence
+from .chart_light import chart_light_illumon
 from .formation import angular_error_deg, flare_scales
 from .references import neutral_references, references_kind
 
@@ -54,7 +55,7 @@ leaves uncertain, added to every estimate's intervals and confidence. ``none``: 
 daylight whites around the mean camera's (see :func:`prior_white_spread`); ``grey`` and ``chart``: what a reference
 leaves, measured on development cameras (``python benchmarks/unmeasured.py``)."""
 
-CAMERA_MIRED_SD = {"measured": 0.0, "chart": 13.0, "grey": 21.0, "none": 12.0}
+CAMERA_MIRED_SD = {"measured": 0.0, "chart": 13.0, "chart read": 0.0, "grey": 21.0, "none": 12.0}
 """Standard deviation (MK⁻¹) of the light's reciprocal temperature that an unmeasured camera leaves uncertain, added
 to the CCT intervals (not to the white's: a reference pins the white, not the temperature — a redder camera under bluer
 light shows the same chart). Chosen on the development cameras (``python tools/camera_mired_spread.py --seeds 2``:
@@ -62,7 +63,10 @@ CIE D65 in frame 0, Granada runs after it, the prior without the camera's maker)
 was 16.0 (chart), 22.9 (grey card) and 14.8 (none) against a stated 8.3, 95 % intervals held 82 %, 78 % and 85 % of
 the truths; these are the values that bring the z-scores' RMS to 1. A grey card pins the camera's channel scales
 under one light, which the history's static patches cannot tell from a shift of every frame's temperature: its CCT is
-the least certain of the three. Rendered (``srgb``) output: see :data:`SRGB_CAMERA_MIRED_SD`."""
+the least certain of the three. ``chart read``: a chart whose frame's light was read with the camera integrated out
+(:mod:`.chart_light`, combined with the scene's in :func:`illumon.model.fit._reference_level`), whose spread the
+intervals then carry already: RMS mired error over all frames 7.2 against a stated 16.9 with 13 added (z RMS 0.42,
+``--seeds 1``), so nothing is added. Rendered (``srgb``) output: see :data:`SRGB_CAMERA_MIRED_SD`."""
 
 SRGB_CAMERA_MIRED_SD = {"measured": 0.0, "chart": 6.5, "grey": 6.0, "none": 3.5}
 """As :data:`CAMERA_MIRED_SD` for rendered (``srgb``) output, where the temperature is read with the sRGB functions
@@ -357,9 +361,10 @@ def calibrate_scene_model(
     obs: Observations,
     sensitivities: NDArray[np.float64] | None,
     known: Mapping[str, NDArray[np.float64]],
-    fit: Callable[[Observations, NDArray[np.float64]], tuple],
+    fit: Callable[..., tuple],
     *,
     prior_mean: NDArray[np.float64] | None = None,
+    camera_prior: CameraPrior | None = None,
     primaries: str = "camera",
     max_iterations: int = 6,
     tol_deg: float = 0.02,
@@ -375,11 +380,15 @@ def calibrate_scene_model(
     known
         References: patch id → reflectance (61,). Empty for none.
     fit
-        ``fit(obs, effective_sensitivities) → (SceneModel, theta)`` with ``theta`` every frame's ``(mired, δ, log k)``
-        (:func:`illumon.model.fit_scene_model`'s fixed-camera fit).
+        ``fit(obs, effective_sensitivities, **extra) → (SceneModel, theta)`` with ``theta`` every frame's ``(mired,
+        δ, log k)`` (:func:`illumon.model.fit_scene_model`'s fixed-camera fit); ``extra`` may hold
+        ``reference_light``: the chart frames' readings of their light (:func:`_chart_readings`).
     prior_mean
         Sensitivities of "a camera nobody measured" (default :func:`prior_sensitivities`; benchmarks pass the mean
         of the cameras of other manufacturers than the one scored).
+    camera_prior
+        The measured cameras' prior a chart's reading of its light integrates the camera over (default
+        :func:`~illumon.priors.default_camera_prior`; benchmarks pass one without the scored camera's maker).
     max_iterations, tol_deg
         Outer iterations and the convergence tolerance on the D65 camera white (degrees).
 
@@ -397,7 +406,12 @@ def calibrate_scene_model(
     sd = np.zeros((3, 3))
     ids = [p for p in obs.patches if p in known]
     scene = obs.select_patches([p for p in obs.patches if p not in known]) if ids else obs
-    model, theta = fit(scene, base)
+    extra = {}
+    if ids and kind == "chart" and sensitivities is None and primaries == "camera":
+        readings = _chart_readings(obs, ids, known, camera_prior)
+        if readings is not None:
+            extra["reference_light"] = readings
+    model, theta = fit(scene, base, **extra)
     theta_first = np.array(theta, dtype=float, copy=True)
     change, it = 0.0, 0
     s_scene = None  # how precisely a scene average set the channel scales (no reference, sensor RGB)
@@ -415,7 +429,7 @@ def calibrate_scene_model(
             )
             change = float(angular_error_deg(_d65_white(base @ t), _d65_white(base @ t_new)))
             t = t_new
-            model, theta = fit(scene, base @ t)
+            model, theta = fit(scene, base @ t, **extra)
             if change < tol_deg:
                 break
         glare_sd = _glare_white_sd(base, spectra, dm.spectra(theta[frames, :2]), values[frames], kind == "grey",
@@ -449,6 +463,26 @@ def _reference_data(obs: Observations, scene: Observations, ids: list[str], know
     spectra = np.stack([known[p] for p in ids])
     neutral = np.array([p in set(neutral_references({q: known[q] for q in ids})) for p in ids])
     return values, frames, spectra, neutral
+
+
+def _chart_readings(obs: Observations, ids: list[str], known: Mapping[str, NDArray[np.float64]],
+                    prior: CameraPrior | None) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]] | None:
+    """Each frame that shows a chart: its light's reciprocal temperature read from the chart with the camera
+    integrated out (:func:`~illumon.camera.chart_light.chart_light_illumon`) — frame indices, readings (MK⁻¹) and
+    their standard deviations; ``None`` when no frame shows enough of it. Sensor RGB of a camera nobody measured:
+    rendered output's channels are no camera's sensitivities, and a measured camera's light is read with them."""
+    prior = prior if prior is not None else default_camera_prior()
+    values = np.asarray(obs.values, dtype=float)[:, [obs.patches.index(p) for p in ids]]
+    spectra = np.stack([known[p] for p in ids])
+    found = []
+    for f in np.flatnonzero(np.all(np.isfinite(values), axis=-1).sum(axis=1) >= 6):
+        reading = chart_light_illumon(values[f], spectra, prior)
+        if reading is not None:
+            found.append((int(f), reading.mired, reading.sd))
+    if not found:
+        return None
+    frames, mired, sd = (np.array(c) for c in zip(*found, strict=True))
+    return frames.astype(np.int64), mired.astype(float), sd.astype(float)
 
 
 def _reporting_offset(theta_first: NDArray[np.float64], theta: NDArray[np.float64]) -> float:
@@ -513,7 +547,9 @@ def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bo
     camera white (:func:`_glare_white_sd`), added in quadrature to the stated spread (``camera_glare_log``)."""
     white_sd = SRGB_CAMERA_WHITE_SD if (kind in ("none", "grey") and primaries == "srgb") else CAMERA_WHITE_SD[kind]
     model.camera["white_sd_log"] = white_sd
-    mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)["measured" if measured else kind]
+    read = kind == "chart" and "chart_level" in model.noise  # the frames' light read from the chart too
+    mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)[
+        "measured" if measured else ("chart read" if read else kind)]
     scale, stated, glare_k = ((1.0, white_sd, 1.0) if measured
                               else STATED_WHITE_SPREAD.get((primaries, kind), (1.0, white_sd, 1.0)))
     if scene_sd is not None:  # the scene average calibrated the channel scales: as well as it read

@@ -33,7 +33,7 @@ from ..camera.primaries import SRGB_BALANCE_SD, check_primaries, daylight_prior_
 from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
 from ..observations import Observations
-from ..priors import ReflectanceBasis, reflectance_basis
+from ..priors import CameraPrior, ReflectanceBasis, reflectance_basis
 from ..priors.scene_average import scene_average_evidence
 from ..retrieval.common import censored, grey_world_mired, imaging_operators, white_level
 from ..spectra import GRID
@@ -164,6 +164,7 @@ def fit_scene_model(
     *,
     known_reflectances: Mapping[str, NDArray[np.float64]] | None = None,
     camera_prior_mean: NDArray[np.float64] | None = None,
+    camera_prior: CameraPrior | None = None,
     primaries: str = "camera",
     daylight: CIEDaylight | None = None,
     relative_error: float = 0.02,
@@ -189,6 +190,10 @@ def fit_scene_model(
     camera_prior_mean
         With ``sensitivities=None``: the unmeasured camera's prior sensitivities (default: the mean of the measured
         cameras shipped with illumon, or for ``primaries="srgb"`` the linear-sRGB colour-matching functions).
+    camera_prior
+        The measured cameras' prior a chart's reading of its frame's light integrates an unmeasured sensor-RGB
+        camera over (:mod:`illumon.camera.chart_light`; default the shipped prior of every measured camera;
+        benchmarks pass one without the scored camera's maker).
     primaries
         The camera's output space (:data:`illumon.camera.primaries.PRIMARIES`): ``"camera"`` (sensor RGB) or
         ``"srgb"`` (rendered output: white balance and a colour matrix to sRGB primaries). With ``"srgb"`` measured
@@ -221,11 +226,14 @@ def fit_scene_model(
         raise ValueError(f"known patch(es) never observed: {', '.join(missing)}")
     if primaries == "srgb":
         sensitivities, camera_prior_mean = _in_srgb_primaries(sensitivities, camera_prior_mean)
+    elif camera_prior is not None and camera_prior_mean is None:
+        camera_prior_mean = camera_prior.mean
 
     def fit_once(o: Observations, estimate: Observations | None = None, rows: NDArray[np.intp] | None = None
                  ) -> SceneModel:
         extra = {} if estimate is None else {"estimate": estimate, "rows": rows}
-        return _fit_camera_and_scene(o, sensitivities, known, camera_prior_mean, primaries, {**kwargs, **extra})
+        return _fit_camera_and_scene(o, sensitivities, known, (camera_prior_mean, camera_prior), primaries,
+                                     {**kwargs, **extra})
 
     model = fit_once(obs)
     judged = False
@@ -271,10 +279,13 @@ def _in_srgb_primaries(sensitivities: NDArray[np.float64] | None, camera_prior_m
     return sensitivities, camera_prior_mean
 
 def _fit_camera_and_scene(o: Observations, sensitivities: NDArray[np.float64] | None,
-                          known: Mapping[str, NDArray[np.float64]], camera_prior_mean: NDArray[np.float64] | None,
+                          known: Mapping[str, NDArray[np.float64]],
+                          priors: tuple[NDArray[np.float64] | None, CameraPrior | None],
                           primaries: str, kwargs: dict) -> SceneModel:
     """One scene fit of ``o``: through :func:`~illumon.camera.calibration.calibrate_scene_model` for a camera known
-    only up to ``T`` (unmeasured, or with references), else the fixed-camera fit; ``camera`` records which."""
+    only up to ``T`` (unmeasured, or with references), else the fixed-camera fit; ``camera`` records which.
+    ``priors``: the unmeasured camera's prior mean and the camera prior a chart's reading uses."""
+    camera_prior_mean, camera_prior = priors
     if not known and primaries == "camera":
         # sensor RGB without references: the level static patches cannot see is the camera's daylight, unless the
         # scene average says the history is lit by light no daylight through that camera gives (:mod:`.level`) — the
@@ -285,8 +296,8 @@ def _fit_camera_and_scene(o: Observations, sensitivities: NDArray[np.float64] | 
         else:
             kwargs = {**kwargs, "camera_level": (np.asarray(sensitivities, dtype=float), MEASURED_WHITE_SD, True)}
     if sensitivities is None or known:
-        m = calibrate_scene_model(o, sensitivities, known, lambda oo, c: _fit_fixed_camera(oo, c, **kwargs),
-                                  prior_mean=camera_prior_mean, primaries=primaries)
+        m = calibrate_scene_model(o, sensitivities, known, lambda oo, c, **kw: _fit_fixed_camera(oo, c, **kwargs, **kw),
+                                  prior_mean=camera_prior_mean, camera_prior=camera_prior, primaries=primaries)
     else:
         m, _ = _fit_fixed_camera(o, np.asarray(sensitivities, dtype=float), **kwargs)
         m.camera = {"calibration": "measured"}
@@ -563,6 +574,63 @@ class _JointObjective:
             return np.array([self.dm.mired_sigma, self.dm.duv_sigma])
 
 
+CHART_LIGHT_MODEL_SD = 10.0
+"""Standard deviation (MK⁻¹) added in quadrature to a chart's reading of its frame's light
+(:mod:`illumon.camera.chart_light`): how far the camera prior, the CIE daylight model and the chart's own values leave
+it off beyond its likelihood's spread."""
+
+BENT_PRIOR = 0.2
+"""Prior probability that a history's common temperature is bent: frames no daylight explains (a light booth's
+lamps) moved the static patches' shared reflectances, and every frame's temperature with them."""
+
+
+def _reference_level(objective: _JointObjective, theta: NDArray[np.float64], coef: NDArray[np.float64],
+                     solver_args: tuple, y: NDArray[np.float64], present: NDArray[np.bool_],
+                     extra: NDArray[np.float64] | None,
+                     reference_light: tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]],
+                     noise: float) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], dict]:
+    """The shift common to every frame's reciprocal temperature from the charts' readings of their frames' light.
+
+    The scene says its chart frames' temperatures up to the common shift (``common_shift_sd``, with the model's
+    ``common_mired``); each chart says its frame's own (± its spread and :data:`CHART_LIGHT_MODEL_SD`). Two
+    hypotheses weigh the charts' mean difference ``d``: the scene's level holds (``d ~ N(0, σ_c² + σ_s²)``: the two
+    are combined by their precisions) or it was bent by frames no daylight explains (``d ~ N(0, σ_c² + σ_D²)``,
+    ``σ_D`` the daylight prior's spread, probability :data:`BENT_PRIOR`: the charts' reading is taken). The more
+    probable one is kept, as :mod:`.level` does; its standard deviation is the mixture's about that mean (the other
+    hypothesis's share and distance widen it). Every frame's ``(mired)`` moves by the shift and the reflectances
+    are re-solved at it. ``y``, ``present``, ``extra``: the whole history on the fit's scale (the chart frames'
+    scene patches are estimated with the fitted reflectances). Returns ``θ``, the coefficients, the common
+    shift's standard deviation (mired, Duv: ``inf``, not constrained) and a summary for ``model.noise``."""
+    css, dm, rb, rel, absolute = solver_args
+    frames, mired, sd = reference_light
+    solver = FrameSolver(css, coef, None, dm, rb, relative_error=rel, absolute_error=absolute, white=objective.white)
+    scene = solver.solve_theta(y[frames], present[frames], None if extra is None else extra[frames])[:, 0]
+    var_c = sd**2 + CHART_LIGHT_MODEL_SD**2
+    w = 1.0 / var_c
+    d = float(np.sum(w * (mired - scene)) / np.sum(w))
+    v_c = float(1.0 / np.sum(w))
+    s_s = float(math.hypot(objective.common_shift_sd(theta, noise)[0], MODEL_ERROR["common_mired"]))
+    s_d = float(dm.mired_sigma)
+
+    def log_n(var: float) -> float:
+        return -0.5 * d * d / var - 0.5 * math.log(var)
+
+    log_bent = math.log(BENT_PRIOR) + log_n(v_c + s_d**2)
+    log_held = math.log(1.0 - BENT_PRIOR) + log_n(v_c + s_s**2)
+    bent = 1.0 / (1.0 + math.exp(log_held - log_bent))
+    held = (d * s_s**2 / (s_s**2 + v_c), 1.0 / (1.0 / s_s**2 + 1.0 / v_c))  # the components' means and variances
+    shift = d if bent > 0.5 else held[0]
+    # the spread about the kept mean is the mixture's: the other hypothesis's share and distance widen it
+    post_sd = math.sqrt(bent * (v_c + (d - shift) ** 2) + (1.0 - bent) * (held[1] + (held[0] - shift) ** 2))
+    lo_b, hi_b = dm.bounds()
+    theta = theta.copy()
+    theta[:, 0] = np.clip(theta[:, 0] + shift, lo_b[0], hi_b[0])
+    coef, _ = objective.reflectances(theta)
+    summary = {"frames": frames.tolist(), "chart_mired": mired.tolist(), "scene_mired": scene.tolist(),
+               "shift_mired": shift, "bent": bent}
+    return theta, coef, np.array([post_sd, np.inf]), summary
+
+
 def _alternate(
     objective: _JointObjective, theta: NDArray[np.float64], solver_args: tuple, y: NDArray[np.float64],
     present: NDArray[np.bool_], iterations: int, tol: float,
@@ -667,6 +735,7 @@ def _fit_fixed_camera(
     camera_level: tuple[NDArray[np.float64], float, bool] | None = None,
     estimate: Observations | None = None,
     rows: NDArray[np.intp] | None = None,
+    reference_light: tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]] | None = None,
 ) -> tuple[SceneModel, NDArray[np.float64]]:
     """:func:`fit_scene_model` for given (effective) sensitivities. Returns the model and every frame's
     ``(mired, δ, log k)`` (F × 3) from the learned reflectances. ``balance_sd``: the output is white-balanced by the
@@ -680,7 +749,11 @@ def _fit_fixed_camera(
 
     ``estimate``: the frames ``model.history_estimate`` (and the returned ``θ``) holds, a history whose frames
     ``rows`` are ``obs`` (the same patches; the training summary and identifiability read those rows); default
-    ``obs``. Every frame is estimated on its own, so the rows equal an estimate of ``obs`` alone."""
+    ``obs``. Every frame is estimated on its own, so the rows equal an estimate of ``obs`` alone.
+
+    ``reference_light``: frames of ``obs`` that showed a chart, and the chart's reading of their light (reciprocal
+    temperature and its standard deviation, :mod:`illumon.camera.chart_light`): evidence on the shift common to every
+    frame that the static patches cannot see, taken by :func:`_reference_level`."""
     t0 = time.perf_counter()
     dm = daylight or CIEDaylight()
     rb = reflectance_basis()
@@ -736,6 +809,10 @@ def _fit_fixed_camera(
     # by 0.02°.
     flare_sd = objective.learn_flare_sd(theta, measured_noise(), formation.FLARE_SD, (FLARE_SD_MIN, FLARE_SD_MAX))
     anchored_sd, level = None, None
+    if reference_light is not None:
+        theta, coef, anchored_sd, chart_level = _reference_level(
+            objective, theta, coef, (css, dm, rb, relative_error, absolute_error), y_all / scale, present_all,
+            None if obs.sd is None else obs.extra_variance() / scale**2, reference_light, measured_noise())
     if balance_sd is not None or camera_level is not None:
         # the level static patches cannot see (:mod:`.level`): a rendered camera's balance, or sensor RGB's daylight
         # through the camera, against the scene average; the lamp-lit component's mixed lamps are half the prior's
@@ -764,7 +841,9 @@ def _fit_fixed_camera(
     cov = np.linalg.inv(prec)
     cov = 0.5 * (cov + cov.transpose(0, 2, 1))
     common = objective.common_shift_sd(theta, noise_scale)
-    if anchored_sd is not None:  # the common level is the anchored posterior's, not the reflectance prior's
+    if reference_light is not None:  # the charts' combination with the scene (or their reading alone) holds it
+        common = np.array([anchored_sd[0], common[1]])
+    elif anchored_sd is not None:  # the common level is the anchored posterior's, not the reflectance prior's
         common = np.minimum(common, anchored_sd)
     model = SceneModel(
         patches=list(obs.patches), coefficients=coef, covariance=cov, sensitivities=css,
@@ -777,6 +856,8 @@ def _fit_fixed_camera(
     )
     if level is not None and level.unbalanced > 0.5:  # lamps only: the level the scene average gave, for the verdicts
         model.noise.update(unbalanced=level.unbalanced, level=level.mean.tolist(), level_sd=level.sd)
+    if reference_light is not None:
+        model.noise["chart_level"] = chart_level
     # Illuminants of every frame with the learned reflectances (the fast solver), for the training summary.
     res, extra = model.estimate(obs if estimate is None else estimate)
     model.history_estimate = (res, extra)

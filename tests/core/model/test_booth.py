@@ -1,6 +1,8 @@
-"""Frames no daylight explains, left out of the reflectance fit (:func:`illumon.model.fit._frames_explained`, issue
-26): a light booth's D65 frame beside a TL84 and a cool-white frame read 23 285 K (``benchmarks/lightbox.py``); with
-the rule it reads within the issue's 5 900–7 200 K, and a daylight history is fitted exactly as without the rule."""
+"""A light booth's D65 frame (issue 26, ``benchmarks/lightbox.py``). Frames no daylight explains, left out of the
+reflectance fit (:func:`illumon.model.fit._frames_explained`): the D65 frame beside a TL84 and a cool-white frame read
+23 285 K; with the rule it reads within the issue's 5 900–7 200 K, and a daylight history is fitted exactly as without
+the rule. The chart's own reading of its frame's light (:mod:`illumon.camera.chart_light`,
+:func:`illumon.model.fit._reference_level`): the whole booth, whose frames are mostly lamps', read 22 700 K without it."""
 
 from __future__ import annotations
 
@@ -8,6 +10,7 @@ import warnings
 
 import numpy as np
 import pytest
+from illumon.camera import calibration
 from illumon.model import fit as fit_mod
 
 
@@ -21,7 +24,35 @@ def test_booth_d65_frame_reads_d65(monkeypatch: pytest.MonkeyPatch) -> None:
     assert 5900 <= got["cct"][0] <= 7200
     assert abs(np.median(got["mired_err"])) < 20
     monkeypatch.setattr(fit_mod, "ROBUST_ROUNDS", 0)
+    monkeypatch.setattr(calibration, "_chart_readings", lambda *args: None)
     before = lightbox.run("Nikon_D5100", frames)
+    assert before["cct"][0] > 15000
+
+
+def test_whole_booth_read_from_the_chart(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The whole booth (D65 and D50 simulators, A, TL84, cool white; the chart known in the D65 frame), a Nikon
+    D5100 nobody measured, its maker not in the prior: the scene alone bends every frame by ~−100 MK⁻¹ (22 700 K);
+    the chart's reading (bent, probability > 0.5) brings the D65 frame to ~6 070 K and the lamps' median error within
+    20 MK⁻¹. The reading leaves a daylight-only booth (every frame the D65 simulator) combined, not replaced."""
+    import lightbox
+
+    got = lightbox.run("Nikon_D5100", lightbox.HISTORIES["the whole booth"])
+    assert 5900 <= got["cct"][0] <= 7200
+    assert abs(np.median(got["mired_err"])) < 20
+    assert got["frame0_in_95"]
+    levels: list[dict] = []
+    level = fit_mod._reference_level
+
+    def recorded(*args):
+        out = level(*args)
+        levels.append(out[3])
+        return out
+
+    monkeypatch.setattr(fit_mod, "_reference_level", recorded)
+    lightbox.run("Nikon_D5100", lightbox.HISTORIES["D65 simulator only"])
+    assert levels and levels[-1]["bent"] < 0.5
+    monkeypatch.setattr(calibration, "_chart_readings", lambda *args: None)
+    before = lightbox.run("Nikon_D5100", lightbox.HISTORIES["the whole booth"])
     assert before["cct"][0] > 15000
 
 

@@ -312,7 +312,9 @@ def run_batch(
     Notes
     -----
     Each task is a camera id; the worker reads that camera's history itself through one engine per worker process
-    (nothing but the id and settings is pickled). The speed-up over serial is bounded by the CPUs left free by other
+    (nothing but the id and settings is pickled). The tasks are submitted, and prioritised, largest history first
+    (frame counts, index-only): the refits at the end of the batch are the shortest, which keeps both workers busy
+    to its end when the cameras' histories differ. The speed-up over serial is bounded by the CPUs left free by other
     work: on a 2-core machine whose other processes keep one core busy, two workers share the remaining core and a
     fleet refit is no faster than serial (the same holds for two plain ``multiprocessing`` processes). Without a
     scheduler, the workers are forked from this process before the cluster starts (:func:`fork_workers`: they have
@@ -327,11 +329,14 @@ def run_batch(
     sessions = make_session_factory(engine)
     with sessions() as s:
         known = set(crud.camera_ids(s))
+        ids = sorted(known) if camera_ids is None else camera_ids
+        unknown = [c for c in ids if c not in known]
+        if unknown:
+            raise ValueError(f"unknown camera {unknown[0]}")
+        # the largest histories first (a refit's time grows with its frames, at most refit_max_frames): the last
+        # tasks are the short ones, so that no worker is left with a long refit while the other has none
+        frames = {c: min(crud.frame_count(s, c), settings.refit_max_frames) for c in ids} if len(ids) > 1 else {}
     engine.dispose()
-    ids = sorted(known) if camera_ids is None else camera_ids
-    unknown = [c for c in ids if c not in known]
-    if unknown:
-        raise ValueError(f"unknown camera {unknown[0]}")
     args = (str(settings.data_dir), settings.refit_max_frames, settings.refit_method, settings.refit_fit_frames)
     results: list[dict] = []
     cpus = usable_cpus()
@@ -376,8 +381,10 @@ def run_batch(
             _end_forked(forked)
             raise
     try:
-        futures = [client.submit(_refit_worker, url, cid, *args, pure=False) for cid in ids]
-        futures_ids = {f.key: cid for f, cid in zip(futures, ids, strict=True)}
+        order = sorted(ids, key=lambda c: -frames.get(c, 0))  # stable: cameras of equal size in the order given
+        futures = [client.submit(_refit_worker, url, cid, *args, pure=False, priority=len(order) - i)
+                   for i, cid in enumerate(order)]
+        futures_ids = {f.key: cid for f, cid in zip(futures, order, strict=True)}
         if forked:  # the tasks wait at the scheduler for the first worker, whose joining is checked only now:
             # Client.wait_for_workers polls every 0.1 s, which before the tasks were submitted delayed them by up to
             # that much (the forked workers join within ~0.1 s of the scheduler's start)

@@ -8,12 +8,14 @@ over a Dask cluster (a ``LocalCluster`` unless ``--dask-scheduler`` names one) w
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import sys
 import threading
 import time
 import uuid
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -236,16 +238,21 @@ def _refit_worker(
     database_url: str, camera_id: int, data_dir: str, max_frames: int, method: str, max_fit_frames: int = 300
 ) -> dict:
     """Dask task: refit one camera with the worker process's engine (engines are not picklable; one per process and
-    database, created on the first task)."""
+    database, :func:`_worker_sessions`)."""
     limit_blas_threads()
+    return refit_camera(
+        _worker_sessions(database_url), camera_id, data_dir=Path(data_dir), max_frames=max_frames, method=method,
+        max_fit_frames=max_fit_frames,
+    )
+
+
+def _worker_sessions(database_url: str) -> sessionmaker[Session]:
+    """This process's session factory of ``database_url``, its engine created on first use (a worker's first task,
+    or a forked worker before it joins the scheduler: :func:`fork_workers`'s ``prepare``)."""
     with _ENGINES_LOCK:
         if database_url not in _ENGINES:
             _ENGINES[database_url] = make_session_factory(make_engine(database_url))
-        sessions = _ENGINES[database_url]
-    return refit_camera(
-        sessions, camera_id, data_dir=Path(data_dir), max_frames=max_frames, method=method,
-        max_fit_frames=max_fit_frames,
-    )
+        return _ENGINES[database_url]
 
 
 def usable_cpus() -> int:
@@ -305,7 +312,9 @@ def run_batch(
     Notes
     -----
     Each task is a camera id; the worker reads that camera's history itself through one engine per worker process
-    (nothing but the id and settings is pickled). The speed-up over serial is bounded by the CPUs left free by other
+    (nothing but the id and settings is pickled). The tasks are submitted, and prioritised, largest history first
+    (frame counts, index-only): the refits at the end of the batch are the shortest, which keeps both workers busy
+    to its end when the cameras' histories differ. The speed-up over serial is bounded by the CPUs left free by other
     work: on a 2-core machine whose other processes keep one core busy, two workers share the remaining core and a
     fleet refit is no faster than serial (the same holds for two plain ``multiprocessing`` processes). Without a
     scheduler, the workers are forked from this process before the cluster starts (:func:`fork_workers`: they have
@@ -320,11 +329,14 @@ def run_batch(
     sessions = make_session_factory(engine)
     with sessions() as s:
         known = set(crud.camera_ids(s))
+        ids = sorted(known) if camera_ids is None else camera_ids
+        unknown = [c for c in ids if c not in known]
+        if unknown:
+            raise ValueError(f"unknown camera {unknown[0]}")
+        # the largest histories first (a refit's time grows with its frames, at most refit_max_frames): the last
+        # tasks are the short ones, so that no worker is left with a long refit while the other has none
+        frames = {c: min(crud.frame_count(s, c), settings.refit_max_frames) for c in ids} if len(ids) > 1 else {}
     engine.dispose()
-    ids = sorted(known) if camera_ids is None else camera_ids
-    unknown = [c for c in ids if c not in known]
-    if unknown:
-        raise ValueError(f"unknown camera {unknown[0]}")
     args = (str(settings.data_dir), settings.refit_max_frames, settings.refit_method, settings.refit_fit_frames)
     results: list[dict] = []
     cpus = usable_cpus()
@@ -350,7 +362,9 @@ def run_batch(
     if dask_scheduler:
         client = Client(dask_scheduler)
     else:
-        forked = fork_workers(workers)  # before the cluster starts any thread; [] where it cannot fork safely
+        # before the cluster starts any thread; [] where it cannot fork safely. Each opens its engine while this
+        # process starts the scheduler (what its first task did before)
+        forked = fork_workers(workers, prepare=functools.partial(_worker_sessions, url))
         client = None
         try:
             with dask.config.set(worker_config()):
@@ -359,8 +373,6 @@ def run_batch(
             for _, conn in forked:
                 conn.send(cluster.scheduler_address)
             client = Client(cluster)
-            if forked:
-                client.wait_for_workers(len(forked), timeout=FORKED_WORKERS_TIMEOUT)
         except BaseException:
             if client is not None:
                 client.close()
@@ -369,8 +381,14 @@ def run_batch(
             _end_forked(forked)
             raise
     try:
-        futures = [client.submit(_refit_worker, url, cid, *args, pure=False) for cid in ids]
-        futures_ids = {f.key: cid for f, cid in zip(futures, ids, strict=True)}
+        order = sorted(ids, key=lambda c: -frames.get(c, 0))  # stable: cameras of equal size in the order given
+        futures = [client.submit(_refit_worker, url, cid, *args, pure=False, priority=len(order) - i)
+                   for i, cid in enumerate(order)]
+        futures_ids = {f.key: cid for f, cid in zip(futures, order, strict=True)}
+        if forked:  # the tasks wait at the scheduler for the first worker, whose joining is checked only now:
+            # Client.wait_for_workers polls every 0.1 s, which before the tasks were submitted delayed them by up to
+            # that much (the forked workers join within ~0.1 s of the scheduler's start)
+            client.wait_for_workers(1, timeout=FORKED_WORKERS_TIMEOUT)
         for fut in tqdm(as_completed(futures), total=len(futures), desc="refit", unit="camera", disable=not progress):
             try:
                 results.append(fut.result())
@@ -385,14 +403,17 @@ def run_batch(
 
 
 FORKED_WORKERS_TIMEOUT = 120.0
-"""Seconds :func:`run_batch` waits for its forked workers to join the scheduler (``TimeoutError`` after)."""
+"""Seconds :func:`run_batch` waits for the first of its forked workers to join the scheduler (``TimeoutError``
+after; the tasks submitted wait for it meanwhile)."""
 
 
-def fork_workers(n: int) -> list[tuple[Any, Any]]:
+def fork_workers(n: int, prepare: Callable[[], object] | None = None) -> list[tuple[Any, Any]]:
     """``n`` Dask worker processes forked from this one, each waiting for a scheduler's address (then a
     one-thread :class:`distributed.Worker` of that scheduler until it closes it): ``(process, connection)`` pairs, the
     address to be sent on the connection (``None``: exit). ``[]`` where forking is not safe: more than one thread
-    in this process, a running event loop, or no ``fork``.
+    in this process, a running event loop, or no ``fork``. ``prepare``: called in each worker before it waits for
+    the address (what its first task would do first, e.g. open its database engine), while this process starts the
+    scheduler; an exception it raises is logged and left for the task to meet again.
 
     Why: a spawned worker (Dask's default, ``LocalCluster``'s nanny) starts a new interpreter that imports
     ``distributed`` and, at its first task, the service, illumon, colour-science and scipy (~2 s a worker on two
@@ -430,15 +451,16 @@ def fork_workers(n: int) -> list[tuple[Any, Any]]:
     out = []
     for i in range(n):
         receive, send = ctx.Pipe(duplex=False)
-        proc = ctx.Process(target=_forked_worker, args=(receive,), name=f"illumon-refit-worker-{i}", daemon=True)
+        proc = ctx.Process(target=_forked_worker, args=(receive, prepare), name=f"illumon-refit-worker-{i}",
+                           daemon=True)
         proc.start()
         receive.close()
         out.append((proc, send))
     return out
 
 
-def _forked_worker(conn: Any) -> None:  # noqa: ANN401 - a multiprocessing Connection
-    """A forked worker's main (:func:`fork_workers`): wait for the scheduler's address, then serve it."""
+def _forked_worker(conn: Any, prepare: Callable[[], object] | None = None) -> None:  # noqa: ANN401 - a Connection
+    """A forked worker's main (:func:`fork_workers`): ``prepare``, wait for the scheduler's address, then serve it."""
     import asyncio
 
     import dask
@@ -447,6 +469,11 @@ def _forked_worker(conn: Any) -> None:  # noqa: ANN401 - a multiprocessing Conne
     _INHERITED.append(dict(_ENGINES))  # the parent's engines: kept, never used or closed here
     _ENGINES.clear()
     limit_blas_threads()
+    if prepare is not None:
+        try:
+            prepare()
+        except Exception:  # noqa: BLE001 - the task meets it again and reports it
+            log.warning("forked worker: preparing failed", exc_info=True)
     address = conn.recv()
     conn.close()
     if not address:

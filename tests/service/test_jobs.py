@@ -145,15 +145,19 @@ def test_dask_workers_start_without_the_malloc_trim_threshold():
 
 
 _FORKED_BATCH = """
-import json, sys, threading, warnings
+import json, os, sys, threading, warnings
 warnings.simplefilter("ignore")
 from illumon_service import jobs
 from illumon_service.settings import Settings
 forked = []
 fork = jobs.fork_workers
-def spy(n):
+def spy(n, prepare=None):
     forked.append(threading.active_count())
-    out = fork(n)
+    def marked():  # in each worker: its engine opened before it joins (pid, engines it then holds)
+        prepare()
+        with open(os.path.join(sys.argv[1], "prepared"), "a") as f:
+            f.write(f"{os.getpid()} {len(jobs._ENGINES)}\\n")
+    out = fork(n, prepare=marked if prepare else None)
     forked.append(len(out))
     return out
 jobs.fork_workers = spy
@@ -226,6 +230,8 @@ def test_refit_all_in_forked_workers_equals_serial(tmp_path):
 
     got = batch(2)
     assert got["forked"] == [1, 2]  # one thread when it forked, two workers forked
+    prepared = [line.split() for line in (tmp_path / "prepared").read_text().splitlines()]
+    assert len({pid for pid, _ in prepared}) == 2 and all(n == "1" for _, n in prepared)  # each opened its engine
     forked_rows = _stored_estimates(tmp_path)
     serial = batch(1)["results"]
     assert len(forked_rows) == 120 and forked_rows == _stored_estimates(tmp_path)

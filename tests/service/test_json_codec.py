@@ -62,6 +62,25 @@ def test_json_rows_read_back_as_the_floats_written() -> None:
     assert json_rows(np.empty((0, 3))) == []
 
 
+@pytest.mark.parametrize("width", [1, 2, 3, 8, 9])
+def test_json_rows_of_narrow_rows_cut_from_one_text_equal_row_by_row(width) -> None:
+    """Narrow rows (written from one text of the whole array) are the texts orjson writes row by row."""
+    import orjson
+
+    a = _doubles(12_000)[: width * (12_000 // width)].reshape(-1, width)
+    a[0] = 0.0
+    a[1] = -0.0
+    a[2] = 5e-324
+    a[3] = 1e16
+    rows = json_rows(a)
+    assert all(type(r) is StoredJSON for r in rows)
+    assert rows == [orjson.dumps(r, option=orjson.OPT_SERIALIZE_NUMPY).decode() for r in a]
+    b = a.copy()
+    b[5, 0] = np.nan  # a non-finite row: its list, the others as before
+    mixed = json_rows(b)
+    assert type(mixed[5]) is list and mixed[:5] == rows[:5] and mixed[6:] == rows[6:]
+
+
 def test_engine_stores_json_text_as_it_is_and_reads_values_as_json(tmp_path) -> None:
     """Through SQLite: a StoredJSON column holds its text, a list holds json.dumps's, and both read back."""
     engine = make_engine(f"sqlite:///{tmp_path}/db.sqlite")

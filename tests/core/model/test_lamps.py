@@ -263,3 +263,27 @@ def test_lattice_correlation_equals_scipy_signal_bit_for_bit():
         a = rng.normal(size=tuple(rng.integers(4, 120, 2)))
         b = rng.normal(size=(rng.integers(2, a.shape[0] + 1), rng.integers(2, a.shape[1] + 1)))
         assert np.array_equal(_correlate_valid(a, b), correlate(a, b, mode="valid", method="fft"))
+
+
+def test_frame_means_kept_for_the_same_model_observations_and_theta_only(shared_data):
+    """The last frame means are given again only for the same model and observations and an equal θ (a copy), and
+    equal those computed afresh; another θ or other observations are computed."""
+    from illumon.model import lamps
+    from illumon.simulation import datasets
+
+    css = datasets.load_camera("Nikon_D3X")
+    obs = measured_daylight_history("Nikon_D3X", frames=30, patches=10, seed=10006).observations
+    model = _fit(obs, css)
+    theta = np.asarray(model.history_estimate[0].info["theta"], dtype=float)
+    fresh = lamps._compute_frame_means(model, obs, theta)
+    first = lamps._frame_means(model, obs, theta)
+    again = lamps._frame_means(model, obs, theta.copy())
+    assert np.array_equal(first, fresh, equal_nan=True) and np.array_equal(again, fresh, equal_nan=True)
+    again[:] = -1.0  # a copy: the kept answer is not changed through it
+    assert np.array_equal(lamps._frame_means(model, obs, theta), fresh, equal_nan=True)
+    moved = theta + np.array([5.0, 0.0, 0.0])
+    assert np.array_equal(lamps._frame_means(model, obs, moved), lamps._compute_frame_means(model, obs, moved),
+                          equal_nan=True)
+    other = obs.subset(np.arange(len(obs.frames)))
+    assert lamps._frame_means(model, other, theta) is not None
+    assert lamps._LAST_MEANS[0][1]() is other

@@ -66,7 +66,8 @@ under one light, which the history's static patches cannot tell from a shift of 
 the least certain of the three. ``chart read``: a chart whose frame's light was read with the camera integrated out
 (:mod:`.chart_light`, combined with the scene's in :func:`illumon.model.fit._reference_level`), whose spread the
 intervals then carry already: RMS mired error over all frames 7.2 against a stated 16.9 with 13 added (z RMS 0.42,
-``--seeds 1``) and 14.0 with nothing added (z RMS 0.52), so nothing is added. Rendered (``srgb``) output: see :data:`SRGB_CAMERA_MIRED_SD`."""
+``--seeds 1``) and 14.0 with nothing added (z RMS 0.52), so nothing is added. Rendered (``srgb``) output: see
+:data:`SRGB_CAMERA_MIRED_SD`."""
 
 SRGB_CAMERA_MIRED_SD = {"measured": 0.0, "chart": 6.5, "grey": 6.0, "none": 3.5}
 """As :data:`CAMERA_MIRED_SD` for rendered (``srgb``) output, where the temperature is read with the sRGB functions

@@ -7,9 +7,11 @@ the chart values under a daylight ``E`` are Gaussian with the sensitivities inte
 Σ A(E)ᵀ + N))`` (``A(E)`` maps stacked sensitivities to the chart's values, ``N`` the values' relative noise and model
 error), and the light's reciprocal temperature has a likelihood of its own — the marginal likelihood of
 :func:`illumon.sensitivity.sensitivities_illumon`, restricted to the CIE daylight locus, its exposure ``a`` profiled
-in closed form. It is independent of the history's static patches, which cannot see a shift common to every frame's
-light (:mod:`illumon.model.level`): a history whose other frames are lit by lamps (a light booth) bends the patches'
-shared reflectances and moves every frame's temperature together — the D65 frame of a booth read as 17 000–25 000 K.
+in closed form, each channel's veiling-glare offset (:data:`~illumon.camera.formation.FLARE_SD` of its mean value)
+integrated out with the camera. It is independent of the history's static patches, which cannot see a shift common
+to every frame's light (:mod:`illumon.model.level`): a history whose other frames are lit by lamps (a light booth)
+bends the patches' shared reflectances and moves every frame's temperature together — the D65 frame of a booth read
+as 17 000–25 000 K.
 
 References
 ----------
@@ -30,6 +32,7 @@ from scipy.linalg import cho_factor, cho_solve
 from ..daylight import CIEDaylight
 from ..priors import CameraPrior
 from ..priors.camera import camera_prior_covariance
+from .formation import FLARE_SD
 
 __all__ = ["CHART_LIGHT_NOISE", "ChartLight", "chart_light_illumon"]
 
@@ -77,7 +80,7 @@ class ChartLight:
 
 def chart_light_illumon(values: NDArray[np.float64], reflectances: NDArray[np.float64], prior: CameraPrior,
                         daylight: CIEDaylight | None = None, *, noise: float = CHART_LIGHT_NOISE,
-                        gain_sd: float = CHANNEL_GAIN_SD) -> ChartLight | None:
+                        gain_sd: float = CHANNEL_GAIN_SD, flare_sd: float = FLARE_SD) -> ChartLight | None:
     """The reciprocal temperature of one frame's light from the chart it shows, the camera's sensitivities integrated
     out over ``prior``.
 
@@ -93,6 +96,11 @@ def chart_light_illumon(values: NDArray[np.float64], reflectances: NDArray[np.fl
         The daylight model whose locus is searched (default :class:`~illumon.daylight.CIEDaylight`).
     noise
         :data:`CHART_LIGHT_NOISE`.
+    gain_sd
+        :data:`CHANNEL_GAIN_SD`.
+    flare_sd
+        Spread of the frame's veiling glare, one additive offset per channel, relative to the channel's mean value
+        (:data:`~illumon.camera.formation.FLARE_SD`), integrated out like the camera.
 
     Returns
     -------
@@ -134,7 +142,7 @@ def chart_light_illumon(values: NDArray[np.float64], reflectances: NDArray[np.fl
         m = a @ mu
         scale = float(x @ m) / max(float(m @ m), 1e-300)
         a, m = a * scale, m * scale
-        k = a @ cov @ a.T + np.diag((noise * np.maximum(x, 0.05)) ** 2)
+        k = a @ cov @ a.T + np.diag((noise * np.maximum(x, 0.05)) ** 2) + glare
         fac = cho_factor(k)
         qx, qm = cho_solve(fac, x), cho_solve(fac, m)
         xqx, xqm, mqm = float(x @ qx), float(x @ qm), float(m @ qm)
@@ -143,6 +151,10 @@ def chart_light_illumon(values: NDArray[np.float64], reflectances: NDArray[np.fl
         return (-(x.size * math.log(b) - 0.5 * fits[-1])
                 + float(np.log(np.diag(fac[0])).sum()))
 
+    # veiling glare: one additive offset per channel over the whole chart, ± FLARE_SD of the channel's mean value
+    channel = np.concatenate([np.full(int(use[:, c].sum()), c) for c in range(3)])
+    level = np.array([x[channel == c].mean() for c in range(3)])
+    glare = (channel[:, None] == channel[None, :]) * (flare_sd * level[channel]) ** 2
     fits: list[float] = []  # each evaluation's Mahalanobis distance of the values from the model
     coarse = np.array([nll(m) for m in MIRED_GRID])
     p = np.exp(-(coarse - coarse.min()))

@@ -194,3 +194,50 @@ def test_a_shadow_taking_a_channel_near_black_is_still_named(shared_data, monkey
         assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"
     d = diagnose(h.observations, h.sensitivities, reestimate=False)
     assert (d.effect, d.patch_index, d.frame_index) == ("shadow", h.patch, h.frame)
+
+
+def test_codec_pedestal_is_judged_by_its_luma():
+    """A pedestal lifts luma; 4:2:0 JPEG's chroma subsampling moves chroma only. The smallest pedestal the simulators
+    hide (1.5 % of white in every channel) lifts luma by 3.8 codes and is kept; the offsets fitted to clean JPEG
+    histories (luma 0.96 and 0.24 code) are the codec's."""
+    assert not stages.codec_pedestal(np.full(3, 0.015))
+    assert not stages.codec_pedestal(np.array([0.06, 0.058, 0.0125]))
+    assert stages.codec_pedestal(np.array([0.00518, 0.00404, -0.00128]))
+    assert stages.codec_pedestal(np.array([0.00418, -0.00042, -0.0006]))
+    assert sum(stages.CODEC_LUMA) == pytest.approx(1.0)
+
+
+def test_chroma_subsampling_is_not_a_black_offset(shared_data, monkeypatch):
+    """A clean linear JPEG history at ISO 1600 (development seed 3114): 4:2:0 chroma subsampling desaturates its
+    regions' means, which the rank-4 model reads as a pedestal of 0.0052 / 0.0040 / −0.0013 of white at ΔBIC −18.1
+    (margin 10; the failure, without the luma test). Its luma is below a code: not a black offset, ``none``. Written
+    with 4:4:4 sampling the same history has no pedestal to fit even without the test."""
+    h = _img_dev("none", 114)
+    assert h.parameters["jpeg"] and h.parameters["declared_tone"] is None
+    f = h.observations.values.shape[0]
+    y = h.observations.values.reshape(f, -1)
+    margin = NONE_MARGIN["black_offset"]
+    codec_pedestal = stages.codec_pedestal
+
+    def offset(values: np.ndarray) -> object:
+        _, cands, _ = bilinear_stage(values, 4, NONE_MARGIN["clipping"], True, dnoise.CODEC_NOISE, True)
+        return next(c for c in cands if c.effect == "black_offset")
+
+    with monkeypatch.context() as m:
+        m.setattr(stages, "codec_pedestal", lambda b: False)
+        old = offset(y)
+        assert old.score == pytest.approx(-18.1, abs=3.0) and old.score < -margin  # the failure
+        np.testing.assert_allclose(old.parameters["offsets"], [0.0052, 0.0040, -0.0013], atol=0.001)
+        assert codec_pedestal(np.asarray(old.parameters["offsets"]))
+        encode = imgsim.cv2.imencode
+
+        def encode_444(ext: str, img: np.ndarray, params: list | tuple = ()) -> tuple:
+            extra = [imgsim.cv2.IMWRITE_JPEG_SAMPLING_FACTOR, imgsim.cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444]
+            return encode(ext, img, [*params, *extra] if ext == ".jpg" else params)
+
+        m.setattr(imgsim.cv2, "imencode", encode_444)
+        h444 = _img_dev("none", 114)
+        assert offset(h444.observations.values.reshape(f, -1)).score > margin  # no pedestal to fit at 4:4:4
+    assert offset(y).score > -margin
+    assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"
+

@@ -300,9 +300,42 @@ def _dark_censored(y: NDArray[np.float64], codec_cap: float) -> NDArray[np.bool_
     return np.isfinite(y) & (y <= BLACK_CODE)
 
 
+SATURATED_SE = 0.5
+"""For values measured from images with their standard errors: a value shares a clip level only when its standard
+error is at most this share of the median standard error of the unsaturated values at least half as bright
+(:func:`_saturated`)."""
+
+
+def _saturated(y: NDArray[np.float64], se: NDArray[np.float64] | None, at_level: NDArray[np.bool_]
+               ) -> NDArray[np.bool_]:
+    """The values of ``at_level`` (values at the history's highest level) whose pixels saturate there: all of them
+    without standard errors ``se``; with them (values measured from images), those whose standard error is at most
+    :data:`SATURATED_SE` of the median of the other values at least half as bright.
+
+    Pixels clipped at a level all hold that level's code, so a region mean at a clip level has (nearly) no pixel
+    spread; the service drops the pixels at its own clip level (98 % of white) before the mean, so a value measured
+    from images can share a level with others only where the camera clips below it (video-range output, a converter's
+    highlight roll-off) — and then its spread is gone. *Hidden assumption* (issue 28, branch ``diag5``): that values
+    sharing the history's highest level are clipped there. An auto-exposure with a highlight guard holds the
+    brightest region at one level in every frame it binds (development ``imgsim`` 3175: 15 values at 0.8232 of
+    white, standard errors 0.16–0.18 code like every value that bright), which the clipping test read as a clip
+    level at ΔBIC −14.1 (margin 10)."""
+    if se is None:
+        return at_level
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        level = float(np.nanmax(np.where(at_level, y, np.nan)))
+        peers = np.isfinite(y) & np.isfinite(se) & ~at_level & (y >= 0.5 * level)
+        if not peers.any():
+            return at_level
+        typical = float(np.median(se[peers]))
+    return at_level & np.isfinite(se) & (se <= SATURATED_SE * typical)
+
+
 def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_noise: bool = True,
                    codec_cap: float = 0.0, unseen_clipped: bool = False,
-                   structural: NDArray[np.bool_] | None = None) -> tuple[bl.LowRankFit, list[Candidate], dict]:
+                   structural: NDArray[np.bool_] | None = None,
+                   se: NDArray[np.float64] | None = None) -> tuple[bl.LowRankFit, list[Candidate], dict]:
     """The bilinear stage (:mod:`.fit` describes it): the rank-``rank`` base fit and every extension it can carry —
     tone curve, black offset, clipping (at a shared level, or removed at ingest), patch change and shadow.
 
@@ -325,6 +358,9 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     structural
         Values missing because an effect found earlier was modelled (not an outcome of the test of clipping at
         ingest), or None.
+    se
+        Standard errors of the values measured from images (frames × (patches·channels)), or None: only values
+        whose pixels saturate share a clip level (:func:`_saturated`).
 
     Returns
     -------
@@ -392,7 +428,7 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
 
     # clipping: values at the highest level, if several share it
     vmax = float(np.nanmax(y))
-    censored = present & (y >= vmax - max(2e-3 * vmax, 1e-6))
+    censored = _saturated(y, se, present & (y >= vmax - max(2e-3 * vmax, 1e-6)))
     if censored.sum() >= 2:
         fit_c = bl.fit_clipping(y, w, rank, base.U, vmax, censored)
         cands.append(Candidate("clipping", _bic(_nll(fit_c.wrss, n, half_log_var), fit_c.k, n) - bic0,

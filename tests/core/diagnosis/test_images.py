@@ -241,3 +241,46 @@ def test_chroma_subsampling_is_not_a_black_offset(shared_data, monkeypatch):
     assert offset(y).score > -margin
     assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"
 
+
+def test_a_highlight_guard_level_is_not_clipping(shared_data):
+    """The auto-exposure's highlight guard holds the brightest region at one level (0.8232 of white) in the 15 frames
+    it binds (development seed 3175, PNG, linear): 15 values share the history's highest level and read as clipped
+    at ΔBIC −14.1 (margin 10; the failure, without standard errors). Their standard errors, 0.16–0.18 code, are those
+    of every value that bright: no pixel saturates there, so it is no clip level, and the history is ``none``."""
+    h = _img_dev("none", 175)
+    f = h.observations.values.shape[0]
+    y = h.observations.values.reshape(f, -1)
+    se = h.observations.sd.reshape(f, -1)
+    margin = NONE_MARGIN["clipping"]
+
+    def clipping(**kw: object) -> object:
+        _, cands, _ = bilinear_stage(y, 4, margin, True, dnoise.CODEC_NOISE, True, **kw)
+        return next(c for c in cands if c.effect == "clipping")
+
+    old = clipping()
+    assert old.score == pytest.approx(-14.1, abs=3.0) and old.parameters["clipped_values"] == 15  # the failure
+    assert clipping(se=se).score > -margin
+    assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"
+
+
+def test_values_whose_pixels_saturate_below_the_service_clip_are_clipping():
+    """A camera that clips below the service's own clip level (video-range output: 235 of 255 codes) leaves regions
+    whose pixels all hold the clip code: their means share the level with no pixel spread (standard error 0), and
+    the clip level is found with the standard errors given; with every value's spread alike it is not."""
+    rng = np.random.default_rng(11)
+    u = np.abs(rng.normal(1.0, 0.3, (40, 4)))
+    v = np.abs(rng.normal(0.12, 0.08, (4, 30)))
+    clean = u @ v
+    clean *= 1.1 * 235.0 / 255.0 / np.quantile(clean, 0.97)
+    level = 235.0 / 255.0
+    y = np.minimum(clean + 0.002 * rng.standard_normal(clean.shape), level)
+    at = y >= level
+    assert 10 <= at.sum() <= 0.1 * at.size
+    se = np.where(at, 0.0, 0.0007)
+    _, cands, _ = bilinear_stage(y, 4, NONE_MARGIN["clipping"], True, dnoise.CODEC_NOISE, True, se=se)
+    clip = next(c for c in cands if c.effect == "clipping")
+    assert clip.score < -NONE_MARGIN["clipping"] and clip.parameters["clip_level"] == pytest.approx(level, abs=1e-4)
+    assert clip.parameters["clipped_values"] == int(at.sum())
+    _, cands, _ = bilinear_stage(y, 4, NONE_MARGIN["clipping"], True, dnoise.CODEC_NOISE, True,
+                                 se=np.full(y.shape, 0.0007))
+    assert next(c for c in cands if c.effect == "clipping").score == np.inf

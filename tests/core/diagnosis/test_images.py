@@ -100,15 +100,21 @@ def test_region_clipped_in_every_frame_is_clipping(shared_data):
     assert next(c for c in cands if c.effect == "clipping").score > -NONE_MARGIN["clipping"]
 
 
-def test_two_values_at_a_shared_level_are_a_note_when_not_reestimating(shared_data):
+def test_two_values_at_a_shared_level_are_a_note_when_not_reestimating(shared_data, monkeypatch):
     """Two values of a fluorescent patch within 0.2 % of each other at the history's top (0.58) passed as clipping
     (ΔBIC −14.6) and, since the note rule needed the illuminant change only a re-estimating diagnosis computed,
-    stayed the effect; then, modelled, a patch "changing" beside the fluorescent one was preferred to it. Now the two
-    values are a note, the change is put down to the other patch's emission, and the fluorescent patch is named."""
+    stayed the effect; then, modelled, a patch "changing" beside the fluorescent one was preferred to it. Taken as a
+    clip level (values sharing the top level, :func:`illumon.diagnosis.stages._saturated` bypassed) the two values are
+    a note, the change is put down to the other patch's emission, and the fluorescent patch is named. With their
+    standard errors they are no clip level at all (their pixels do not saturate): no note, the same diagnosis."""
     h = _img_dev("fluorescence", 5)
+    with monkeypatch.context() as m:
+        m.setattr(stages, "_saturated", lambda y, se, at_level: at_level)
+        d = diagnose(h.observations, h.sensitivities, reestimate=False)
+        assert d.effect == "fluorescence" and d.patch_index == h.patch
+        assert len(d.notes) == 1 and "a note, not an effect" in d.notes[0]
     d = diagnose(h.observations, h.sensitivities, reestimate=False)
-    assert d.effect == "fluorescence" and d.patch_index == h.patch
-    assert len(d.notes) == 1 and "a note, not an effect" in d.notes[0]
+    assert d.effect == "fluorescence" and d.patch_index == h.patch and d.notes == []
 
 
 def test_lamp_lit_frames_late_in_a_history_are_not_a_patch_change(shared_data):

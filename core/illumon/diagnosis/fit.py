@@ -118,6 +118,7 @@ def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank:
     patch itself, which misfits the spectral model by that alone (three development histories read so).
     """
     y = obs.values.reshape(obs.values.shape[0], -1)
+    se = _image_se(obs, from_images)
     modelled: list[Candidate] | None = None
     for cand in spectral:  # off-locus light first, as in the selection
         if not cand.score < -margins[cand.effect]:
@@ -127,14 +128,17 @@ def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank:
         if cand.effect == "fluorescence" and chosen.patch is not None and cand.patch == chosen.patch:
             continue  # so does a changed or shaded patch
         masked = y.copy()
+        se_kept = se
         if cand.effect == "off_locus_illuminant":
             keep = np.setdiff1d(np.arange(y.shape[0]), cand.parameters["frame_indices"])
             if keep.size < rank + 2:
                 continue
             masked = masked[keep]
+            se_kept = None if se is None else se[keep]
         else:
             masked[:, 3 * cand.patch : 3 * cand.patch + 3] = np.nan
-        _, again, _ = bilinear_stage(masked, rank, margins["clipping"], learn_noise, *_image_noise(from_images))
+        _, again, _ = bilinear_stage(masked, rank, margins["clipping"], learn_noise, *_image_noise(from_images),
+                                     se=se_kept)
         score = next(c.score for c in again if c.effect == chosen.effect)
         if score < 0.0:
             continue
@@ -550,7 +554,8 @@ def _choose(obs: Observations, css: NDArray[np.float64], rank: int, margins: dic
     f, p, _ = obs.values.shape
     y = obs.values.reshape(f, 3 * p)
     _, cands, info = bilinear_stage(y, rank, margins["clipping"], learn_noise, *_image_noise(from_images),
-                                    None if structural is None else structural.reshape(f, 3 * p))
+                                    None if structural is None else structural.reshape(f, 3 * p),
+                                    _image_se(obs, from_images))
     spectral, sinfo = spectral_stage(obs, css, margins["fluorescence"])
     info.update(sinfo)
     cands += spectral
@@ -622,6 +627,15 @@ def _pedestal_cause(obs: Observations, css: NDArray[np.float64], lamp: Candidate
 def _image_noise(from_images: bool) -> tuple[float, bool]:
     """The bilinear stage's ``codec_cap`` and ``unseen_clipped`` for values measured from images or not."""
     return (CODEC_NOISE, True) if from_images else (0.0, False)
+
+
+def _image_se(obs: Observations, from_images: bool) -> NDArray[np.float64] | None:
+    """The standard errors of values measured from images, frames × (patches·channels), for the clip-level test
+    (:func:`.stages._saturated`); None otherwise or when the history has none."""
+    if not from_images or obs.sd is None:
+        return None
+    sd = np.asarray(obs.sd, dtype=float)
+    return sd.reshape(sd.shape[0], -1) if sd.shape == obs.values.shape else None
 
 
 def _as_diagnosis(obs: Observations, chosen: Candidate | None, cands: list[Candidate], info: dict) -> Diagnosis:

@@ -28,7 +28,8 @@ from .spectral import (
 )
 from .tone import tone_candidate
 
-__all__ = ["MIN_OFFSET", "PEDESTAL_BELOW", "pedestal_allowed", "refined_spectral_base", "daylight_reflectances",
+__all__ = ["MIN_OFFSET", "CODEC_LUMA", "codec_pedestal",
+           "PEDESTAL_BELOW", "pedestal_allowed", "refined_spectral_base", "daylight_reflectances",
            "REFINE_ITERS", "MIN_OFF_LOCUS_FRAMES",
            "OFF_LOCUS_FRAME_Z", "bilinear_stage", "spectral_stage", "tone_stage"]
 
@@ -38,6 +39,29 @@ from the bias that output rounding leaves in dark regions' means (pixels the noi
 estimate by less than the noise. On the independent raw pipeline's 8-bit histories at ISO 100 the offset test found pedestals of
 0.0005…0.0015 at ΔBIC −10…−27 (a clean history and a fluorescent one); the hidden pedestals of both simulators are
 1.5…6 % of white, found within 0.001."""
+
+CODEC_LUMA = (0.299, 0.587, 0.114)
+"""Luma weights of the YCbCr transform of JPEG (JFIF, ITU-R BT.601): the component a 4:2:0 JPEG keeps at full
+resolution. For values measured from images a black offset must lift this luma by at least :data:`MIN_OFFSET`
+(:func:`codec_pedestal`)."""
+
+
+def codec_pedestal(b: NDArray[np.float64]) -> bool:
+    """Whether a black offset ``b`` (3,) fitted to values measured from images is what a JPEG's chroma subsampling
+    leaves, not a pedestal: its luma (:data:`CODEC_LUMA`) below :data:`MIN_OFFSET`.
+
+    A pedestal — black level left in, flare — adds light or signal to every channel, so it lifts luma. 4:2:0 JPEG
+    (every camera's and ``cv2.imencode``'s default) stores chroma at half resolution: a region's chroma near its edges
+    is mixed with its surroundings' (and ringing there is clipped), so a saturated region's means lose saturation by
+    up to ~3 codes (development ``imgsim`` 3047: an orange region red −2.7, blue +1.7 codes) while luma keeps its
+    value. The rank-4 model reads that desaturation as a pedestal mostly in chroma: clean development histories
+    rendered as JPEG, 0.0052 / 0.0040 / −0.0013 of white (ΔBIC −18.1, ``imgsim`` 3114, linear, ISO 1600; luma 0.96
+    code) and 0.0042 / −0.0004 / −0.0006 (−12.3, 3040 re-encoded as JPEG; luma 0.24 code), where the same
+    histories written as PNG, or as JPEG with 4:4:4 sampling, give none (+19.8). *Hidden assumption* (issue 28,
+    branch ``diag5``): that a codec's error in a region mean is noise (rounding), not a systematic shift of its
+    colour. The smallest pedestal the simulators hide (1.5 % of white per channel) lifts luma by ≥ 3.8 codes."""
+    return float(np.dot(CODEC_LUMA, np.asarray(b, dtype=float))) < MIN_OFFSET
+
 
 PEDESTAL_BELOW = 0.25
 """Largest share of the patches whose value in a channel may lie below that channel's black offset (by more than
@@ -276,9 +300,42 @@ def _dark_censored(y: NDArray[np.float64], codec_cap: float) -> NDArray[np.bool_
     return np.isfinite(y) & (y <= BLACK_CODE)
 
 
+SATURATED_SE = 0.5
+"""For values measured from images with their standard errors: a value shares a clip level only when its standard
+error is at most this share of the median standard error of the unsaturated values at least half as bright
+(:func:`_saturated`)."""
+
+
+def _saturated(y: NDArray[np.float64], se: NDArray[np.float64] | None, at_level: NDArray[np.bool_]
+               ) -> NDArray[np.bool_]:
+    """The values of ``at_level`` (values at the history's highest level) whose pixels saturate there: all of them
+    without standard errors ``se``; with them (values measured from images), those whose standard error is at most
+    :data:`SATURATED_SE` of the median of the other values at least half as bright.
+
+    Pixels clipped at a level all hold that level's code, so a region mean at a clip level has (nearly) no pixel
+    spread; the service drops the pixels at its own clip level (98 % of white) before the mean, so a value measured
+    from images can share a level with others only where the camera clips below it (video-range output, a converter's
+    highlight roll-off) — and then its spread is gone. *Hidden assumption* (issue 28, branch ``diag5``): that values
+    sharing the history's highest level are clipped there. An auto-exposure with a highlight guard holds the
+    brightest region at one level in every frame it binds (development ``imgsim`` 3175: 15 values at 0.8232 of
+    white, standard errors 0.16–0.18 code like every value that bright), which the clipping test read as a clip
+    level at ΔBIC −14.1 (margin 10)."""
+    if se is None:
+        return at_level
+    with np.errstate(invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        level = float(np.nanmax(np.where(at_level, y, np.nan)))
+        peers = np.isfinite(y) & np.isfinite(se) & ~at_level & (y >= 0.5 * level)
+        if not peers.any():
+            return at_level
+        typical = float(np.median(se[peers]))
+    return at_level & np.isfinite(se) & (se <= SATURATED_SE * typical)
+
+
 def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_noise: bool = True,
                    codec_cap: float = 0.0, unseen_clipped: bool = False,
-                   structural: NDArray[np.bool_] | None = None) -> tuple[bl.LowRankFit, list[Candidate], dict]:
+                   structural: NDArray[np.bool_] | None = None,
+                   se: NDArray[np.float64] | None = None) -> tuple[bl.LowRankFit, list[Candidate], dict]:
     """The bilinear stage (:mod:`.fit` describes it): the rank-``rank`` base fit and every extension it can carry —
     tone curve, black offset, clipping (at a shared level, or removed at ingest), patch change and shadow.
 
@@ -301,6 +358,9 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     structural
         Values missing because an effect found earlier was modelled (not an outcome of the test of clipping at
         ingest), or None.
+    se
+        Standard errors of the values measured from images (frames × (patches·channels)), or None: only values
+        whose pixels saturate share a clip level (:func:`_saturated`).
 
     Returns
     -------
@@ -359,6 +419,8 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
         score_b, b = 3 * np.log(n), np.zeros(3)
     elif float(np.max(np.abs(b))) < MIN_OFFSET:  # below a code of 8-bit output: the rounding bias of dark pixels
         score_b = 3 * np.log(n)
+    elif codec_cap > 0 and codec_pedestal(b):  # measured from images: a JPEG's chroma, not a pedestal
+        score_b = 3 * np.log(n)
     cands.append(Candidate("black_offset", score_b,
                            {"offsets": [round(float(v), 5) for v in b]},
                            residual=float(np.sqrt(fit_o.wrss / max(n - fit_o.k, 1)))))
@@ -366,7 +428,7 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
 
     # clipping: values at the highest level, if several share it
     vmax = float(np.nanmax(y))
-    censored = present & (y >= vmax - max(2e-3 * vmax, 1e-6))
+    censored = _saturated(y, se, present & (y >= vmax - max(2e-3 * vmax, 1e-6)))
     if censored.sum() >= 2:
         fit_c = bl.fit_clipping(y, w, rank, base.U, vmax, censored)
         cands.append(Candidate("clipping", _bic(_nll(fit_c.wrss, n, half_log_var), fit_c.k, n) - bic0,

@@ -100,15 +100,21 @@ def test_region_clipped_in_every_frame_is_clipping(shared_data):
     assert next(c for c in cands if c.effect == "clipping").score > -NONE_MARGIN["clipping"]
 
 
-def test_two_values_at_a_shared_level_are_a_note_when_not_reestimating(shared_data):
+def test_two_values_at_a_shared_level_are_a_note_when_not_reestimating(shared_data, monkeypatch):
     """Two values of a fluorescent patch within 0.2 % of each other at the history's top (0.58) passed as clipping
     (ΔBIC −14.6) and, since the note rule needed the illuminant change only a re-estimating diagnosis computed,
-    stayed the effect; then, modelled, a patch "changing" beside the fluorescent one was preferred to it. Now the two
-    values are a note, the change is put down to the other patch's emission, and the fluorescent patch is named."""
+    stayed the effect; then, modelled, a patch "changing" beside the fluorescent one was preferred to it. Taken as a
+    clip level (values sharing the top level, :func:`illumon.diagnosis.stages._saturated` bypassed) the two values are
+    a note, the change is put down to the other patch's emission, and the fluorescent patch is named. With their
+    standard errors they are no clip level at all (their pixels do not saturate): no note, the same diagnosis."""
     h = _img_dev("fluorescence", 5)
+    with monkeypatch.context() as m:
+        m.setattr(stages, "_saturated", lambda y, se, at_level: at_level)
+        d = diagnose(h.observations, h.sensitivities, reestimate=False)
+        assert d.effect == "fluorescence" and d.patch_index == h.patch
+        assert len(d.notes) == 1 and "a note, not an effect" in d.notes[0]
     d = diagnose(h.observations, h.sensitivities, reestimate=False)
-    assert d.effect == "fluorescence" and d.patch_index == h.patch
-    assert len(d.notes) == 1 and "a note, not an effect" in d.notes[0]
+    assert d.effect == "fluorescence" and d.patch_index == h.patch and d.notes == []
 
 
 def test_lamp_lit_frames_late_in_a_history_are_not_a_patch_change(shared_data):
@@ -194,3 +200,93 @@ def test_a_shadow_taking_a_channel_near_black_is_still_named(shared_data, monkey
         assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"
     d = diagnose(h.observations, h.sensitivities, reestimate=False)
     assert (d.effect, d.patch_index, d.frame_index) == ("shadow", h.patch, h.frame)
+
+
+def test_codec_pedestal_is_judged_by_its_luma():
+    """A pedestal lifts luma; 4:2:0 JPEG's chroma subsampling moves chroma only. The smallest pedestal the simulators
+    hide (1.5 % of white in every channel) lifts luma by 3.8 codes and is kept; the offsets fitted to clean JPEG
+    histories (luma 0.96 and 0.24 code) are the codec's."""
+    assert not stages.codec_pedestal(np.full(3, 0.015))
+    assert not stages.codec_pedestal(np.array([0.06, 0.058, 0.0125]))
+    assert stages.codec_pedestal(np.array([0.00518, 0.00404, -0.00128]))
+    assert stages.codec_pedestal(np.array([0.00418, -0.00042, -0.0006]))
+    assert sum(stages.CODEC_LUMA) == pytest.approx(1.0)
+
+
+def test_chroma_subsampling_is_not_a_black_offset(shared_data, monkeypatch):
+    """A clean linear JPEG history at ISO 1600 (development seed 3114): 4:2:0 chroma subsampling desaturates its
+    regions' means, which the rank-4 model reads as a pedestal of 0.0052 / 0.0040 / −0.0013 of white at ΔBIC −18.1
+    (margin 10; the failure, without the luma test). Its luma is below a code: not a black offset, ``none``. Written
+    with 4:4:4 sampling the same history has no pedestal to fit even without the test."""
+    h = _img_dev("none", 114)
+    assert h.parameters["jpeg"] and h.parameters["declared_tone"] is None
+    f = h.observations.values.shape[0]
+    y = h.observations.values.reshape(f, -1)
+    margin = NONE_MARGIN["black_offset"]
+    codec_pedestal = stages.codec_pedestal
+
+    def offset(values: np.ndarray) -> object:
+        _, cands, _ = bilinear_stage(values, 4, NONE_MARGIN["clipping"], True, dnoise.CODEC_NOISE, True)
+        return next(c for c in cands if c.effect == "black_offset")
+
+    with monkeypatch.context() as m:
+        m.setattr(stages, "codec_pedestal", lambda b: False)
+        old = offset(y)
+        assert old.score == pytest.approx(-18.1, abs=3.0) and old.score < -margin  # the failure
+        np.testing.assert_allclose(old.parameters["offsets"], [0.0052, 0.0040, -0.0013], atol=0.001)
+        assert codec_pedestal(np.asarray(old.parameters["offsets"]))
+        encode = imgsim.cv2.imencode
+
+        def encode_444(ext: str, img: np.ndarray, params: list | tuple = ()) -> tuple:
+            extra = [imgsim.cv2.IMWRITE_JPEG_SAMPLING_FACTOR, imgsim.cv2.IMWRITE_JPEG_SAMPLING_FACTOR_444]
+            return encode(ext, img, [*params, *extra] if ext == ".jpg" else params)
+
+        m.setattr(imgsim.cv2, "imencode", encode_444)
+        h444 = _img_dev("none", 114)
+        assert offset(h444.observations.values.reshape(f, -1)).score > margin  # no pedestal to fit at 4:4:4
+    assert offset(y).score > -margin
+    assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"
+
+
+def test_a_highlight_guard_level_is_not_clipping(shared_data):
+    """The auto-exposure's highlight guard holds the brightest region at one level (0.8232 of white) in the 15 frames
+    it binds (development seed 3175, PNG, linear): 15 values share the history's highest level and read as clipped
+    at ΔBIC −14.1 (margin 10; the failure, without standard errors). Their standard errors, 0.16–0.18 code, are those
+    of every value that bright: no pixel saturates there, so it is no clip level, and the history is ``none``."""
+    h = _img_dev("none", 175)
+    f = h.observations.values.shape[0]
+    y = h.observations.values.reshape(f, -1)
+    se = h.observations.sd.reshape(f, -1)
+    margin = NONE_MARGIN["clipping"]
+
+    def clipping(**kw: object) -> object:
+        _, cands, _ = bilinear_stage(y, 4, margin, True, dnoise.CODEC_NOISE, True, **kw)
+        return next(c for c in cands if c.effect == "clipping")
+
+    old = clipping()
+    assert old.score == pytest.approx(-14.1, abs=3.0) and old.parameters["clipped_values"] == 15  # the failure
+    assert clipping(se=se).score > -margin
+    assert diagnose(h.observations, h.sensitivities, reestimate=False).effect == "none"
+
+
+def test_values_whose_pixels_saturate_below_the_service_clip_are_clipping():
+    """A camera that clips below the service's own clip level (video-range output: 235 of 255 codes) leaves regions
+    whose pixels all hold the clip code: their means share the level with no pixel spread (standard error 0), and
+    the clip level is found with the standard errors given; with every value's spread alike it is not."""
+    rng = np.random.default_rng(11)
+    u = np.abs(rng.normal(1.0, 0.3, (40, 4)))
+    v = np.abs(rng.normal(0.12, 0.08, (4, 30)))
+    clean = u @ v
+    clean *= 1.1 * 235.0 / 255.0 / np.quantile(clean, 0.97)
+    level = 235.0 / 255.0
+    y = np.minimum(clean + 0.002 * rng.standard_normal(clean.shape), level)
+    at = y >= level
+    assert 10 <= at.sum() <= 0.1 * at.size
+    se = np.where(at, 0.0, 0.0007)
+    _, cands, _ = bilinear_stage(y, 4, NONE_MARGIN["clipping"], True, dnoise.CODEC_NOISE, True, se=se)
+    clip = next(c for c in cands if c.effect == "clipping")
+    assert clip.score < -NONE_MARGIN["clipping"] and clip.parameters["clip_level"] == pytest.approx(level, abs=1e-4)
+    assert clip.parameters["clipped_values"] == int(at.sum())
+    _, cands, _ = bilinear_stage(y, 4, NONE_MARGIN["clipping"], True, dnoise.CODEC_NOISE, True,
+                                 se=np.full(y.shape, 0.0007))
+    assert next(c for c in cands if c.effect == "clipping").score == np.inf

@@ -36,6 +36,8 @@ Fleet: Dask is :func:`illumon_service.jobs.run_batch` (``--workers`` processes w
 process, :func:`illumon_service.jobs.fork_workers`, joining a ``LocalCluster``'s scheduler, tasks carrying only camera
 ids, the workers' and the cluster's start-up included); serial, run after it, is ``refit_camera`` camera after camera
 in this process (after, so that the forked workers do not inherit the per-process tables the serial refits build).
+``dask.distributed`` is imported before the Dask side's clock starts, as the serial side's modules are (its seconds
+printed apart).
 The per-camera seconds of both and the load average are printed: on a shared machine the speed-up is
 bounded by the CPUs other processes leave free, and a per-camera time that grows under Dask means the workers competed
 for CPUs.
@@ -293,6 +295,12 @@ def fleet(cameras: int, frames: int, workers: int, css, day, refl) -> dict:
         # the per-process tables of a refit before (the serial part would build them: `illumon refit --all` starts
         # without them, and so does each of its workers).
         load0 = os.getloadavg()[0]
+        # Like for like: the serial side's modules (illumon, the service's refit) are imported before its clock
+        # starts, so Dask's are too — once per process, as `illumon refit --all` or the service pays them at start
+        # (~0.2–0.3 s; printed apart). The import starts no thread, so the workers are still forked.
+        t = time.perf_counter()
+        import dask.distributed  # noqa: F401
+        out["dask_import_s"] = time.perf_counter() - t
         out["workers_forked"] = threading.active_count() == 1  # else run_batch spawns them (jobs.fork_workers)
         t = time.perf_counter()
         results = run_batch(settings, ids, n_workers=workers, progress=False)
@@ -355,7 +363,8 @@ def main() -> None:
     print(f"{fl['serial_s']:9.1f} {fl['dask_s']:8.1f} {fl['dask_workers']:8d} {fl['speedup']:9.2f} {fl['dask_failures']:9d} "
           f"{fl['serial_camera_s']:9.2f} {fl['dask_camera_s']:10.2f} {fl['load_serial']:8.1f} {fl['load_dask']:9.1f}")
     print("s/cam: mean seconds of one camera's refit inside refit_camera; load: 1-min load average during each part "
-          f"(other processes included; {os.cpu_count()} CPUs); workers {'forked' if fl['workers_forked'] else 'spawned'}")
+          f"(other processes included; {os.cpu_count()} CPUs); workers {'forked' if fl['workers_forked'] else 'spawned'}; "
+          f"dask.distributed imported before the Dask clock in {fl['dask_import_s']:.2f} s")
     RESULTS.mkdir(exist_ok=True)
     out = {"data": provenance, "cpus": os.cpu_count(), "one_camera": single, "fleet": fl}
     (RESULTS / "refit.json").write_text(json.dumps(out, indent=1) + "\n")

@@ -869,6 +869,11 @@ def _fit_fixed_camera(
         y, present, css, dm, rb, theta, coef, objective.w2 / noise_scale**2, mired_all[np.isfinite(mired_all)],
         flare=objective.flare,
     )
+    if reference_light is not None and chart_level["bent"] > 0.5:
+        model.identifiability["warnings"].append(
+            f"the scene's light disagrees with the chart's ({chart_level['shift_mired']:+.0f} MK⁻¹ in the chart's "
+            "frame): frames lit by lamps, not daylight, bent the patches' shared colours; every frame's temperature "
+            "was taken from the chart")
     for msg in model.identifiability["warnings"]:
         warnings.warn(msg, IdentifiabilityWarning, stacklevel=3)
     return model, res.info["theta"]

@@ -33,10 +33,21 @@ def test_whole_booth_read_from_the_chart(monkeypatch: pytest.MonkeyPatch) -> Non
     """The whole booth (D65 and D50 simulators, A, TL84, cool white; the chart known in the D65 frame), a Nikon
     D5100 nobody measured, its maker not in the prior: the scene alone bends every frame by ~−100 MK⁻¹ (22 700 K);
     the chart's reading (bent, probability > 0.5) brings the D65 frame to ~6 070 K and the lamps' median error within
-    20 MK⁻¹. The reading leaves a daylight-only booth (every frame the D65 simulator) combined, not replaced."""
+    20 MK⁻¹, and the model's warnings say why. The reading leaves a daylight-only booth (every frame the D65
+    simulator) combined, not replaced, and without that warning."""
     import lightbox
 
+    said: list[str] = []
+    identifiability = fit_mod.identifiability
+
+    def kept(*args, **kwargs):
+        out = identifiability(*args, **kwargs)
+        said.append(out)
+        return out
+
+    monkeypatch.setattr(fit_mod, "identifiability", kept)
     got = lightbox.run("Nikon_D5100", lightbox.HISTORIES["the whole booth"])
+    assert any("disagrees with the chart" in w for w in said[-1]["warnings"])  # the installer is told why
     assert 5900 <= got["cct"][0] <= 7200
     assert abs(np.median(got["mired_err"])) < 20
     assert got["frame0_in_95"]
@@ -51,6 +62,7 @@ def test_whole_booth_read_from_the_chart(monkeypatch: pytest.MonkeyPatch) -> Non
     monkeypatch.setattr(fit_mod, "_reference_level", recorded)
     lightbox.run("Nikon_D5100", lightbox.HISTORIES["D65 simulator only"])
     assert levels and levels[-1]["bent"] < 0.5
+    assert not any("disagrees with the chart" in w for w in said[-1]["warnings"])
     monkeypatch.setattr(calibration, "_chart_readings", lambda *args: None)
     before = lightbox.run("Nikon_D5100", lightbox.HISTORIES["the whole booth"])
     assert before["cct"][0] > 15000

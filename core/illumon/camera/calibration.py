@@ -408,17 +408,18 @@ def calibrate_scene_model(
     ids = [p for p in obs.patches if p in known]
     scene = obs.select_patches([p for p in obs.patches if p not in known]) if ids else obs
     extra = {}
-    if ids and kind == "chart" and sensitivities is None and primaries == "camera":
-        readings = _chart_readings(obs, ids, known, camera_prior)
-        if readings is not None:
-            extra["reference_light"] = readings
+    if ids:
+        values, frames, spectra, neutral = _reference_data(obs, scene, ids, known)
+        if kind == "chart" and sensitivities is None and primaries == "camera":
+            readings = _chart_readings(values, frames, spectra, camera_prior)
+            if readings is not None:
+                extra["reference_light"] = readings
     model, theta = fit(scene, base, **extra)
     theta_first = np.array(theta, dtype=float, copy=True)
     change, it = 0.0, 0
     s_scene = None  # how precisely a scene average set the channel scales (no reference, sensor RGB)
     glare_sd = 0.0  # how far the reference frames' glare leaves the camera white (log r/g, b/g)
     if ids:
-        values, frames, spectra, neutral = _reference_data(obs, scene, ids, known)
         dm = model.daylight_model()
         for it in range(1, max_iterations + 1):  # noqa: B007
             # The references are left out of the scene fit: a reference seen in one frame cannot tell a shift
@@ -466,17 +467,16 @@ def _reference_data(obs: Observations, scene: Observations, ids: list[str], know
     return values, frames, spectra, neutral
 
 
-def _chart_readings(obs: Observations, ids: list[str], known: Mapping[str, NDArray[np.float64]],
+def _chart_readings(values: NDArray[np.float64], frames: NDArray[np.int64], spectra: NDArray[np.float64],
                     prior: CameraPrior | None) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]] | None:
-    """Each frame that shows a chart: its light's reciprocal temperature read from the chart with the camera
-    integrated out (:func:`~illumon.camera.chart_light.chart_light_illumon`) — frame indices, readings (MK⁻¹) and
-    their standard deviations; ``None`` when no frame shows enough of it. Sensor RGB of a camera nobody measured:
-    rendered output's channels are no camera's sensitivities, and a measured camera's light is read with them."""
+    """Each reference frame (``frames``, :func:`_reference_data`'s, with its ``values`` and ``spectra``) that shows
+    enough of the chart: its light's reciprocal temperature read from the chart with the camera integrated out
+    (:func:`~illumon.camera.chart_light.chart_light_illumon`) — frame indices, readings (MK⁻¹) and their standard
+    deviations; ``None`` when no frame gives one. Sensor RGB of a camera nobody measured: rendered output's channels
+    are no camera's sensitivities, and a measured camera's light is read with them."""
     prior = prior if prior is not None else default_camera_prior()
-    values = np.asarray(obs.values, dtype=float)[:, [obs.patches.index(p) for p in ids]]
-    spectra = np.stack([known[p] for p in ids])
     found = []
-    for f in np.flatnonzero(np.all(np.isfinite(values), axis=-1).sum(axis=1) >= 6):
+    for f in frames[np.all(np.isfinite(values[frames]), axis=-1).sum(axis=1) >= 6]:
         reading = chart_light_illumon(values[f], spectra, prior)
         if reading is not None:
             found.append((int(f), reading.mired, reading.sd))

@@ -32,7 +32,7 @@ from ..camera.calibration import SCENE_AVERAGE_SD, calibrate_scene_model, prior_
 from ..camera.primaries import SRGB_BALANCE_SD, check_primaries, daylight_prior_for, srgb_sensitivities, to_srgb_primaries
 from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
-from ..observations import Observations
+from ..observations import Observations, sd_variance
 from ..priors import CameraPrior, ReflectanceBasis, reflectance_basis
 from ..priors.scene_average import scene_average_evidence
 from ..retrieval.common import censored, grey_world_mired, imaging_operators, white_level
@@ -598,13 +598,13 @@ def _reference_level(objective: _JointObjective, theta: NDArray[np.float64], coe
     ``σ_D`` the daylight prior's spread, probability :data:`BENT_PRIOR`: the charts' reading is taken). The more
     probable one is kept, as :mod:`.level` does; its standard deviation is the mixture's about that mean (the other
     hypothesis's share and distance widen it). Every frame's ``(mired)`` moves by the shift and the reflectances
-    are re-solved at it. ``y``, ``present``, ``extra``: the whole history on the fit's scale (the chart frames'
-    scene patches are estimated with the fitted reflectances). Returns ``θ``, the coefficients, the common
+    are re-solved at it. ``y``, ``present``, ``extra``: the chart frames' rows of the history on the fit's scale
+    (their scene patches are estimated with the fitted reflectances). Returns ``θ``, the coefficients, the common
     shift's standard deviation (mired, Duv: ``inf``, not constrained) and a summary for ``model.noise``."""
     css, dm, rb, rel, absolute = solver_args
     frames, mired, sd = reference_light
     solver = FrameSolver(css, coef, None, dm, rb, relative_error=rel, absolute_error=absolute, white=objective.white)
-    scene = solver.solve_theta(y[frames], present[frames], None if extra is None else extra[frames])[:, 0]
+    scene = solver.solve_theta(y, present, extra)[:, 0]
     var_c = sd**2 + CHART_LIGHT_MODEL_SD**2
     w = 1.0 / var_c
     d = float(np.sum(w * (mired - scene)) / np.sum(w))
@@ -810,9 +810,11 @@ def _fit_fixed_camera(
     flare_sd = objective.learn_flare_sd(theta, measured_noise(), formation.FLARE_SD, (FLARE_SD_MIN, FLARE_SD_MAX))
     anchored_sd, level = None, None
     if reference_light is not None:
+        chart = reference_light[0]  # the chart frames: their rows only, not a copy of the whole history
         theta, coef, anchored_sd, chart_level = _reference_level(
-            objective, theta, coef, (css, dm, rb, relative_error, absolute_error), y_all / scale, present_all,
-            None if obs.sd is None else obs.extra_variance() / scale**2, reference_light, measured_noise())
+            objective, theta, coef, (css, dm, rb, relative_error, absolute_error), y_all[chart] / scale,
+            present_all[chart], None if obs.sd is None else sd_variance(obs.sd[chart]) / scale**2, reference_light,
+            measured_noise())
     if balance_sd is not None or camera_level is not None:
         # the level static patches cannot see (:mod:`.level`): a rendered camera's balance, or sensor RGB's daylight
         # through the camera, against the scene average; the lamp-lit component's mixed lamps are half the prior's

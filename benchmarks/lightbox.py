@@ -74,7 +74,7 @@ def run(camera: str, frames: list[str], seed: int = 0) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         prior = camera_prior_without(camera)  # the camera under test is never in its prior
-        model = fit_scene_model(obs, None, known_reflectances=refs, camera_prior_mean=prior.mean, camera_prior=prior)
+        model = fit_scene_model(obs, None, known_reflectances=refs, camera_prior=prior)  # and its mean
     res, extra = model.history_estimate
     true = np.array([cct_duv_from_xy(xy_from_spectrum(x[None]))[0][0] for x in e])
     cct = np.asarray(res.cct, dtype=float)

@@ -74,7 +74,7 @@ from illumon.camera import (  # noqa: E402
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
-from illumon.priors import CameraPrior, build_camera_prior, max_normalise  # noqa: E402
+from illumon.priors import CameraPrior, build_camera_prior  # noqa: E402
 from illumon.retrieval.common import grey_world  # noqa: E402
 from illumon.simulation import (
     datasets,  # noqa: E402
@@ -97,10 +97,9 @@ def camera_prior_without(camera: str) -> CameraPrior:
 
 
 def prior_mean_without(camera: str) -> np.ndarray:
-    """Mean max-normalised sensitivities of the measured cameras of every other manufacturer."""
-    own = rawsim.manufacturer(camera)
-    cams = [max_normalise(datasets.load_camera(n)) for n in datasets.camera_names() if rawsim.manufacturer(n) != own]
-    return np.mean(cams, axis=0)
+    """Mean max-normalised sensitivities of the measured cameras of every other manufacturer (a copy of
+    :func:`camera_prior_without`'s mean)."""
+    return camera_prior_without(camera).mean.copy()
 
 
 def _light(camera: str, case: str, seed: int) -> tuple[str, np.random.Generator, np.ndarray]:
@@ -183,8 +182,7 @@ def run_case(sim: str, camera: str, case: str, seed: int, hours: float = 0.0, me
             model = fit_scene_model(obs, None, known_reflectances=known or None, primaries="srgb")
         else:
             model = fit_scene_model(obs, None, known_reflectances=known or None,
-                                    camera_prior_mean=prior_mean_without(camera),
-                                    camera_prior=camera_prior_without(camera))
+                                    camera_prior=camera_prior_without(camera))  # and its mean
     seconds = time.perf_counter() - t0
     res, extra = model.history_estimate
     err = angular_error_deg(res.white, white)

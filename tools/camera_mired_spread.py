@@ -34,7 +34,7 @@ from illumon.model.intervals import Z95  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
 from illumon.simulation import datasets  # noqa: E402
 from illumon.spectra import GRID  # noqa: E402
-from unmeasured import camera_prior_without, prior_mean_without  # noqa: E402
+from unmeasured import camera_prior_without  # noqa: E402
 
 FRAMES, PATCHES = 24, 10
 D65_MIRED = 1e6 / 6504.0
@@ -64,8 +64,7 @@ def run(camera: str, case: str, seed: int, primaries: str) -> dict:
             model = fit_scene_model(obs, None, known_reflectances=known or None, primaries="srgb")
         else:
             model = fit_scene_model(obs, None, known_reflectances=known or None,
-                                    camera_prior_mean=prior_mean_without(camera),
-                                    camera_prior=camera_prior_without(camera))
+                                    camera_prior=camera_prior_without(camera))  # and its mean
     res, extra = model.history_estimate
     true_mired = np.array([1e6 / colour.uv_to_CCT(colour.UCS_to_uv(colour.XYZ_to_UCS(
         colour.sd_to_XYZ(colour.SpectralDistribution(s, GRID.range())))), method="Ohno 2013")[0] for s in e])

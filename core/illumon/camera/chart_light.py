@@ -130,15 +130,20 @@ def chart_light_illumon(values: NDArray[np.float64], reflectances: NDArray[np.fl
         block = slice(c * prior.mean.shape[0], (c + 1) * prior.mean.shape[0])
         cov[block, block] += gain_sd**2 * np.outer(mu[block], mu[block])
 
-    def nll(mired: float) -> float:
+    # each used value's patch and channel (values stacked channel by channel, as ``x``)
+    channel = np.concatenate([np.full(int(use[:, c].sum()), c) for c in range(3)])
+    patch = np.concatenate([np.flatnonzero(use[:, c]) for c in range(3)])
+    n_wl = r.shape[1]
+    columns = channel[:, None] * n_wl + np.arange(n_wl)  # a value's sensitivity samples in the stacked vector
+    # veiling glare: one additive offset per channel over the whole chart, ± flare_sd of the channel's mean value
+    level = np.array([x[channel == c].mean() for c in range(3)])
+    glare = (channel[:, None] == channel[None, :]) * (flare_sd * level[channel]) ** 2
+
+    def nll(mired: float) -> tuple[float, float]:
+        """−log likelihood at ``mired`` and the values' squared Mahalanobis distance from the model there."""
         e = dm.spectra(np.array([[mired, 0.0]]))[0]
-        bw = r * e
-        rows = [bw[use[:, c]] for c in range(3)]
         a = np.zeros((x.size, mu.size))
-        n_wl, i = r.shape[1], 0
-        for c in range(3):
-            a[i:i + len(rows[c]), c * n_wl:(c + 1) * n_wl] = rows[c]
-            i += len(rows[c])
+        np.put_along_axis(a, columns, (r * e)[patch], axis=1)
         m = a @ mu
         scale = float(x @ m) / max(float(m @ m), 1e-300)
         a, m = a * scale, m * scale
@@ -147,16 +152,10 @@ def chart_light_illumon(values: NDArray[np.float64], reflectances: NDArray[np.fl
         qx, qm = cho_solve(fac, x), cho_solve(fac, m)
         xqx, xqm, mqm = float(x @ qx), float(x @ qm), float(m @ qm)
         b = (xqm + math.sqrt(xqm**2 + 4.0 * xqx * x.size)) / (2.0 * xqx)
-        fits.append(b * b * xqx - 2.0 * b * xqm + mqm)
-        return (-(x.size * math.log(b) - 0.5 * fits[-1])
-                + float(np.log(np.diag(fac[0])).sum()))
+        dist = b * b * xqx - 2.0 * b * xqm + mqm
+        return -(x.size * math.log(b) - 0.5 * dist) + float(np.log(np.diag(fac[0])).sum()), dist
 
-    # veiling glare: one additive offset per channel over the whole chart, ± FLARE_SD of the channel's mean value
-    channel = np.concatenate([np.full(int(use[:, c].sum()), c) for c in range(3)])
-    level = np.array([x[channel == c].mean() for c in range(3)])
-    glare = (channel[:, None] == channel[None, :]) * (flare_sd * level[channel]) ** 2
-    fits: list[float] = []  # each evaluation's Mahalanobis distance of the values from the model
-    coarse = np.array([nll(m) for m in MIRED_GRID])
+    coarse = np.array([nll(m)[0] for m in MIRED_GRID])
     p = np.exp(-(coarse - coarse.min()))
     p /= p.sum()
     mean = float(p @ MIRED_GRID)
@@ -166,9 +165,9 @@ def chart_light_illumon(values: NDArray[np.float64], reflectances: NDArray[np.fl
         return None
     step = float(MIRED_GRID[1] - MIRED_GRID[0])
     fine = np.arange(MIRED_GRID[i] - step, MIRED_GRID[i] + step + 1e-9, step / 10)
-    fits.clear()
-    j = int(np.argmin([nll(m) for m in fine]))
-    best, misfit = float(fine[j]), fits[j] / x.size
+    scored = [nll(m) for m in fine]
+    j = int(np.argmin([c for c, _ in scored]))
+    best, misfit = float(fine[j]), scored[j][1] / x.size
     if misfit > MAX_MISFIT:
         return None
     return ChartLight(best, max(sd, step / math.sqrt(12.0)), misfit)

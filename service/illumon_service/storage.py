@@ -65,6 +65,8 @@ __all__ = [
     "insert_columns",
     "upsert_dialect",
     "SPECTRUM_DTYPE",
+    "OBSOLETE_INDEXES",
+    "drop_obsolete_indexes",
     "spectrum_bytes",
     "spectra_bytes",
     "spectrum_values",
@@ -241,10 +243,13 @@ class Estimate(Base):
 
     __tablename__ = "estimates"
     __table_args__ = (Index("ix_estimates_camera_taken", "camera_id", "taken_at", "frame_id"),)
-    """"Latest estimate", "latest N" and ``since``/``until`` of one camera: an index range scan in time order."""
+    """"Latest estimate", "latest N" and ``since``/``until`` of one camera: an index range scan in time order. Every
+    query of the table names its camera or its frames, and this index also serves the camera's cascade: it is the
+    table's one index besides the key (older versions' ``ix_estimates_camera_id`` and ``ix_estimates_taken_at`` are
+    dropped, :data:`OBSOLETE_INDEXES`; each cost a refit's write step a B-tree of 100k entries)."""
     frame_id: Mapped[int] = mapped_column(ForeignKey("frames.id", ondelete="CASCADE"), primary_key=True)
-    camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"), index=True)
-    taken_at: Mapped[datetime] = mapped_column(DateTime(timezone=True), index=True)
+    camera_id: Mapped[int] = mapped_column(ForeignKey("cameras.id", ondelete="CASCADE"))
+    taken_at: Mapped[datetime] = mapped_column(DateTime(timezone=True))
     cct_k: Mapped[float] = mapped_column(Float)
     duv: Mapped[float] = mapped_column(Float)
     xy: Mapped[list] = mapped_column(JSON)
@@ -383,6 +388,7 @@ def make_engine(url: str) -> Engine:
     Base.metadata.create_all(engine)
     add_missing_columns(engine)
     add_missing_indexes(engine)
+    drop_obsolete_indexes(engine)
     return engine
 
 
@@ -431,6 +437,27 @@ def add_missing_indexes(engine: Engine) -> list[str]:
                     raise
             added.append(str(index.name))
     return added
+
+
+OBSOLETE_INDEXES = {"estimates": ("ix_estimates_camera_id", "ix_estimates_taken_at")}
+"""Indexes older versions created that no query needs any more, by table (a prefix of another index, or an index no
+query uses), dropped from their databases at start-up (:func:`drop_obsolete_indexes`)."""
+
+
+def drop_obsolete_indexes(engine: Engine) -> list[str]:
+    """Drop the :data:`OBSOLETE_INDEXES` an older database has; returns the names of those dropped. Idempotent; safe
+    when several processes race (``DROP INDEX IF EXISTS``)."""
+    from sqlalchemy import inspect
+
+    dropped = []
+    for table, names in OBSOLETE_INDEXES.items():
+        have = {ix["name"] for ix in inspect(engine).get_indexes(table)}
+        for name in names:
+            if name in have:
+                with engine.begin() as conn:
+                    conn.execute(text(f"DROP INDEX IF EXISTS {name}"))
+                dropped.append(name)
+    return dropped
 
 
 def upsert_dialect(dialect: Dialect) -> bool:

@@ -134,6 +134,8 @@ def _run(tmp_path, monkeypatch, database_url: str | None, old: bool) -> None:
     with TestClient(create_app(settings)) as c:  # start-up brings the schema up to date
         engine = create_engine(url)
         assert "spectrum_f32" in {col["name"] for col in inspect(engine).get_columns("estimates")}
+        # the older version's indexes no query needs are gone, the (camera, time) one is there
+        assert {ix["name"] for ix in inspect(engine).get_indexes("estimates")} == {"ix_estimates_camera_taken"}
         if old:
             got = _illuminant(c, cid, token, 0)
             assert got["frame_id"] == ids[0] and same_value(got["spectrum"]["values"], stored)
@@ -187,3 +189,26 @@ def test_spectrum_bytes() -> None:
 
 
 from test_faults import pg_url  # noqa: E402, F401 - a throwaway PostgreSQL cluster, or skip
+
+
+def test_estimate_queries_use_the_camera_time_index(tmp_path) -> None:
+    """Without ``ix_estimates_camera_id`` and ``ix_estimates_taken_at`` every query of a camera's estimates (latest,
+    nearest, a time range, the camera's frame ids, its count, its deletion) is a search of the (camera, time) index."""
+    from illumon_service.storage import make_engine
+
+    engine = make_engine(f"sqlite:///{tmp_path}/db.sqlite")
+    at = "'2025-06-01 00:00:00.000000'"
+    queries = [
+        "SELECT * FROM estimates WHERE camera_id = 1 ORDER BY taken_at DESC, frame_id DESC LIMIT 1",
+        f"SELECT * FROM estimates WHERE camera_id = 1 AND taken_at <= {at} ORDER BY taken_at DESC LIMIT 1",
+        f"SELECT * FROM estimates WHERE camera_id = 1 AND taken_at > {at} ORDER BY taken_at ASC LIMIT 1",
+        f"SELECT * FROM estimates WHERE camera_id = 1 AND taken_at >= {at} ORDER BY taken_at, frame_id LIMIT 10",
+        "SELECT frame_id FROM estimates WHERE camera_id = 1",
+        "SELECT count(*) FROM estimates WHERE camera_id = 1",
+        "DELETE FROM estimates WHERE camera_id = 1",
+    ]
+    with engine.connect() as conn:
+        for q in queries:
+            plan = " ".join(str(r[-1]) for r in conn.execute(text(f"EXPLAIN QUERY PLAN {q}")))
+            assert "USING" in plan and "ix_estimates_camera_taken" in plan and "TEMP B-TREE" not in plan, (q, plan)
+    engine.dispose()

@@ -3,7 +3,9 @@
 SQLite under the data dir by default, in WAL mode with ``synchronous=FULL``: a transaction is on disk when ``commit``
 returns, and routes commit before they answer, so a 2xx means committed. Any SQLAlchemy URL (PostgreSQL) works too.
 Arrays are stored as JSON lists (small: 61 samples at most), written with :func:`json.dumps` (or given as JSON text,
-:class:`StoredJSON`) and read with orjson (:func:`json_loads`).
+:class:`StoredJSON`) and read with orjson (:func:`json_loads`) — but an estimate's spectrum, stored as float32 bytes
+(:attr:`Estimate.spectrum_f32`, :func:`spectrum_values`). An older database is brought up to date at start-up
+(:func:`make_engine`: tables, nullable columns and indexes added, obsolete indexes dropped).
 """
 
 from __future__ import annotations

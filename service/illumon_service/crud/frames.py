@@ -141,7 +141,8 @@ def history_chunks(session: Session, camera_id: int, limit: int, chunk: int) -> 
     ``patches``, ``applied_gains``, ``registration``, ``patch_sd``), newest first, ``chunk`` rows at a time (one
     query whose rows are fetched as they are used), so that a refit never holds the whole history as rows."""
     q = select(*_HISTORY_TEXT).where(Frame.camera_id == camera_id).order_by(*_NEWEST_FIRST).limit(limit)
-    yield from session.execute(q.execution_options(yield_per=chunk)).partitions()
+    # the session's connection: Core rows as the driver fetches them, without the ORM's loading of each row
+    yield from session.connection().execute(q.execution_options(yield_per=chunk)).partitions()
 
 
 def frames_not_read(session: Session, camera_id: int, read_ids: Collection[int]) -> list[Row]:

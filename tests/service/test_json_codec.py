@@ -176,4 +176,42 @@ def test_insert_columns_on_postgresql(pg_url) -> None:  # noqa: F811 - the fixtu
     assert len(got[0]) == 5 and all(same_value(list(a), list(b)) for a, b in zip(got[0], got[1], strict=True))
 
 
+def test_datetime_text_is_sqlalchemy_sqlite_text() -> None:
+    """``insert_columns``' datetime text (``_datetime_text``) is SQLAlchemy's SQLite ``DATETIME`` text: naive and aware
+    times, microseconds or none, years before 1000; other values (``None``, a date) through the processor itself."""
+    import random
+    from datetime import datetime, timedelta, timezone
+
+    from illumon_service.storage import _datetime_text, _writes_datetime_text
+    from sqlalchemy import DateTime
+    from sqlalchemy.dialects import sqlite
+
+    dialect = sqlite.dialect()
+    process = DateTime(timezone=True).dialect_impl(dialect).bind_processor(dialect)
+    assert _writes_datetime_text(process)
+    rng = random.Random(1)
+    zones = [None, timezone.utc, timezone(timedelta(hours=5, minutes=30)), timezone(timedelta(hours=-8))]
+    for _ in range(20_000):
+        t = datetime(rng.randint(1, 9999), rng.randint(1, 12), rng.randint(1, 28), rng.randint(0, 23),
+                     rng.randint(0, 59), rng.randint(0, 59), rng.choice([0, rng.randint(0, 999_999)]),
+                     rng.choice(zones))
+        assert _datetime_text(t) == process(t), t
+    assert not _writes_datetime_text(lambda v: v.isoformat())  # another format: the processor's own text
+
+
+def test_json_dicts_equal_orjson_row_by_row() -> None:
+    """A refit's intervals cut out of one orjson text of the list are each row's own orjson text; a ``None`` row
+    (no intervals) keeps the rows' texts one call each."""
+    import orjson
+    from illumon_service.estimation.batch import _json_dicts
+
+    rng = np.random.default_rng(2)
+    bits = rng.integers(0, 2**64, 400, dtype=np.uint64).view(np.float64)
+    values = [float(v) for v in bits if np.isfinite(v)] + [0.0, -0.0, 5e-324, 1e300]
+    rows = [{"cct_lo": values[i], "duv_hi": None, "gain_lo": values[i : i + 3], "n": 3} for i in range(len(values) - 3)]
+    assert _json_dicts(rows) == [orjson.dumps(r).decode() for r in rows]
+    assert _json_dicts([*rows[:2], None]) == [orjson.dumps(rows[0]).decode(), orjson.dumps(rows[1]).decode(), None]
+    assert _json_dicts([]) == []
+
+
 from test_faults import pg_url  # noqa: E402, F401 - a throwaway PostgreSQL cluster, or skip

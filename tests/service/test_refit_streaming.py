@@ -170,7 +170,12 @@ def test_estimate_rows_as_json_text_read_back_as_the_rows():
     plain = [r for c in est.rows(5) for r in c]
     text = [r for c in est.rows(5, json_text=True) for r in c]
     assert [fid for fid, _ in text] == [fid for fid, _ in plain]
-    assert isinstance(text[0][1]["spectrum"], StoredJSON) and isinstance(text[2][1]["spectrum"], list)
+    assert isinstance(text[0][1]["gains_rgb"], StoredJSON) and isinstance(text[5][1]["gains_rgb"], list)
+    # the spectrum as float32 bytes (its NaN kept), the older versions' JSON column null
+    assert text[0][1]["spectrum"] == "null" and plain[0][1]["spectrum"] is None
+    spectra = [np.frombuffer(t["spectrum_f32"], dtype="<f4") for _, t in text[:n]]
+    np.testing.assert_array_equal(spectra, res.spectra.astype(np.float32))
+    assert np.isnan(spectra[2][7])
     assert isinstance(text[0][1]["intervals"], StoredJSON) and text[1][1]["intervals"] is not None
     for (_, t), (_, p) in zip(text, plain, strict=True):
         assert list(t) == list(p)

@@ -10,10 +10,10 @@ from sqlalchemy import delete, select, update
 from sqlalchemy.engine import Row
 from sqlalchemy.orm import Session
 
-from ..storage import Estimate, Frame, as_utc, insert_columns, upsert_dialect, utcnow
+from ..storage import Estimate, Frame, as_utc, insert_columns, spectrum_values, upsert_dialect, utcnow
 
 __all__ = [
-    "estimate_non_daylight", "estimate_out", "nearest_estimate", "estimates_between", "latest_estimate",
+    "estimate_non_daylight", "estimate_out", "estimate_spectrum", "nearest_estimate", "estimates_between", "latest_estimate",
     "camera_history", "recent_estimate_ids", "estimate_rows", "estimated_frame_ids", "add_estimate",
     "replace_estimates", "drop_estimates", "WRITE_CHUNK",
 ]
@@ -63,15 +63,21 @@ def nearest_estimate(session: Session, camera_id: int, at: datetime | None) -> E
     return min(cands, key=lambda c: abs((as_utc(c.taken_at) - at).total_seconds())) if cands else None
 
 
-_COLUMNS = [c for c in Estimate.__table__.columns if c.name != "spectrum"]
-"""Every column of an estimate but its spectrum: rows rather than ORM objects, a third of the time for 1000 rows
-(:func:`estimate_out` reads them alike)."""
+_COLUMNS = [c for c in Estimate.__table__.columns if c.name not in ("spectrum", "spectrum_f32")]
+"""Every column of an estimate but its spectrum (either form): rows rather than ORM objects, a third of the time for
+1000 rows (:func:`estimate_out` reads them alike)."""
+
+
+def estimate_spectrum(e: Estimate) -> list[float] | None:
+    """The estimate's spectrum (61 values, 100 at 560 nm): float32 bytes as floats where the row has them, the JSON
+    list of rows older versions wrote as it was (:func:`.storage.spectrum_values`)."""
+    return spectrum_values(e)
 
 
 def estimates_between(session: Session, camera_id: int, since: datetime | None, until: datetime | None,
                       limit: int) -> Sequence[Row]:
     """A camera's estimates in ``since`` ≤ taken_at ≤ ``until``, oldest first, at most ``limit``: a range of the
-    (camera, time) index. Rows with every column of :class:`.storage.Estimate` by name but its ``spectrum``."""
+    (camera, time) index. Rows with every column of :class:`.storage.Estimate` by name but its spectrum."""
     q = select(*_COLUMNS).where(Estimate.camera_id == camera_id)
     if since is not None:
         q = q.where(Estimate.taken_at >= as_utc(since))
@@ -135,6 +141,8 @@ def replace_estimates(session: Session, chunks: Iterable[Mapping[str, Sequence]]
     value of (``model``), and ``created_at`` is the chunk's time. SQLAlchemy Core statements within the caller's
     transaction:
 
+    * the spectrum's two columns (``spectrum``, the JSON of older versions, and ``spectrum_f32``) are both written,
+      the one a chunk does not give as ``None`` (the JSON column's ``null``);
     * per chunk one executemany INSERT (:func:`.storage.insert_columns`); when a frame of the chunk has a stored
       estimate, its rows replace the stored ones (``replace_on``: ``INSERT … ON CONFLICT (frame_id) DO UPDATE`` of
       every column, where :func:`.storage.upsert_dialect`: SQLite ≥ 3.24, PostgreSQL; elsewhere a DELETE of the
@@ -162,8 +170,10 @@ def replace_estimates(session: Session, chunks: Iterable[Mapping[str, Sequence]]
         replace = any(i in stored for i in ids)
         if replace and not upsert:
             session.execute(delete(estimates).where(estimates.c.frame_id.in_(ids)))
+        # both forms of the spectrum always set: a row replaced keeps none of the other form
+        unset = {k: None for k in ("spectrum", "spectrum_f32") if k not in columns and k not in constants}
         written += insert_columns(session, estimates, {**columns, "frame_id": ids},
-                                  {**constants, "camera_id": camera_id, "created_at": utcnow()},
+                                  {**constants, **unset, "camera_id": camera_id, "created_at": utcnow()},
                                   replace_on=("frame_id",) if replace and upsert else None)
         clear = [i for i in ids if i in marked]
         if clear:

@@ -141,15 +141,19 @@ def history_chunks(session: Session, camera_id: int, limit: int, chunk: int) -> 
     ``patches``, ``applied_gains``, ``registration``, ``patch_sd``), newest first, ``chunk`` rows at a time (one
     query whose rows are fetched as they are used), so that a refit never holds the whole history as rows."""
     q = select(*_HISTORY_TEXT).where(Frame.camera_id == camera_id).order_by(*_NEWEST_FIRST).limit(limit)
-    yield from session.execute(q.execution_options(yield_per=chunk)).partitions()
+    # the session's connection: Core rows as the driver fetches them, without the ORM's loading of each row
+    yield from session.connection().execute(q.execution_options(yield_per=chunk)).partitions()
 
 
 def frames_not_read(session: Session, camera_id: int, read_ids: Collection[int]) -> list[Row]:
     """The camera's frames other than ``read_ids`` (the columns a refit reads), in id order: those stored since it
     read. The camera's frame ids are read from the (camera, time) index and the others fetched by key, rather than
     one statement naming every id read."""
-    ids = np.array(session.scalars(select(Frame.id).where(Frame.camera_id == camera_id)).all(), dtype=np.int64)
-    others = np.setdiff1d(ids, np.fromiter(read_ids, dtype=np.int64, count=len(read_ids))).tolist()
+    result = session.connection().execute(select(Frame.id).where(Frame.camera_id == camera_id)).scalars()
+    ids = np.fromiter(result, dtype=np.int64)
+    read = np.fromiter(read_ids, dtype=np.int64, count=len(read_ids))
+    # numpy takes a lookup table over the ids' range where it is small (dense ids) rather than a sort (setdiff1d)
+    others = np.unique(ids[~np.isin(ids, read)]).tolist() if ids.size else []
     out: list[Row] = []
     for start in range(0, len(others), ID_CHUNK):
         out += session.execute(select(*_HISTORY).where(Frame.id.in_(others[start : start + ID_CHUNK]))

@@ -1,6 +1,7 @@
 """A refit's estimates kept as the estimator's arrays (:class:`RefitEstimates`), their rows built a chunk at a time
 when they are written: 100k frames' estimates as row dicts took ~300 MB (61 spectrum floats each as Python objects),
-as arrays ~60 MB."""
+as arrays ~60 MB. The spectra are written as float32 bytes (:func:`~..storage.spectra_bytes`), the other arrays as
+JSON text."""
 
 from __future__ import annotations
 
@@ -12,13 +13,17 @@ import orjson
 from illumon.retrieval.common import RetrievalResult
 from numpy.typing import NDArray
 
-from ..storage import StoredJSON
+from ..storage import StoredJSON, spectra_bytes
 from .frame import json_safe
 
 __all__ = ["RefitEstimates", "json_rows"]
 
-_JSON_ARRAYS = ("xy", "white_rgb", "gains_rgb", "spectrum")
-"""The estimate's columns that hold an array (JSON lists)."""
+_JSON_ARRAYS = ("xy", "white_rgb", "gains_rgb")
+"""The estimate's columns that hold an array as JSON lists (the spectrum is float32 bytes, ``spectrum_f32``)."""
+
+_JSON_NULL = StoredJSON("null")
+"""The older versions' JSON ``spectrum`` column of a row written now (JSON ``null``: the column is ``NOT NULL`` in
+their databases), as the text the engine writes for ``None``."""
 
 
 def json_rows(values: NDArray[np.float64]) -> list[StoredJSON | list[float]]:
@@ -43,6 +48,16 @@ _WHOLE_WIDTH = 8
 rows, the spectrum's 61 values, cutting the text apart cost more than the calls it saves)."""
 
 
+def _json_dicts(rows: list[dict | None]) -> list[StoredJSON | None]:
+    """Each dict of ``rows`` as its orjson text (:class:`~..storage.StoredJSON`), ``None`` as ``None``. Dicts whose
+    values hold no dict (numbers, ``None``, lists of them): cut out of one orjson text of the whole list where no row
+    is ``None`` (one call instead of one a row; the same texts)."""
+    if rows and all(type(v) is dict for v in rows):
+        text = orjson.dumps(rows)  # [{…},{…}]: no value holds a brace
+        return list(map(StoredJSON, text[1:-1].replace(b"},{", b"}\n{").decode().split("\n")))
+    return [StoredJSON(orjson.dumps(iv).decode()) if iv is not None else None for iv in rows]
+
+
 @dataclass
 class _Part:
     result: RetrievalResult
@@ -54,7 +69,8 @@ class _Part:
     source: str
 
 
-_ROW_KEYS = ("cct_k", "duv", "xy", "white_rgb", "gains_rgb", "confidence", "spectrum", "intervals", "source")
+_ROW_KEYS = ("cct_k", "duv", "xy", "white_rgb", "gains_rgb", "confidence", "spectrum", "spectrum_f32", "intervals",
+             "source")
 """An estimate row's columns, in :func:`~.frame.estimate_row`'s order."""
 
 
@@ -66,11 +82,12 @@ def _part_columns(p: _Part, index: NDArray[np.intp], json_text: bool) -> dict[st
     r = p.result
     conf = p.confidence[index]
     conf = np.where(np.isnan(conf), conf, np.clip(conf, 0.0, 1.0)).tolist()
-    arrays = {"xy": r.xy, "white_rgb": r.white, "gains_rgb": r.gains, "spectrum": r.spectra}
+    arrays = {"xy": r.xy, "white_rgb": r.white, "gains_rgb": r.gains}
     as_json = json_rows if json_text else (lambda a: a.tolist())
     columns = {"frame_id": [str(r.frames[i]) for i in index.tolist()], "cct_k": r.cct[index].tolist(),
                "duv": r.duv[index].tolist(), **{k: as_json(arrays[k][index]) for k in _JSON_ARRAYS},
-               "confidence": conf}
+               "confidence": conf, "spectrum": [_JSON_NULL if json_text else None] * index.size,
+               "spectrum_f32": spectra_bytes(r.spectra[index])}
     if p.extra is None:
         columns["intervals"] = [None] * index.size
     else:
@@ -82,8 +99,7 @@ def _part_columns(p: _Part, index: NDArray[np.intp], json_text: bool) -> dict[st
         lists = [v.tolist() if np.isfinite(v).all() else json_safe(v.tolist()) for v in intervals.values()]
         rows = [dict(zip(intervals, values, strict=True)) or None for values in zip(*lists, strict=True)] if lists \
             else [None] * index.size
-        columns["intervals"] = [StoredJSON(orjson.dumps(iv).decode()) if iv is not None else None for iv in rows] \
-            if json_text else rows
+        columns["intervals"] = _json_dicts(rows) if json_text else rows
     columns["source"] = [p.source] * index.size
     return columns
 

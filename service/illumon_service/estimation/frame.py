@@ -12,6 +12,7 @@ import numpy as np
 from illumon.retrieval.common import RetrievalResult
 from illumon.spectra import WAVELENGTHS
 
+from ..storage import spectrum_bytes
 from .history import build_observations
 from .models import load_model, model_path, solver_for
 
@@ -25,7 +26,8 @@ def _floats(row: Any) -> list[float]:
 
 
 def estimate_row(result: RetrievalResult, i: int, confidence: float, source: str, intervals: dict | None = None) -> dict:
-    """The stored form of estimate ``i`` of ``result`` (a refit writes 100k of these: no per-value numpy scalars)."""
+    """The stored form of estimate ``i`` of ``result`` (a refit writes 100k of these: no per-value numpy scalars); its
+    spectrum as float32 bytes (:attr:`~..storage.Estimate.spectrum_f32`)."""
     c = float(confidence)
     return {
         "cct_k": float(result.cct[i]),
@@ -34,7 +36,8 @@ def estimate_row(result: RetrievalResult, i: int, confidence: float, source: str
         "white_rgb": _floats(result.white[i]),
         "gains_rgb": _floats(result.gains[i]),
         "confidence": min(max(c, 0.0), 1.0),  # np.clip's answer (NaN stays NaN)
-        "spectrum": _floats(result.spectra[i]),
+        "spectrum": None,  # older versions' JSON column: JSON null (NOT NULL in their databases)
+        "spectrum_f32": spectrum_bytes(result.spectra[i]),
         "intervals": intervals,
         "source": source,
     }

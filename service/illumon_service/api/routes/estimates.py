@@ -28,6 +28,6 @@ def get_illuminant(camera_id: int, session: SessionDep, principal: PrincipalDep,
     camera_for(session, principal, camera_id)
     e = nearest_estimate(session, camera_id, at)
     out = crud.estimate_out(e)
-    out["spectrum"] = {"wavelength_nm": GRID_WAVELENGTHS, "values": e.spectrum}
+    out["spectrum"] = {"wavelength_nm": GRID_WAVELENGTHS, "values": crud.estimate_spectrum(e)}
     out["intervals"] = e.intervals
     return out

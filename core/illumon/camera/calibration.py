@@ -105,12 +105,8 @@ spread *before* the scene's average colour moved the channel scales and stated 0
 within 1°; a grey card's 0.005 stated 0.99 where 96 % were; a chart on rendered output (``chart+rendered``,
 ``chart+awb``) stated 0.46–0.49 where 25–38 % were. The priors, the lamp test and the estimates keep the physical
 values (``camera["white_sd_log"]``); measured cameras and unlisted regimes keep theirs with ``a = k = 1``.
-``("camera", "none")``: ``a`` and ``s`` are further scaled by :func:`scene_calibrated_scale` of the scene the channel
-scales were read from (chosen on scenes of measured surfaces, for which the scale is 1): the ratio is that of the
-channel scales' posterior spreads, which is what ``s`` states. Scaling ``a`` alone left ``s`` capping the confidence
-over pale surfaces (development ``pale`` case, ``python benchmarks/unmeasured.py --split dev --seeds 1 --cases
-pale,raw+lamps``: stated 0.57 where 84–86 % were within 1°, now 0.77–0.78; ``raw+lamps`` 0.49 where 53–55 % were,
-now 0.57–0.58; ``none`` and ``none+matrix`` unchanged)."""
+``("camera", "none")``: ``a`` is further scaled by :func:`scene_calibrated_scale` of the scene the channel scales
+were read from (chosen on scenes of measured surfaces, for which the scale is 1)."""
 
 
 CLIPPED = 0.995
@@ -558,8 +554,7 @@ def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bo
     scale, stated, glare_k = ((1.0, white_sd, 1.0) if measured
                               else STATED_WHITE_SPREAD.get((primaries, kind), (1.0, white_sd, 1.0)))
     if scene_sd is not None:  # the scene average calibrated the channel scales: as well as it read
-        scene_scale = scene_calibrated_scale(scene_sd)
-        scale, stated = scale * scene_scale, stated * scene_scale
+        scale *= scene_calibrated_scale(scene_sd)
     model.noise["model_error"] = dict(model.noise.get("model_error", {}),
                                       camera_log_gain=math.hypot(stated, glare_k * glare_sd),
                                       camera_glare_log=glare_sd, camera_mired=mired_sd, laplace_scale=scale)

@@ -167,8 +167,7 @@ def test_no_reference_confidence_follows_the_scene_average(shared_data):
     """Sensor RGB of a camera nobody measured, no reference: the scene average sets its channel scales, as precisely
     as the scene reads (:func:`illumon.camera.calibration.scene_calibrated_scale`). Over pale surfaces (walls,
     roads: ``benchmarks/unmeasured.py`` case ``pale``) the whites are mostly within 1° and the confidence says so
-    (0.18 stated where 84 % were, before; 0.57 with only the Laplace part scaled, 0.77 with the camera's own spread
-    scaled too); over measured surfaces (case ``none``) it stays what it was chosen at."""
+    (0.18 stated where 84 % were, before); over measured surfaces (case ``none``) it stays what it was chosen at."""
     import unmeasured
     from illumon.camera.calibration import SCENE_AVERAGE_SD, scene_calibrated_scale
 
@@ -187,5 +186,5 @@ def test_no_reference_confidence_follows_the_scene_average(shared_data):
             s += np.asarray(extra["confidence"]).tolist()
             w += (angular_error_deg(res.white, white) < 1.0).tolist()
         stated[case], within[case] = np.mean(s), np.mean(w)
-    assert stated["none"] < 0.2 and stated["pale"] > 0.7, stated  # 0.81 (0.6 with the camera's own spread unscaled)
+    assert stated["none"] < 0.2 and stated["pale"] > 0.5, stated
     assert within["pale"] > 0.9, within  # these two pale histories: every frame within 1°

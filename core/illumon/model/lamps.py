@@ -12,8 +12,12 @@ frame, two hypotheses about its camera white ``u`` (log r/g, log b/g):
 
 The data that speak to ``u`` without any daylight assumption are the frame's scene average: a static scene's average
 colour is common to every frame, so ``u_f = log chroma(mean of frame f's patches) − a`` with one unknown offset ``a``
-for the whole history (gray-world made Bayesian, Buchsbaum 1980). ``a`` has a Gaussian prior: achromatic on average,
-spread :data:`SCENE_OFFSET_SD` (plus the camera's own white uncertainty for a camera nobody measured). The posterior
+for the whole history (gray-world made Bayesian, Buchsbaum 1980). A coloured scene's average follows its light's white
+only in part, so each frame's average is first moved to where it would be if the light changed it as the reference
+daylight does (:func:`_light_shift`, from the reflectances the model learned). ``a`` has a Gaussian prior: the mean
+measured surface's colour under the reference daylight, towards grey as far as the patches barely differ
+(:func:`expected_scene_offset`), spread :data:`SCENE_OFFSET_SD` (plus the camera's own white uncertainty for a camera
+nobody measured); without a model (:func:`lamp_posterior` called on its own) grey. The posterior
 over ``a`` (a grid) given every frame's two-hypothesis mixture gives each frame's posterior ``non_daylight``; in a
 history with daylight frames those pin ``a``, so a frame whose light departs from them as no daylight does is called a
 lamp. In a history at least half daylight, the frames whose data favour a lamp are left out of the reflectance fit
@@ -50,6 +54,8 @@ from scipy.special import ndtri
 from .._blas import single_blas_thread
 from .._tables import cached_arrays
 from ..daylight import CIEDaylight
+from ..priors import reflectance_basis
+from ..priors.scene_average import expected_offset, scene_average_evidence
 from .general import cie_lamp_spectra, general_whites
 
 __all__ = [
@@ -59,6 +65,7 @@ __all__ = [
     "FRAME_SD",
     "LampPosterior",
     "lamp_posterior",
+    "expected_scene_offset",
     "frame_lamp_posterior",
     "lamp_population",
     "history_lamps",
@@ -78,11 +85,17 @@ greys known, the whole set's median stays 3.0° either way."""
 LAMP_PRIOR = 0.25
 """Prior probability that a frame's light is not daylight: the largest (on a 0.05 grid) that flags no frame of the
 development daylight photographs (the ``sony-dolp`` chart sets of ``benchmarks/real.py``; at 0.3 one frame of each
-rendered set reached 0.54–0.56), ``python benchmarks/lamps.py``."""
+rendered set reached 0.54–0.56), ``python benchmarks/lamps.py``. Kept when the offset's prior moved to where measured
+surfaces average and the light's own move was taken out (:func:`expected_scene_offset`, :func:`_light_shift`), though
+those photographs then read 0.02–0.19 and 0.35 would leave them 0.30: at 0.35 rendered daylight read as sensor RGB
+through a camera nobody measured (``tests/core/diagnosis/test_lamp_history.py``, development ``benchmarks/unmeasured.py``
+histories) had 12–30 of 30 frames judged lamp-lit on their own (0–2 at 0.25), and the sun frames of the clean
+development ``imgsim`` history 3141 reached 0.499 (0.38 at 0.25)."""
 
 SCENE_OFFSET_SD = 0.155
-"""Standard deviation (log r/g and b/g) of a scene's average colour about grey under the same light
-(:data:`illumon.camera.calibration.SCENE_AVERAGE_SD`: 280 development scenes of ten measured surfaces)."""
+"""Standard deviation (log r/g and b/g) of a scene's average colour about the mean measured surface's under the same
+light (:data:`illumon.camera.calibration.SCENE_AVERAGE_SD`: 280 development scenes of ten measured surfaces;
+:func:`expected_scene_offset`)."""
 
 FRAME_SD = 0.02
 """Per-frame scatter (log units) of a frame's scene-average chroma about ``u + a``: measurement noise, parts of the
@@ -498,7 +511,8 @@ def lamp_posterior(
         Prior probability that a frame is not daylight.
     offset_prior
         Mean and standard deviation (2,) of the scene-average offset ``a``; default grey ± :data:`SCENE_OFFSET_SD`
-        widened by ``camera_sd``. A model fitted on a history passes the history's posterior here to judge new frames.
+        widened by ``camera_sd``; a fitted model's history passes :func:`expected_scene_offset` with that spread
+        (:func:`history_lamps`), or the level's offset for a history lit only by lamps.
     grid
         Points per axis of the grid over ``a`` (±4 prior standard deviations).
 
@@ -645,6 +659,9 @@ def _compute_frame_means(model, obs, theta: NDArray[np.float64], solver=None) ->
         solver = model.solver(mi)
     values = np.asarray(obs.values, dtype=float)
     out = np.empty((len(values), 3))
+    # a history lit only by lamps (:mod:`.level`): its fitted daylights are not its lights, so they say nothing of how
+    # the light moved the scene's average (its whites are the scene average's less the level's offset)
+    lamps_only = float(model.noise.get("unbalanced", 0.0) or 0.0) > 0.5 and "level" in model.noise
     for i in range(0, len(values), _MEANS_CHUNK):  # frame by frame: chunks bound the F × P × 3 temporaries
         y = values[i:i + _MEANS_CHUNK, oj] / model.noise["scale"]
         th = np.where(np.isfinite(theta[i:i + _MEANS_CHUNK]), theta[i:i + _MEANS_CHUNK], 0.0)
@@ -655,7 +672,38 @@ def _compute_frame_means(model, obs, theta: NDArray[np.float64], solver=None) ->
         part = filled.mean(axis=1)
         # a scene average needs most of the scene: frames showing fewer than half the model's patches have none
         part[(present.sum(axis=1) < 2) | (present.sum(axis=1) < 0.5 * len(model.patches))] = np.nan
+        if not lamps_only:
+            # the scene's colour relative to the light as it is under the reference daylight (:func:`_light_shift`)
+            shift = _light_shift(solver, b, pred.mean(axis=1), np.all(np.isfinite(theta[i:i + _MEANS_CHUNK]), axis=1))
+            part[:, 0] *= np.exp(-shift[:, 0])
+            part[:, 2] *= np.exp(-shift[:, 1])
         out[i:i + _MEANS_CHUNK] = part
+    return out
+
+
+def _light_shift(solver, b: NDArray[np.float64], predicted: NDArray[np.float64],  # noqa: ANN001
+                 valid: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """How far each frame's light moves the scene's average colour relative to its white, beyond the move it makes
+    under the reference daylight (the prior's mean reciprocal temperature, on the locus): ``a(θ_f) − a(θ_ref)``
+    (F × 2, log r/g and b/g), ``a(θ)`` the log chromaticity of the scene average the model predicts under the
+    daylight ``θ`` (``predicted``: its mean over the patches; ``b``: the frames' illuminant weights) less that of the
+    white under it (``b @ solver.w``). 0 for frames without a fitted light (``valid`` false).
+
+    The lamp test takes a frame's scene average as its white times one offset common to every frame
+    (:func:`lamp_posterior`): true of a grey scene, not of a coloured one, whose average follows the light's white
+    only in part. A yellow scene's average under blue sky moved 0.13 (r/g) and 0.20 (b/g) less than the sky's white
+    from direct sun (development ``imgsim`` clean histories 3049 and 3141 of ``benchmarks/diagnose.py --split dev``,
+    measured Granada skies of 5 400–25 000 K): one offset then fitted either the sun frames or the sky frames, and
+    the other read as lamps. The reflectances the model learned say how the average moves; removing that move leaves
+    the offset the same in every daylight frame. A lamp-lit frame keeps whatever its lamp adds beyond the daylight of
+    its fitted temperature, as before. Not applied to a history lit only by lamps (:func:`_compute_frame_means`):
+    there the fitted daylights are no frame's light (a development ``raw+lamps`` history of a camera nobody measured,
+    ``tests/core/model/test_level.py``, Nikon D80 8 101: its whites 1.04° off with the move, 0.81° gray-world)."""
+    out = np.zeros((len(b), 2))
+    ref = solver._b(np.array([solver.prior_mean[0]]), np.zeros(1), np.zeros(1))
+    ref_a = _log_chroma((ref @ solver.G.reshape(-1, 3).T).reshape(1, -1, 3).mean(axis=1)) - _log_chroma(ref @ solver.w)
+    ok = valid & np.all(predicted > 0, axis=1) & np.all(b @ solver.w > 0, axis=1)
+    out[ok] = _log_chroma(predicted[ok]) - _log_chroma(b[ok] @ solver.w) - ref_a
     return out
 
 
@@ -669,8 +717,12 @@ def history_lamps(model, obs) -> NDArray[np.float64]:
     res = model.history_estimate[0] if model.history_estimate is not None else model.estimate(obs)[0]
     means = _frame_means(model, obs, np.asarray(res.info["theta"], dtype=float))
     unbalanced = _unbalanced_offset(model, means)
-    lp = lamp_posterior(means, model.sensitivities, model.daylight_model(),
-                        camera_sd=float(model.camera.get("white_sd_log", 0.0) or 0.0), offset_prior=unbalanced)
+    camera_sd = float(model.camera.get("white_sd_log", 0.0) or 0.0)
+    prior = unbalanced
+    if prior is None:
+        s = math.hypot(SCENE_OFFSET_SD, camera_sd)
+        prior = (expected_scene_offset(model, obs), np.array([s, s]))
+    lp = lamp_posterior(means, model.sensitivities, model.daylight_model(), camera_sd=camera_sd, offset_prior=prior)
     nd = lp.non_daylight
     # lamps only: no daylight frame pins the offset, the lamps' own colours are not the CIE populations' (filtered
     # lamps on the development scenes moved it 1.5 sd from the scene average's reading): the level's offset is kept
@@ -678,6 +730,26 @@ def history_lamps(model, obs) -> NDArray[np.float64]:
     model.lamps = {"offset": offset.tolist(), "offset_sd": offset_sd.tolist(), "prior": LAMP_PRIOR,
                    "daylight_frames": int(np.sum(np.isfinite(nd) & (nd < 0.5))), "frames": int(len(nd))}
     return nd
+
+
+def expected_scene_offset(model, obs) -> NDArray[np.float64]:  # noqa: ANN001
+    """Where the scene-average offset ``a`` of :func:`lamp_posterior` is expected for the history ``obs`` (log r/g,
+    b/g): the mean measured surface's colour relative to the white under the reference daylight of
+    :func:`_light_shift` (the daylight prior's mean reciprocal temperature) through the model's camera, moved towards
+    grey as far as the patches barely differ in colour (:func:`illumon.priors.scene_average.expected_offset`, the
+    prior the calibration's and the level's scene-average readings use).
+
+    The test once expected grey. Scenes of measured surfaces average warmer than grey (the development reflectance
+    sets: +0.19…+0.25 log r/g, −0.19…−0.24 b/g through the development cameras under D55, 1.3 × that through a
+    rendering matrix), so the offset was pulled towards blue and every frame read warmer than its light: direct sun
+    then sat among the warm lamps (development ``imgsim`` clean history 3049: 17 of 26 frames above 0.5)."""
+    index = {p: i for i, p in enumerate(model.patches)}
+    cols = [j for j, p in enumerate(obs.patches) if p in index]
+    v = np.asarray(obs.values, dtype=float)[:, cols]
+    average = scene_average_evidence(v, np.all(np.isfinite(v), axis=-1))
+    dm = model.daylight_model()
+    light = dm.spectra(np.array([[dm.mired_mean, 0.0]]))
+    return expected_offset(light, np.asarray(model.sensitivities, dtype=float), model.reflectance_basis(), average)[0]
 
 
 def _unbalanced_offset(model, means: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
@@ -820,12 +892,18 @@ def frame_verdicts(model, obs) -> NDArray[np.float64] | None:  # noqa: ANN001
 def non_daylight_column(obs, sensitivities: NDArray[np.float64], daylight: CIEDaylight | None = None) -> NDArray[np.float64]:
     """``non_daylight`` of every frame of ``obs`` for a measured camera without a scene model (``illumon estimate``'s
     multi-frame retrieval): the frames' averages over the patches seen in every frame (all patches where fewer than
-    two are), judged with the default priors (:func:`lamp_posterior`). 0 where a frame has no average."""
+    two are), judged with the default priors (:func:`lamp_posterior`), the scene-average offset expected where
+    :func:`expected_scene_offset` expects it (through the shipped reflectance prior). 0 where a frame has no
+    average."""
     v = np.asarray(obs.values, dtype=float)
     present = np.all(np.isfinite(v), axis=-1)
     common = present.all(axis=0)
     cols = common if common.sum() >= 2 else np.ones(v.shape[1], dtype=bool)
     with np.errstate(invalid="ignore"):
         means = np.nanmean(np.where(present[..., None], v, np.nan)[:, cols], axis=1)
-    nd = lamp_posterior(means, sensitivities, daylight).non_daylight
+    dm = daylight or CIEDaylight()
+    css = np.asarray(sensitivities, dtype=float)
+    average = scene_average_evidence(v[:, cols], present[:, cols])
+    expected = expected_offset(dm.spectra(np.array([[dm.mired_mean, 0.0]])), css, reflectance_basis(), average)[0]
+    nd = lamp_posterior(means, css, dm, offset_prior=(expected, np.full(2, SCENE_OFFSET_SD))).non_daylight
     return np.where(np.isfinite(nd), nd, 0.0)

@@ -12,10 +12,8 @@ frame, two hypotheses about its camera white ``u`` (log r/g, log b/g):
 
 The data that speak to ``u`` without any daylight assumption are the frame's scene average: a static scene's average
 colour is common to every frame, so ``u_f = log chroma(mean of frame f's patches) − a`` with one unknown offset ``a``
-for the whole history (gray-world made Bayesian, Buchsbaum 1980). A coloured scene's average follows its light's white
-only in part, so each frame's average is first moved to where it would be if the light changed it as the reference
-daylight does (:func:`_light_shift`, from the reflectances the model learned). ``a`` has a Gaussian prior: the mean
-measured surface's colour under the reference daylight, towards grey as far as the patches barely differ
+for the whole history (gray-world made Bayesian, Buchsbaum 1980). ``a`` has a Gaussian prior: the mean measured
+surface's colour under the daylight prior's mean, towards grey as far as the patches barely differ
 (:func:`expected_scene_offset`), spread :data:`SCENE_OFFSET_SD` (plus the camera's own white uncertainty for a camera
 nobody measured); without a model (:func:`lamp_posterior` called on its own) grey. The posterior
 over ``a`` (a grid) given every frame's two-hypothesis mixture gives each frame's posterior ``non_daylight``; in a
@@ -86,11 +84,10 @@ LAMP_PRIOR = 0.25
 """Prior probability that a frame's light is not daylight: the largest (on a 0.05 grid) that flags no frame of the
 development daylight photographs (the ``sony-dolp`` chart sets of ``benchmarks/real.py``; at 0.3 one frame of each
 rendered set reached 0.54–0.56), ``python benchmarks/lamps.py``. Kept when the offset's prior moved to where measured
-surfaces average and the light's own move was taken out (:func:`expected_scene_offset`, :func:`_light_shift`), though
-those photographs then read 0.02–0.19 and 0.35 would leave them 0.30: at 0.35 rendered daylight read as sensor RGB
-through a camera nobody measured (``tests/core/diagnosis/test_lamp_history.py``, development ``benchmarks/unmeasured.py``
-histories) had 12–30 of 30 frames judged lamp-lit on their own (0–2 at 0.25), and the sun frames of the clean
-development ``imgsim`` history 3141 reached 0.499 (0.38 at 0.25)."""
+surfaces average (:func:`expected_scene_offset`), though those photographs then read 0.02–0.19 and 0.35 would leave
+them 0.30: at 0.35 the test of a camera nobody measured judged 12–30 of 30 frames of rendered daylight read as sensor
+RGB lamp-lit on their own (0–2 at 0.25; ``tests/core/diagnosis/test_lamp_history.py``, development
+``benchmarks/unmeasured.py`` histories)."""
 
 SCENE_OFFSET_SD = 0.155
 """Standard deviation (log r/g and b/g) of a scene's average colour about the mean measured surface's under the same
@@ -659,9 +656,6 @@ def _compute_frame_means(model, obs, theta: NDArray[np.float64], solver=None) ->
         solver = model.solver(mi)
     values = np.asarray(obs.values, dtype=float)
     out = np.empty((len(values), 3))
-    # a history lit only by lamps (:mod:`.level`): its fitted daylights are not its lights, so they say nothing of how
-    # the light moved the scene's average (its whites are the scene average's less the level's offset)
-    lamps_only = float(model.noise.get("unbalanced", 0.0) or 0.0) > 0.5 and "level" in model.noise
     for i in range(0, len(values), _MEANS_CHUNK):  # frame by frame: chunks bound the F × P × 3 temporaries
         y = values[i:i + _MEANS_CHUNK, oj] / model.noise["scale"]
         th = np.where(np.isfinite(theta[i:i + _MEANS_CHUNK]), theta[i:i + _MEANS_CHUNK], 0.0)
@@ -672,39 +666,9 @@ def _compute_frame_means(model, obs, theta: NDArray[np.float64], solver=None) ->
         part = filled.mean(axis=1)
         # a scene average needs most of the scene: frames showing fewer than half the model's patches have none
         part[(present.sum(axis=1) < 2) | (present.sum(axis=1) < 0.5 * len(model.patches))] = np.nan
-        if not lamps_only:
-            # the scene's colour relative to the light as it is under the reference daylight (:func:`_light_shift`)
-            shift = _light_shift(solver, b, pred.mean(axis=1), np.all(np.isfinite(theta[i:i + _MEANS_CHUNK]), axis=1))
-            part[:, 0] *= np.exp(-shift[:, 0])
-            part[:, 2] *= np.exp(-shift[:, 1])
         out[i:i + _MEANS_CHUNK] = part
     return out
 
-
-def _light_shift(solver, b: NDArray[np.float64], predicted: NDArray[np.float64],  # noqa: ANN001
-                 valid: NDArray[np.bool_]) -> NDArray[np.float64]:
-    """How far each frame's light moves the scene's average colour relative to its white, beyond the move it makes
-    under the reference daylight (the prior's mean reciprocal temperature, on the locus): ``a(θ_f) − a(θ_ref)``
-    (F × 2, log r/g and b/g), ``a(θ)`` the log chromaticity of the scene average the model predicts under the
-    daylight ``θ`` (``predicted``: its mean over the patches; ``b``: the frames' illuminant weights) less that of the
-    white under it (``b @ solver.w``). 0 for frames without a fitted light (``valid`` false).
-
-    The lamp test takes a frame's scene average as its white times one offset common to every frame
-    (:func:`lamp_posterior`): true of a grey scene, not of a coloured one, whose average follows the light's white
-    only in part. A yellow scene's average under blue sky moved 0.13 (r/g) and 0.20 (b/g) less than the sky's white
-    from direct sun (development ``imgsim`` clean histories 3049 and 3141 of ``benchmarks/diagnose.py --split dev``,
-    measured Granada skies of 5 400–25 000 K): one offset then fitted either the sun frames or the sky frames, and
-    the other read as lamps. The reflectances the model learned say how the average moves; removing that move leaves
-    the offset the same in every daylight frame. A lamp-lit frame keeps whatever its lamp adds beyond the daylight of
-    its fitted temperature, as before. Not applied to a history lit only by lamps (:func:`_compute_frame_means`):
-    there the fitted daylights are no frame's light (a development ``raw+lamps`` history of a camera nobody measured,
-    ``tests/core/model/test_level.py``, Nikon D80 8 101: its whites 1.04° off with the move, 0.81° gray-world)."""
-    out = np.zeros((len(b), 2))
-    ref = solver._b(np.array([solver.prior_mean[0]]), np.zeros(1), np.zeros(1))
-    ref_a = _log_chroma((ref @ solver.G.reshape(-1, 3).T).reshape(1, -1, 3).mean(axis=1)) - _log_chroma(ref @ solver.w)
-    ok = valid & np.all(predicted > 0, axis=1) & np.all(b @ solver.w > 0, axis=1)
-    out[ok] = _log_chroma(predicted[ok]) - _log_chroma(b[ok] @ solver.w) - ref_a
-    return out
 
 
 _MEANS_CHUNK = 8192
@@ -734,8 +698,8 @@ def history_lamps(model, obs) -> NDArray[np.float64]:
 
 def expected_scene_offset(model, obs) -> NDArray[np.float64]:  # noqa: ANN001
     """Where the scene-average offset ``a`` of :func:`lamp_posterior` is expected for the history ``obs`` (log r/g,
-    b/g): the mean measured surface's colour relative to the white under the reference daylight of
-    :func:`_light_shift` (the daylight prior's mean reciprocal temperature) through the model's camera, moved towards
+    b/g): the mean measured surface's colour relative to the white under the daylight prior's mean reciprocal
+    temperature (on the locus) through the model's camera, moved towards
     grey as far as the patches barely differ in colour (:func:`illumon.priors.scene_average.expected_offset`, the
     prior the calibration's and the level's scene-average readings use).
 

@@ -12,8 +12,10 @@ frame, two hypotheses about its camera white ``u`` (log r/g, log b/g):
 
 The data that speak to ``u`` without any daylight assumption are the frame's scene average: a static scene's average
 colour is common to every frame, so ``u_f = log chroma(mean of frame f's patches) − a`` with one unknown offset ``a``
-for the whole history (gray-world made Bayesian, Buchsbaum 1980). ``a`` has a Gaussian prior: achromatic on average,
-spread :data:`SCENE_OFFSET_SD` (plus the camera's own white uncertainty for a camera nobody measured). The posterior
+for the whole history (gray-world made Bayesian, Buchsbaum 1980). ``a`` has a Gaussian prior: the mean measured
+surface's colour under the daylight prior's mean, towards grey as far as the patches barely differ
+(:func:`expected_scene_offset`), spread :data:`SCENE_OFFSET_SD` (plus the camera's own white uncertainty for a camera
+nobody measured); without a model (:func:`lamp_posterior` called on its own) grey. The posterior
 over ``a`` (a grid) given every frame's two-hypothesis mixture gives each frame's posterior ``non_daylight``; in a
 history with daylight frames those pin ``a``, so a frame whose light departs from them as no daylight does is called a
 lamp. In a history at least half daylight, the frames whose data favour a lamp are left out of the reflectance fit
@@ -50,6 +52,8 @@ from scipy.special import ndtri
 from .._blas import single_blas_thread
 from .._tables import cached_arrays
 from ..daylight import CIEDaylight
+from ..priors import reflectance_basis
+from ..priors.scene_average import expected_offset, scene_average_evidence
 from .general import cie_lamp_spectra, general_whites
 
 __all__ = [
@@ -59,6 +63,7 @@ __all__ = [
     "FRAME_SD",
     "LampPosterior",
     "lamp_posterior",
+    "expected_scene_offset",
     "frame_lamp_posterior",
     "lamp_population",
     "history_lamps",
@@ -78,11 +83,16 @@ greys known, the whole set's median stays 3.0° either way."""
 LAMP_PRIOR = 0.25
 """Prior probability that a frame's light is not daylight: the largest (on a 0.05 grid) that flags no frame of the
 development daylight photographs (the ``sony-dolp`` chart sets of ``benchmarks/real.py``; at 0.3 one frame of each
-rendered set reached 0.54–0.56), ``python benchmarks/lamps.py``."""
+rendered set reached 0.54–0.56), ``python benchmarks/lamps.py``. Kept when the offset's prior moved to where measured
+surfaces average (:func:`expected_scene_offset`), though those photographs then read 0.02–0.19 and 0.35 would leave
+them 0.30: at 0.35 the test of a camera nobody measured judged 12–30 of 30 frames of rendered daylight read as sensor
+RGB lamp-lit on their own (0–2 at 0.25; ``tests/core/diagnosis/test_lamp_history.py``, development
+``benchmarks/unmeasured.py`` histories)."""
 
 SCENE_OFFSET_SD = 0.155
-"""Standard deviation (log r/g and b/g) of a scene's average colour about grey under the same light
-(:data:`illumon.camera.calibration.SCENE_AVERAGE_SD`: 280 development scenes of ten measured surfaces)."""
+"""Standard deviation (log r/g and b/g) of a scene's average colour about the mean measured surface's under the same
+light (:data:`illumon.camera.calibration.SCENE_AVERAGE_SD`: 280 development scenes of ten measured surfaces;
+:func:`expected_scene_offset`)."""
 
 FRAME_SD = 0.02
 """Per-frame scatter (log units) of a frame's scene-average chroma about ``u + a``: measurement noise, parts of the
@@ -498,7 +508,8 @@ def lamp_posterior(
         Prior probability that a frame is not daylight.
     offset_prior
         Mean and standard deviation (2,) of the scene-average offset ``a``; default grey ± :data:`SCENE_OFFSET_SD`
-        widened by ``camera_sd``. A model fitted on a history passes the history's posterior here to judge new frames.
+        widened by ``camera_sd``; a fitted model's history passes :func:`expected_scene_offset` with that spread
+        (:func:`history_lamps`), or the level's offset for a history lit only by lamps.
     grid
         Points per axis of the grid over ``a`` (±4 prior standard deviations).
 
@@ -659,6 +670,7 @@ def _compute_frame_means(model, obs, theta: NDArray[np.float64], solver=None) ->
     return out
 
 
+
 _MEANS_CHUNK = 8192
 """Frames :func:`_frame_means` averages at once."""
 
@@ -669,8 +681,12 @@ def history_lamps(model, obs) -> NDArray[np.float64]:
     res = model.history_estimate[0] if model.history_estimate is not None else model.estimate(obs)[0]
     means = _frame_means(model, obs, np.asarray(res.info["theta"], dtype=float))
     unbalanced = _unbalanced_offset(model, means)
-    lp = lamp_posterior(means, model.sensitivities, model.daylight_model(),
-                        camera_sd=float(model.camera.get("white_sd_log", 0.0) or 0.0), offset_prior=unbalanced)
+    camera_sd = float(model.camera.get("white_sd_log", 0.0) or 0.0)
+    prior = unbalanced
+    if prior is None:
+        s = math.hypot(SCENE_OFFSET_SD, camera_sd)
+        prior = (expected_scene_offset(model, obs), np.array([s, s]))
+    lp = lamp_posterior(means, model.sensitivities, model.daylight_model(), camera_sd=camera_sd, offset_prior=prior)
     nd = lp.non_daylight
     # lamps only: no daylight frame pins the offset, the lamps' own colours are not the CIE populations' (filtered
     # lamps on the development scenes moved it 1.5 sd from the scene average's reading): the level's offset is kept
@@ -678,6 +694,26 @@ def history_lamps(model, obs) -> NDArray[np.float64]:
     model.lamps = {"offset": offset.tolist(), "offset_sd": offset_sd.tolist(), "prior": LAMP_PRIOR,
                    "daylight_frames": int(np.sum(np.isfinite(nd) & (nd < 0.5))), "frames": int(len(nd))}
     return nd
+
+
+def expected_scene_offset(model, obs) -> NDArray[np.float64]:  # noqa: ANN001
+    """Where the scene-average offset ``a`` of :func:`lamp_posterior` is expected for the history ``obs`` (log r/g,
+    b/g): the mean measured surface's colour relative to the white under the daylight prior's mean reciprocal
+    temperature (on the locus) through the model's camera, moved towards
+    grey as far as the patches barely differ in colour (:func:`illumon.priors.scene_average.expected_offset`, the
+    prior the calibration's and the level's scene-average readings use).
+
+    The test once expected grey. Scenes of measured surfaces average warmer than grey (the development reflectance
+    sets: +0.19…+0.25 log r/g, −0.19…−0.24 b/g through the development cameras under D55, 1.3 × that through a
+    rendering matrix), so the offset was pulled towards blue and every frame read warmer than its light: direct sun
+    then sat among the warm lamps (development ``imgsim`` clean history 3049: 17 of 26 frames above 0.5)."""
+    index = {p: i for i, p in enumerate(model.patches)}
+    cols = [j for j, p in enumerate(obs.patches) if p in index]
+    v = np.asarray(obs.values, dtype=float)[:, cols]
+    average = scene_average_evidence(v, np.all(np.isfinite(v), axis=-1))
+    dm = model.daylight_model()
+    light = dm.spectra(np.array([[dm.mired_mean, 0.0]]))
+    return expected_offset(light, np.asarray(model.sensitivities, dtype=float), model.reflectance_basis(), average)[0]
 
 
 def _unbalanced_offset(model, means: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
@@ -820,12 +856,18 @@ def frame_verdicts(model, obs) -> NDArray[np.float64] | None:  # noqa: ANN001
 def non_daylight_column(obs, sensitivities: NDArray[np.float64], daylight: CIEDaylight | None = None) -> NDArray[np.float64]:
     """``non_daylight`` of every frame of ``obs`` for a measured camera without a scene model (``illumon estimate``'s
     multi-frame retrieval): the frames' averages over the patches seen in every frame (all patches where fewer than
-    two are), judged with the default priors (:func:`lamp_posterior`). 0 where a frame has no average."""
+    two are), judged with the default priors (:func:`lamp_posterior`), the scene-average offset expected where
+    :func:`expected_scene_offset` expects it (through the shipped reflectance prior). 0 where a frame has no
+    average."""
     v = np.asarray(obs.values, dtype=float)
     present = np.all(np.isfinite(v), axis=-1)
     common = present.all(axis=0)
     cols = common if common.sum() >= 2 else np.ones(v.shape[1], dtype=bool)
     with np.errstate(invalid="ignore"):
         means = np.nanmean(np.where(present[..., None], v, np.nan)[:, cols], axis=1)
-    nd = lamp_posterior(means, sensitivities, daylight).non_daylight
+    dm = daylight or CIEDaylight()
+    css = np.asarray(sensitivities, dtype=float)
+    average = scene_average_evidence(v[:, cols], present[:, cols])
+    expected = expected_offset(dm.spectra(np.array([[dm.mired_mean, 0.0]])), css, reflectance_basis(), average)[0]
+    nd = lamp_posterior(means, css, dm, offset_prior=(expected, np.full(2, SCENE_OFFSET_SD))).non_daylight
     return np.where(np.isfinite(nd), nd, 0.0)

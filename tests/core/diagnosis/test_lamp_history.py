@@ -208,16 +208,17 @@ def _rendered_as_sensor_rgb(case: str, seed: int, sim: str, camera: str):
 
 @pytest.mark.parametrize(("case", "seed", "sim", "camera", "given_frames"), [
     ("none+rendered", 1, "illumon", "Nikon_D200", 12),
-    ("none+rendered", 2, "rawsim", "Nikon_Z6_ssf", 28),
-    ("none+awb", 2, "illumon", "Nikon_D200", 30),
+    ("none+rendered", 2, "rawsim", "Nikon_Z6_ssf", 0),
+    ("none+awb", 2, "illumon", "Nikon_D200", 0),
 ])
 def test_rendered_daylight_read_as_sensor_rgb_is_not_off_locus(shared_data, case, seed, sim, camera, given_frames):
     """Daylight through a raw converter, read as sensor RGB with the clipped sRGB functions given: the measured
     camera's test judges a day's sky changes lamps frame by frame (those functions' daylight locus is compressed:
     log r/g moves 0.20 between 11 000 and 5 600 K, 0.34 through the unclipped functions), and main named off-locus
-    light from those frames (``found_by: frames``, ``given_frames`` of 30; in the last two the unmeasured test's
+    light from those frames (``found_by: frames``, 12, 28 and 30 of 30; in the last two the unmeasured test's
     history probability 0.52–0.55 lent every frame its value). A frame is lamp-lit only when both tests judge it so
-    on its own: none is named."""
+    on its own: none is named. Since the measured test's scene-average offset is expected where measured surfaces
+    average (:func:`illumon.model.lamps.expected_scene_offset`) it judges ``given_frames`` lamp-lit: 12, 0, 0."""
     from illumon.diagnosis.fit import _lamp_lit_history, _level_verdict
     from illumon.model.lamps import frame_verdicts
 
@@ -258,3 +259,27 @@ def test_rendered_lamps_read_as_sensor_rgb_are_off_locus_with_every_frame(shared
     lamp = _lamp_lit_history(obs, _clipped_srgb(), [], "camera")
     assert lamp is not None and lamp.parameters["found_by"] == "scene_level"
     assert lamp.parameters["frames"] == obs.frames and min(lamp.parameters["non_daylight"]) >= 0.5
+
+
+def test_a_day_of_sun_and_blue_sky_is_not_lamp_lit(shared_data):
+    """Development clean ``imgsim`` history 3049 (``benchmarks/diagnose.py --split dev --sims imgsim --effects
+    none``): measured Granada daylight, direct sun (5 400–5 900 K) and blue sky (7 800–25 000 K), over a yellow scene
+    rendered through a colour matrix (its average 0.25 / −0.86 log r/g, b/g from the light's white). The measured
+    camera's per-frame lamp test judged its sun frames lamp-lit (17 of 26 frames ≥ 0.5, up to 0.76) and the diagnosis
+    named ``off_locus_illuminant`` (found by frames): the test's scene-average offset expected grey, so the offset
+    was drawn towards blue and every frame read warmer than its light — direct sun among the warm lamps. Expected
+    where measured surfaces average (:func:`illumon.model.lamps.expected_scene_offset`): none, at most 0.39."""
+    imgsim = pytest.importorskip("imgsim")
+    rawsim = pytest.importorskip("rawsim")
+    from illumon.diagnosis.fit import _level_verdict
+    from illumon.model.lamps import frame_verdicts
+
+    seed = 3049
+    cam = rawsim.DEV_CAMERAS[(seed - 3000) % len(rawsim.DEV_CAMERAS)]
+    h = imgsim.hide_effect_img("none", cam, seed, split="dev")
+    obs, css = h.observations, h.sensitivities
+    model, _, _ = _level_verdict(obs, css, "camera")
+    nd = frame_verdicts(model, obs)
+    assert np.max(nd) < 0.45, nd
+    d = diagnose(obs, css, reestimate=False)
+    assert "off_locus_illuminant" not in [e["effect"] for e in d.effects], d.effects

@@ -39,7 +39,7 @@ from ..retrieval.common import censored, grey_world_mired, imaging_operators, wh
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
 from .intervals import MODEL_ERROR, widen_cct_intervals
-from .lamps import LAMP_PRIOR, apply_lamps, history_lamps, lamp_population
+from .lamps import LAMP_PRIOR, HistoryJudgement, apply_lamps, history_lamps, lamp_population
 from .level import anchor_common_level, common_level_posterior, daylight_level, mean_log_chroma, scene_reading
 from .scene import SceneModel
 from .solver import FrameSolver, flare_scales
@@ -236,13 +236,13 @@ def fit_scene_model(
                                      {**kwargs, **extra})
 
     model = fit_once(obs)
-    judged = False
+    judged = None
     if not known and sensitivities is not None:  # an unmeasured camera's lamp verdicts are not to be acted on
         model, judged = _refit_without_lamp_frames(model, obs, fit_once)
     scene = obs.select_patches([p for p in obs.patches if p not in known]) if known else obs
-    if not judged:  # (a model the rounds judged last holds the verdicts of ``obs`` already: the same numbers)
-        history_lamps(model, scene)
-    apply_lamps(model, scene, *model.history_estimate)
+    if judged is None:  # (a model the rounds judged last holds the verdicts of ``obs`` already: the same numbers)
+        judged = history_lamps(model, scene)
+    apply_lamps(model, scene, *model.history_estimate, means=judged.means)
     res = model.history_estimate[0] if model.history_estimate else None
     msg = self_balance_warning(obs.times, 1e6 / np.asarray(res.cct, dtype=float)) if res is not None else None
     if msg:
@@ -306,7 +306,7 @@ def _fit_camera_and_scene(o: Observations, sensitivities: NDArray[np.float64] | 
 
 
 def _refit_without_lamp_frames(model: SceneModel, obs: Observations,
-                               fit_once: Callable[..., SceneModel]) -> tuple[SceneModel, bool]:
+                               fit_once: Callable[..., SceneModel]) -> tuple[SceneModel, HistoryJudgement | None]:
     """Light that is not daylight (:mod:`.lamps`): lamp-lit frames are left out of the reflectance fit when enough
     daylight frames remain to learn every patch; every frame is then judged against the refitted scene (a few rounds:
     frames forced onto daylight bend the reflectances, which can hide other lamp-lit frames). The rounds stop when
@@ -319,31 +319,32 @@ def _refit_without_lamp_frames(model: SceneModel, obs: Observations,
     where it estimated its daylight frames and then every frame again; the previous model's estimate is let go
     before the refit, so no two estimates of the whole history are held at once.
 
-    Returns the model and whether its lamp verdicts (``model.lamps``, :func:`~.lamps.history_lamps` of ``obs``) are
-    set already: true when the rounds stopped on judging it, false when the last round refitted it (issue 29: the
-    judgement repeated after the rounds cost ~30 ms of a 2k-frame refit)."""
+    Returns the model and its judgement (:func:`~.lamps.history_lamps` of ``obs``, its verdicts in ``model.lamps``)
+    when the rounds stopped on judging it, ``None`` when the last round refitted it (issue 29: the judgement repeated
+    after the rounds cost ~30 ms of a 2k-frame refit; its frame means are reused by :func:`~.lamps.apply_lamps`)."""
     lamp = np.zeros(len(obs.frames), dtype=bool)
     judged = np.full(len(obs.frames), np.nan)  # the non_daylight that chose ``lamp``
     for _ in range(LAMP_ROUNDS):
         # out of the reflectance fit, once some frame is more likely lit by a lamp than not: every frame whose
         # data favour a lamp (Bayes factor > 1, posterior above the prior) — a daylight frame lost costs little,
         # a lamp-lit frame kept bends every reflectance. A history with no lamp-lit frame is fitted as before.
-        nd = history_lamps(model, obs)
+        judgement = history_lamps(model, obs)
+        nd = judgement.non_daylight
         new = nd > (LAMP_PRIOR if np.any(nd > 0.5) else 1.0)
         if not lamp.any() and model.fit_frames is not None and np.mean(nd[model.fit_frames] > 0.5) < MIN_LAMP_SHARE:
-            return model, True  # too few of the frames the reflectances were learned from are lamp-lit: daylight
+            return model, judgement  # too few of the frames the reflectances were learned from are lamp-lit: daylight
         day = obs.subset(np.flatnonzero(~new))
         if (np.array_equal(new, lamp) or not new.any() or (~new).sum() < max(2, 0.5 * len(new))
                 or not np.all(day.present.any(axis=0))):
-            return model, True  # nothing (new) to leave out, or a history judged mostly lamp-lit: no daylight
+            return model, judgement  # nothing (new) to leave out, or a history judged mostly lamp-lit: no daylight
         moved = new != lamp
         if lamp.any() and np.all(np.abs(np.concatenate([nd[moved], judged[moved]]) - LAMP_PRIOR) <= BORDERLINE):
-            return model, True  # only coin flips moved: the model judged is the refit of an equally good set
+            return model, judgement  # only coin flips moved: the model judged is the refit of an equally good set
         lamp, judged = new, nd
         model.history_estimate = None  # judged: freed before the refit's estimate of every frame
         rows = np.flatnonzero(~new)
         model = fit_once(day, estimate=obs, rows=rows)
-    return model, False
+    return model, None
 
 
 class _JointObjective:

@@ -38,10 +38,10 @@ from __future__ import annotations
 
 import math
 import threading
-import weakref
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -66,6 +66,7 @@ __all__ = [
     "expected_scene_offset",
     "frame_lamp_posterior",
     "lamp_population",
+    "HistoryJudgement",
     "history_lamps",
     "apply_lamps",
     "log_chroma_confidence",
@@ -619,36 +620,9 @@ def _frame_means(model, obs, theta: NDArray[np.float64], solver=None) -> NDArray
     model's prediction under the frame's fitted daylight (so every frame averages the same scene). ``solver``: the
     model's :class:`~.solver.FrameSolver` over these patches (``model.solver`` of them, in their order) when the
     caller has one: only its operators ``G`` and ``b(θ)`` are read, which depend on nothing else (issue 29: a new
-    frame's estimate built a second solver here, ~15 % of its time). The last answer is kept (:data:`_LAST_MEANS`)
-    and given again, as a copy, for the same model, observations and an equal ``θ``."""
-    theta = np.asarray(theta, dtype=float)
-    with _MEANS_LOCK:
-        last = _LAST_MEANS[0]
-        if last is not None and last[0]() is model and last[1]() is obs and np.array_equal(last[2], theta,
-                                                                                               equal_nan=True):
-            return last[3].copy()
-    out = _compute_frame_means(model, obs, theta, solver)
-    try:
-        kept = (weakref.ref(model), weakref.ref(obs), theta.copy(), out.copy())
-    except TypeError:  # an object without weak references: not kept
-        return out
-    with _MEANS_LOCK:
-        _LAST_MEANS[0] = kept
-    return out
-
-
-_LAST_MEANS: list[tuple | None] = [None]
-"""The last :func:`_frame_means` answer: (weak references to its model and observations, its ``θ``, the means). A
-fit judges its history's frames (:func:`history_lamps`) and then applies the verdicts to the same estimate
-(:func:`apply_lamps`): the same model, observations and ``θ``, whose means were computed twice (~0.15 s of a
-100k-frame refit). Only the same objects and an equal ``θ`` are answered from it (the model and observations are
-not changed between the two calls: the means depend on nothing else — the patches, noise scale and operators of the
-model, the values of the observations)."""
-_MEANS_LOCK = threading.Lock()
-
-
-def _compute_frame_means(model, obs, theta: NDArray[np.float64], solver=None) -> NDArray[np.float64]:  # noqa: ANN001
-    """:func:`_frame_means` computed."""
+    frame's estimate built a second solver here, ~15 % of its time). A fit judges its history
+    (:func:`history_lamps`) and applies the verdicts (:func:`apply_lamps`) with the same means: the first returns
+    them and the second takes them (``means``), so they are computed once (~0.15 s of a 100k-frame refit)."""
     index = {p: i for i, p in enumerate(model.patches)}
     shared = [(j, index[p]) for j, p in enumerate(obs.patches) if p in index]
     oj, mi = [s[0] for s in shared], [s[1] for s in shared]
@@ -670,14 +644,22 @@ def _compute_frame_means(model, obs, theta: NDArray[np.float64], solver=None) ->
     return out
 
 
-
 _MEANS_CHUNK = 8192
 """Frames :func:`_frame_means` averages at once."""
 
 
-def history_lamps(model, obs) -> NDArray[np.float64]:
+class HistoryJudgement(NamedTuple):
+    """What :func:`history_lamps` found of a history: each frame's ``non_daylight`` and the frames' scene averages it
+    was judged on (:func:`_frame_means` at the history estimate's lights; :func:`apply_lamps` takes them again)."""
+
+    non_daylight: NDArray[np.float64]
+    means: NDArray[np.float64]
+
+
+def history_lamps(model, obs) -> HistoryJudgement:  # noqa: ANN001
     """Judge every frame of the history ``obs`` a fitted :class:`~.scene.SceneModel` was fitted on: store the
-    posterior of the scene-average offset in ``model.lamps`` and return each frame's ``non_daylight``."""
+    posterior of the scene-average offset in ``model.lamps`` and return each frame's ``non_daylight`` with the frame
+    means it was judged on."""
     res = model.history_estimate[0] if model.history_estimate is not None else model.estimate(obs)[0]
     means = _frame_means(model, obs, np.asarray(res.info["theta"], dtype=float))
     unbalanced = _unbalanced_offset(model, means)
@@ -693,7 +675,7 @@ def history_lamps(model, obs) -> NDArray[np.float64]:
     offset, offset_sd = unbalanced if unbalanced is not None else (lp.offset, lp.offset_sd)
     model.lamps = {"offset": offset.tolist(), "offset_sd": offset_sd.tolist(), "prior": LAMP_PRIOR,
                    "daylight_frames": int(np.sum(np.isfinite(nd) & (nd < 0.5))), "frames": int(len(nd))}
-    return nd
+    return HistoryJudgement(nd, means)
 
 
 def expected_scene_offset(model, obs) -> NDArray[np.float64]:  # noqa: ANN001
@@ -796,17 +778,19 @@ def _set_lamp_whites(result, extra: dict, mask: NDArray[np.bool_], white: NDArra
     result.info["gain_hi"][mask] = result.gains[mask] + half
 
 
-def apply_lamps(model, obs, result, extra: dict, solver=None) -> None:  # noqa: ANN001
+def apply_lamps(model, obs, result, extra: dict, solver=None,  # noqa: ANN001
+                means: NDArray[np.float64] | None = None) -> None:
     """Add ``non_daylight`` to a scene model's per-frame estimate of ``obs`` (in place) and, for frames more likely
     lit by a lamp than by daylight in a history at least half of whose frames are daylight, replace the white and gains by the
     general illuminant's (:func:`.general.general_whites`), its ``confidence`` from the scene-average colour's posterior
     spread. CCT and Duv stay the nearest daylight's. Without ``model.lamps`` (a model saved before it) nothing is
     added. ``solver``: the estimate's own solver over ``obs``'s patches, reused for the frames' means
-    (:func:`_frame_means`)."""
+    (:func:`_frame_means`); ``means``: those means where the caller has them already (:func:`history_lamps` of the
+    same model, ``obs`` and lights)."""
     lamps = getattr(model, "lamps", None)
     if not lamps:
         return
-    lp, nd = _judged_frames(model, obs, np.asarray(result.info["theta"], dtype=float), solver)
+    lp, nd = _judged_frames(model, obs, np.asarray(result.info["theta"], dtype=float), solver, means)
     extra["non_daylight"] = nd
     if _unbalanced_whites(model, lp, result, extra):
         return
@@ -830,14 +814,15 @@ def apply_lamps(model, obs, result, extra: dict, solver=None) -> None:  # noqa: 
     _set_lamp_whites(result, extra, lamp, spectral, lamps["offset_sd"])
 
 
-def _judged_frames(model, obs, theta: NDArray[np.float64], solver=None  # noqa: ANN001
-                   ) -> tuple[LampPosterior, NDArray[np.float64]]:
+def _judged_frames(model, obs, theta: NDArray[np.float64], solver=None,  # noqa: ANN001
+                   means: NDArray[np.float64] | None = None) -> tuple[LampPosterior, NDArray[np.float64]]:
     """Every frame of ``obs`` judged on its own against the history's scene-average offset (``model.lamps``,
     :func:`frame_lamp_posterior`) at the fitted lights ``theta``: the posterior and each frame's ``non_daylight`` (the
-    prior where a frame has no scene average)."""
+    prior where a frame has no scene average). ``means``: :func:`_frame_means` at ``theta`` where known."""
     lamps = model.lamps
     prior = float(lamps.get("prior", LAMP_PRIOR))
-    means = _frame_means(model, obs, theta, solver)
+    if means is None:
+        means = _frame_means(model, obs, theta, solver)
     lp = frame_lamp_posterior(means, model.sensitivities, model.daylight_model(), np.asarray(lamps["offset"]),
                               np.maximum(np.asarray(lamps["offset_sd"]), 0.01), prior=prior)
     return lp, np.where(np.isfinite(lp.non_daylight), lp.non_daylight, prior)

@@ -271,9 +271,10 @@ def test_lattice_correlation_equals_scipy_signal_bit_for_bit():
         assert np.array_equal(_correlate_valid(a, b), correlate(a, b, mode="valid", method="fft"))
 
 
-def test_frame_means_kept_for_the_same_model_observations_and_theta_only(shared_data):
-    """The last frame means are given again only for the same model and observations and an equal θ (a copy), and
-    equal those computed afresh; another θ or other observations are computed."""
+def test_the_judgements_frame_means_are_the_ones_apply_lamps_would_compute(shared_data):
+    """A fit judges its history (``history_lamps``) and applies the verdicts (``apply_lamps``) with the same frame
+    means, computed once and passed on: they equal those computed afresh at the history's lights, and the verdicts
+    applied with them are those applied without them, value for value."""
     from illumon.model import lamps
     from illumon.simulation import datasets
 
@@ -281,18 +282,15 @@ def test_frame_means_kept_for_the_same_model_observations_and_theta_only(shared_
     obs = measured_daylight_history("Nikon_D3X", frames=30, patches=10, seed=10006).observations
     model = _fit(obs, css)
     theta = np.asarray(model.history_estimate[0].info["theta"], dtype=float)
-    fresh = lamps._compute_frame_means(model, obs, theta)
-    first = lamps._frame_means(model, obs, theta)
-    again = lamps._frame_means(model, obs, theta.copy())
-    assert np.array_equal(first, fresh, equal_nan=True) and np.array_equal(again, fresh, equal_nan=True)
-    again[:] = -1.0  # a copy: the kept answer is not changed through it
-    assert np.array_equal(lamps._frame_means(model, obs, theta), fresh, equal_nan=True)
-    moved = theta + np.array([5.0, 0.0, 0.0])
-    assert np.array_equal(lamps._frame_means(model, obs, moved), lamps._compute_frame_means(model, obs, moved),
-                          equal_nan=True)
-    other = obs.subset(np.arange(len(obs.frames)))
-    assert lamps._frame_means(model, other, theta) is not None
-    assert lamps._LAST_MEANS[0][1]() is other
+    judged = lamps.history_lamps(model, obs)
+    assert np.array_equal(judged.means, lamps._frame_means(model, obs, theta), equal_nan=True)
+    assert judged.non_daylight.shape == (len(obs.frames),)
+    given, fresh = model.estimate(obs), model.estimate(obs)
+    lamps.apply_lamps(model, obs, *given, means=judged.means)
+    lamps.apply_lamps(model, obs, *fresh)
+    for key in ("non_daylight", "confidence"):
+        assert np.array_equal(given[1][key], fresh[1][key], equal_nan=True), key
+    assert np.array_equal(given[0].white, fresh[0].white, equal_nan=True)
 
 
 

@@ -691,11 +691,23 @@ def expected_scene_offset(model, obs) -> NDArray[np.float64]:  # noqa: ANN001
     then sat among the warm lamps (development ``imgsim`` clean history 3049: 17 of 26 frames above 0.5)."""
     index = {p: i for i, p in enumerate(model.patches)}
     cols = [j for j, p in enumerate(obs.patches) if p in index]
-    v = np.asarray(obs.values, dtype=float)[:, cols]
+    v = np.asarray(obs.values, dtype=float)[_evidence_frames(len(obs.frames))][:, cols]
     average = scene_average_evidence(v, np.all(np.isfinite(v), axis=-1))
     dm = model.daylight_model()
     light = dm.spectra(np.array([[dm.mired_mean, 0.0]]))
     return expected_offset(light, np.asarray(model.sensitivities, dtype=float), model.reflectance_basis(), average)[0]
+
+
+EVIDENCE_FRAMES = 4096
+"""Frames at most the scene-average evidence of :func:`expected_scene_offset` is read from (evenly spaced over a
+longer history): only the patches' colour spread (a median over frames) moves the expectation, and over 100k frames
+the evidence took 0.33 s of a refit (issue 29)."""
+
+
+def _evidence_frames(n: int) -> slice | NDArray[np.intp]:
+    """The rows :func:`expected_scene_offset` reads of an ``n``-frame history: all, or :data:`EVIDENCE_FRAMES` evenly
+    spaced."""
+    return slice(None) if n <= EVIDENCE_FRAMES else np.linspace(0, n - 1, EVIDENCE_FRAMES).round().astype(np.intp)
 
 
 def _unbalanced_offset(model, means: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
@@ -852,7 +864,8 @@ def non_daylight_column(obs, sensitivities: NDArray[np.float64], daylight: CIEDa
         means = np.nanmean(np.where(present[..., None], v, np.nan)[:, cols], axis=1)
     dm = daylight or CIEDaylight()
     css = np.asarray(sensitivities, dtype=float)
-    average = scene_average_evidence(v[:, cols], present[:, cols])
+    rows = _evidence_frames(len(v))
+    average = scene_average_evidence(v[rows][:, cols], present[rows][:, cols])
     expected = expected_offset(dm.spectra(np.array([[dm.mired_mean, 0.0]])), css, reflectance_basis(), average)[0]
     nd = lamp_posterior(means, css, dm, offset_prior=(expected, np.full(2, SCENE_OFFSET_SD))).non_daylight
     return np.where(np.isfinite(nd), nd, 0.0)

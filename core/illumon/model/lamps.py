@@ -52,7 +52,7 @@ from scipy.special import ndtri
 from .._blas import single_blas_thread
 from .._tables import cached_arrays
 from ..daylight import CIEDaylight
-from ..priors import reflectance_basis
+from ..priors import ReflectanceBasis, reflectance_basis
 from ..priors.scene_average import expected_offset, scene_average_evidence
 from .general import cie_lamp_spectra, general_whites
 
@@ -691,11 +691,19 @@ def expected_scene_offset(model, obs) -> NDArray[np.float64]:  # noqa: ANN001
     then sat among the warm lamps (development ``imgsim`` clean history 3049: 17 of 26 frames above 0.5)."""
     index = {p: i for i, p in enumerate(model.patches)}
     cols = [j for j, p in enumerate(obs.patches) if p in index]
-    v = np.asarray(obs.values, dtype=float)[_evidence_frames(len(obs.frames))][:, cols]
-    average = scene_average_evidence(v, np.all(np.isfinite(v), axis=-1))
-    dm = model.daylight_model()
+    v = np.asarray(obs.values, dtype=float)[:, cols]
+    return _expected_offset(v, np.all(np.isfinite(v), axis=-1), model.sensitivities, model.daylight_model(),
+                            model.reflectance_basis())
+
+
+def _expected_offset(values: NDArray[np.float64], present: NDArray[np.bool_], sensitivities: NDArray[np.float64],
+                     dm: CIEDaylight, rb: ReflectanceBasis) -> NDArray[np.float64]:
+    """:func:`illumon.priors.scene_average.expected_offset` under the daylight prior's mean light, of the scene
+    average of ``values`` (F × P × 3, ``present`` F × P) read from at most :data:`EVIDENCE_FRAMES` of its frames."""
+    rows = _evidence_frames(len(values))
+    average = scene_average_evidence(values[rows], present[rows])
     light = dm.spectra(np.array([[dm.mired_mean, 0.0]]))
-    return expected_offset(light, np.asarray(model.sensitivities, dtype=float), model.reflectance_basis(), average)[0]
+    return expected_offset(light, np.asarray(sensitivities, dtype=float), rb, average)[0]
 
 
 EVIDENCE_FRAMES = 4096
@@ -864,8 +872,6 @@ def non_daylight_column(obs, sensitivities: NDArray[np.float64], daylight: CIEDa
         means = np.nanmean(np.where(present[..., None], v, np.nan)[:, cols], axis=1)
     dm = daylight or CIEDaylight()
     css = np.asarray(sensitivities, dtype=float)
-    rows = _evidence_frames(len(v))
-    average = scene_average_evidence(v[rows][:, cols], present[rows][:, cols])
-    expected = expected_offset(dm.spectra(np.array([[dm.mired_mean, 0.0]])), css, reflectance_basis(), average)[0]
+    expected = _expected_offset(v[:, cols], present[:, cols], css, dm, reflectance_basis())
     nd = lamp_posterior(means, css, dm, offset_prior=(expected, np.full(2, SCENE_OFFSET_SD))).non_daylight
     return np.where(np.isfinite(nd), nd, 0.0)

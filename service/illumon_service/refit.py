@@ -47,7 +47,7 @@ from .estimation import (
     view_model_key,
 )
 from .limits import MAX_VALUE, frame_problem
-from .storage import as_utc, orjson_loads
+from .storage import as_utc, json_texts_like, orjson_loads
 
 __all__ = ["refit_camera", "read_history", "fit_views", "check_refit", "write_refit", "History", "ViewHistory",
            "Refitted", "MAX_DROPPED_LISTED", "READ_CHUNK"]
@@ -555,7 +555,8 @@ def _estimate_columns(h: History, fit: Refitted, late: dict[str, dict]) -> Itera
     for columns in fit.estimates.columns(crud.WRITE_CHUNK, json_text=True):
         if late and any(fid in late for fid in columns["frame_id"]):
             keep = [fid not in late for fid in columns["frame_id"]]
-            columns = {k: [v for v, ok in zip(c, keep, strict=True) if ok] for k, c in columns.items()}
+            columns = {k: json_texts_like(c, (v for v, ok in zip(c, keep, strict=True) if ok))
+                       for k, c in columns.items()}
         ids = [int(fid) for fid in columns["frame_id"]]
         yield {**columns, "frame_id": ids, "taken_at": [taken[i] for i in ids]}
     rows = list(late.values())

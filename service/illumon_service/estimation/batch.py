@@ -13,17 +13,17 @@ import orjson
 from illumon.retrieval.common import RetrievalResult
 from numpy.typing import NDArray
 
-from ..storage import StoredJSON, spectra_bytes
+from ..storage import JSONTexts, StoredJSON, spectra_bytes
 from .frame import json_safe
 
-__all__ = ["RefitEstimates", "json_rows"]
+__all__ = ["RefitEstimates", "json_rows", "json_texts"]
 
 _JSON_ARRAYS = ("xy", "white_rgb", "gains_rgb")
 """The estimate's columns that hold an array as JSON lists (the spectrum is float32 bytes, ``spectrum_f32``)."""
 
-_JSON_NULL = StoredJSON("null")
+_JSON_NULL_TEXT = "null"
 """The older versions' JSON ``spectrum`` column of a row written now (JSON ``null``: the column is ``NOT NULL`` in
-their databases), as the text the engine writes for ``None``."""
+their databases), as the text the engine writes for ``None`` (in a :class:`~..storage.JSONTexts` column)."""
 
 
 def json_rows(values: NDArray[np.float64]) -> list[StoredJSON | list[float]]:
@@ -31,6 +31,13 @@ def json_rows(values: NDArray[np.float64]) -> list[StoredJSON | list[float]]:
     straight from the array: the shortest decimal that reads back as the same float, as :func:`json.dumps` writes
     it, ~15 × faster); a row holding NaN or ±infinity as its list instead, which the engine writes with
     :func:`json.dumps` as before (``NaN``, ``Infinity``, where orjson would write ``null``)."""
+    return [StoredJSON(v) if type(v) is str else v for v in json_texts(values)]
+
+
+def json_texts(values: NDArray[np.float64]) -> JSONTexts:
+    """:func:`json_rows` as a column for :func:`~..storage.insert_columns`: the texts as plain ``str`` in a
+    :class:`~..storage.JSONTexts` (the driver binds a ``str`` subclass more slowly), the non-finite rows' lists as
+    they are."""
     a = np.ascontiguousarray(values, dtype=np.float64)
     finite = np.isfinite(a).all(axis=1)
     opt = orjson.OPT_SERIALIZE_NUMPY
@@ -38,9 +45,9 @@ def json_rows(values: NDArray[np.float64]) -> list[StoredJSON | list[float]]:
         # narrow rows (xy, white, gains): one call for the whole array, its rows cut out of the text — orjson's
         # per-call cost was most of a 3-value row's (~0.03 s per 100k rows and column saved); the same texts
         text = orjson.dumps(a, option=opt)  # [[r0],[r1],…]: numbers hold no bracket
-        return list(map(StoredJSON, text[1:-1].replace(b"],[", b"]\n[").decode().split("\n")))
-    return [StoredJSON(orjson.dumps(row, option=opt).decode()) if ok else row.tolist()
-            for row, ok in zip(a, finite.tolist(), strict=True)]
+        return JSONTexts(text[1:-1].replace(b"],[", b"]\n[").decode().split("\n"))
+    return JSONTexts(orjson.dumps(row, option=opt).decode() if ok else row.tolist()
+                     for row, ok in zip(a, finite.tolist(), strict=True))
 
 
 _WHOLE_WIDTH = 8
@@ -48,14 +55,14 @@ _WHOLE_WIDTH = 8
 rows, the spectrum's 61 values, cutting the text apart cost more than the calls it saves)."""
 
 
-def _json_dicts(rows: list[dict | None]) -> list[StoredJSON | None]:
-    """Each dict of ``rows`` as its orjson text (:class:`~..storage.StoredJSON`), ``None`` as ``None``. Dicts whose
-    values hold no dict (numbers, ``None``, lists of them): cut out of one orjson text of the whole list where no row
-    is ``None`` (one call instead of one a row; the same texts)."""
+def _json_dicts(rows: list[dict | None]) -> JSONTexts:
+    """Each dict of ``rows`` as its orjson text (a plain ``str`` of a :class:`~..storage.JSONTexts`), ``None`` as
+    ``None``. Dicts whose values hold no dict (numbers, ``None``, lists of them): cut out of one orjson text of the
+    whole list where no row is ``None`` (one call instead of one a row; the same texts)."""
     if rows and all(type(v) is dict for v in rows):
         text = orjson.dumps(rows)  # [{…},{…}]: no value holds a brace
-        return list(map(StoredJSON, text[1:-1].replace(b"},{", b"}\n{").decode().split("\n")))
-    return [StoredJSON(orjson.dumps(iv).decode()) if iv is not None else None for iv in rows]
+        return JSONTexts(text[1:-1].replace(b"},{", b"}\n{").decode().split("\n"))
+    return JSONTexts(orjson.dumps(iv).decode() if iv is not None else None for iv in rows)
 
 
 @dataclass
@@ -83,10 +90,11 @@ def _part_columns(p: _Part, index: NDArray[np.intp], json_text: bool) -> dict[st
     conf = p.confidence[index]
     conf = np.where(np.isnan(conf), conf, np.clip(conf, 0.0, 1.0)).tolist()
     arrays = {"xy": r.xy, "white_rgb": r.white, "gains_rgb": r.gains}
-    as_json = json_rows if json_text else (lambda a: a.tolist())
+    as_json = json_texts if json_text else (lambda a: a.tolist())
     columns = {"frame_id": [str(r.frames[i]) for i in index.tolist()], "cct_k": r.cct[index].tolist(),
                "duv": r.duv[index].tolist(), **{k: as_json(arrays[k][index]) for k in _JSON_ARRAYS},
-               "confidence": conf, "spectrum": [_JSON_NULL if json_text else None] * index.size,
+               "confidence": conf,
+               "spectrum": JSONTexts([_JSON_NULL_TEXT] * index.size) if json_text else [None] * index.size,
                "spectrum_f32": spectra_bytes(r.spectra[index])}
     if p.extra is None:
         columns["intervals"] = [None] * index.size
@@ -139,17 +147,20 @@ class RefitEstimates:
         """The estimates a column at a time, at most ``chunk`` frames at a time: ``frame_id`` (str) and the columns
         of the rows :func:`~.frame.estimate_row` and :func:`~.frame.frame_intervals` give, each converted from its
         array at once (frame by frame, the conversions were half a 2 000-frame refit's write step); with
-        ``json_text`` the JSON columns as the JSON text the database stores (:func:`json_rows`; values read back
-        equal)."""
+        ``json_text`` the JSON columns as the JSON text the database stores, in :class:`~..storage.JSONTexts`
+        columns (:func:`json_texts`; values read back equal)."""
         for p in self._parts:
             for start in range(0, p.index.size, chunk):
                 yield _part_columns(p, p.index[start:start + chunk], json_text)
 
     def rows(self, chunk: int, json_text: bool = False) -> Iterator[list[tuple[str, dict]]]:
         """``(frame id, estimate row)`` pairs, exactly ``chunk`` at a time but the last: the rows of
-        :meth:`columns`."""
+        :meth:`columns` (with ``json_text`` a JSON text as a :class:`~..storage.StoredJSON`, which a row carries to
+        any writer)."""
         out: list[tuple[str, dict]] = []
         for cols in self.columns(chunk, json_text):
+            cols = {k: [StoredJSON(v) if type(v) is str else v for v in c] if type(c) is JSONTexts else c
+                    for k, c in cols.items()}
             out += [(fid, dict(zip(_ROW_KEYS, values, strict=True)))
                     for fid, *values in zip(*(cols[k] for k in ("frame_id", *_ROW_KEYS)), strict=True)]
             while len(out) >= chunk:

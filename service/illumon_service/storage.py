@@ -571,8 +571,9 @@ def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequenc
         if process is None:
             values[key] = column
         elif type(column) is JSONTexts:  # its str values are the caller's JSON text (StoredJSON's)
-            if _passes_json_text(process):
-                values[key] = [v if type(v) is str else process(v) for v in column]
+            if _passes_json_text(process):  # texts only (a refit's usual column): the column as it is
+                values[key] = column if not set(map(type, column)) - {str} else \
+                    [v if type(v) is str else process(v) for v in column]
             else:
                 values[key] = [process(StoredJSON(v) if type(v) is str else v) for v in column]
         elif isinstance(table.columns[key].type, JSON) and _passes_json_text(process):  # the caller's JSON text

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from itertools import chain, repeat
 
 import numpy as np
 import orjson
@@ -65,6 +66,29 @@ def _json_dicts(rows: list[dict | None]) -> JSONTexts:
     return JSONTexts(orjson.dumps(iv).decode() if iv is not None else None for iv in rows)
 
 
+def _interval_texts(intervals: dict[str, NDArray[np.float64]], n: int) -> JSONTexts | None:
+    """The JSON texts :func:`_json_dicts` writes for the rows ``{key: value of row i, …}`` of ``intervals`` (each an
+    array of ``n`` numbers or of ``n`` rows of a few numbers), assembled from one orjson text of each array instead of a
+    dict and an orjson call per row (~0.1 s per 100k rows); ``None`` where that does not apply: no arrays, a
+    non-finite value (written ``null`` by the rows' path), a wider or higher-dimensional array. orjson writes a
+    float64 of an array as it writes the same Python float (tested on random bit patterns), and a key as it writes
+    it in a dict."""
+    if not intervals or not n:
+        return None
+    parts: list = []
+    for j, (key, v) in enumerate(intervals.items()):
+        if len(v) != n or not (v.ndim == 1 or (v.ndim == 2 and 0 < v.shape[1] <= _WHOLE_WIDTH)) \
+                or not np.isfinite(v).all():
+            return None
+        if v.ndim == 1:  # [a,b,…]: numbers hold no comma
+            texts = orjson.dumps(np.ascontiguousarray(v), option=orjson.OPT_SERIALIZE_NUMPY)[1:-1].decode().split(",")
+        else:
+            texts = json_texts(v)
+        parts += [repeat(("{" if j == 0 else ",") + orjson.dumps(key).decode() + ":"), texts]
+    joined = "".join(chain.from_iterable(zip(*parts, repeat("}\n"))))  # no text holds a newline
+    return JSONTexts(joined[:-1].split("\n"))
+
+
 @dataclass
 class _Part:
     result: RetrievalResult
@@ -104,10 +128,14 @@ def _part_columns(p: _Part, index: NDArray[np.intp], json_text: bool) -> dict[st
         for k in ("gain_lo", "gain_hi"):
             if k in r.info:
                 intervals[k] = np.asarray(r.info[k], dtype=float)[index]
-        lists = [v.tolist() if np.isfinite(v).all() else json_safe(v.tolist()) for v in intervals.values()]
-        rows = [dict(zip(intervals, values, strict=True)) or None for values in zip(*lists, strict=True)] if lists \
-            else [None] * index.size
-        columns["intervals"] = _json_dicts(rows) if json_text else rows
+        texts = _interval_texts(intervals, index.size) if json_text else None
+        if texts is not None:
+            columns["intervals"] = texts
+        else:
+            lists = [v.tolist() if np.isfinite(v).all() else json_safe(v.tolist()) for v in intervals.values()]
+            rows = [dict(zip(intervals, values, strict=True)) or None for values in zip(*lists, strict=True)] \
+                if lists else [None] * index.size
+            columns["intervals"] = _json_dicts(rows) if json_text else rows
     columns["source"] = [p.source] * index.size
     return columns
 

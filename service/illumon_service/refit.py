@@ -214,7 +214,8 @@ class _ViewRows:
         self.times: list[str] = []
         self.used: list[int] = []
         self.values: list[NDArray[np.float64]] = []
-        self.sd: list[NDArray[np.float64]] = []
+        self.sd: list[NDArray[np.float64] | None] = []
+        """Each chunk's standard errors, ``None`` for a chunk without any (all NaN)."""
 
     def add(self, frames: Sequence[_Stored], matrix: list | None, plain: _PlainFrames | None = None) -> None:
         """The frames' arrays (:func:`~.estimation.history_arrays`); taken from the numbers the check converted
@@ -227,7 +228,7 @@ class _ViewRows:
              and list(f.patches) == self.region_ids else -1 for f in frames]
         if frames and min(start) >= 0:
             values = plain.values[(np.array(start)[:, None] + np.arange(p)).ravel()].reshape(len(frames), p, 3)
-            sd = np.full_like(values, np.nan)
+            sd = None  # no standard errors: NaN throughout, made only if another chunk has some (finish)
         else:
             values, sd = history_arrays(frames, self.region_ids, matrix)
         self.ids += [f.id for f in frames]
@@ -241,10 +242,13 @@ class _ViewRows:
         """Oldest first."""
         p = len(self.region_ids)
         values = _oldest_first(self.values, p)
-        sd = _oldest_first(self.sd, p)
+        sd = None
+        if any(c is not None for c in self.sd):  # else every frame's are NaN: none (100k frames: 38 MB not made)
+            sd = _oldest_first([np.full_like(v, np.nan) if c is None else c
+                                for c, v in zip(self.sd, self.values, strict=True)], p)
+            sd = sd if np.isfinite(sd).any() else None
         return ViewHistory(self.region_ids, np.array(self.ids[::-1], dtype=np.int64), self.taken_at[::-1],
-                           self.times[::-1], values, sd if np.isfinite(sd).any() else None,
-                           np.array(self.used[::-1], dtype=np.int64))
+                           self.times[::-1], values, sd, np.array(self.used[::-1], dtype=np.int64))
 
 
 def _oldest_first(chunks: list[NDArray[np.float64]], p: int) -> NDArray[np.float64]:
@@ -429,7 +433,7 @@ def read_history(sessions: sessionmaker[Session], camera_id: int, max_frames: in
                 rows = next(chunks, None)
                 if rows is None:
                     break
-                read.append(np.fromiter((r.id for r in rows), dtype=np.int64, count=len(rows)))
+                read.append(np.fromiter(map(operator.itemgetter(0), rows), dtype=np.int64, count=len(rows)))  # ids
                 usable, left_out, plain = _usable(rows)
                 dropped += left_out
                 for v in {r.view for r in usable}:

@@ -540,10 +540,14 @@ def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit
         written = crud.replace_estimates(s, _estimate_columns(h, fit, late), camera_id=h.camera_id, model=fit.version)
         # frames the refit used but could not estimate (fewer than two regions seen, a non-finite white), and those
         # it left out: no estimate of the previous model stays behind
-        estimated = {int(fid) for fid in fit.estimates.frame_ids()} | {int(fid) for fid in late}
-        reasons = {int(i): "too_few_regions" if n < 2 else "estimate_failed"
-                   for v in fit.models if v in h.by_view
-                   for i, n in zip(h.by_view[v].ids, h.by_view[v].used, strict=True) if int(i) not in estimated}
+        estimated = np.fromiter(chain(map(int, fit.estimates.frame_ids()), map(int, late)), dtype=np.int64)
+        reasons = {}
+        for v in fit.models:
+            if v in h.by_view:  # its frames without an estimate, in order (np.isin: one lookup table of the ids)
+                vh = h.by_view[v]
+                none = ~np.isin(vh.ids, estimated)
+                reasons.update({i: "too_few_regions" if n < 2 else "estimate_failed"
+                                for i, n in zip(vh.ids[none].tolist(), vh.used[none].tolist(), strict=True)})
         reasons.update({d["frame_id"]: "invalid_values" for d in h.dropped})
         crud.drop_estimates(s, reasons)
         if _commit_hook is not None:

@@ -164,8 +164,9 @@ class RefitEstimates:
     def frame_ids(self) -> Iterator[str]:
         """The frame ids that have an estimate."""
         for p in self._parts:
-            for i in p.index:
-                yield str(p.result.frames[i])
+            frames = p.result.frames
+            for i in p.index.tolist():
+                yield str(frames[i])
 
     def cct(self) -> NDArray[np.float64]:
         """The estimates' CCTs (K)."""

@@ -47,7 +47,7 @@ from .estimation import (
     view_model_key,
 )
 from .limits import MAX_VALUE, frame_problem
-from .storage import as_utc, orjson_loads
+from .storage import as_utc, json_texts_like, orjson_loads
 
 __all__ = ["refit_camera", "read_history", "fit_views", "check_refit", "write_refit", "History", "ViewHistory",
            "Refitted", "MAX_DROPPED_LISTED", "READ_CHUNK"]
@@ -214,7 +214,8 @@ class _ViewRows:
         self.times: list[str] = []
         self.used: list[int] = []
         self.values: list[NDArray[np.float64]] = []
-        self.sd: list[NDArray[np.float64]] = []
+        self.sd: list[NDArray[np.float64] | None] = []
+        """Each chunk's standard errors, ``None`` for a chunk without any (all NaN)."""
 
     def add(self, frames: Sequence[_Stored], matrix: list | None, plain: _PlainFrames | None = None) -> None:
         """The frames' arrays (:func:`~.estimation.history_arrays`); taken from the numbers the check converted
@@ -227,7 +228,7 @@ class _ViewRows:
              and list(f.patches) == self.region_ids else -1 for f in frames]
         if frames and min(start) >= 0:
             values = plain.values[(np.array(start)[:, None] + np.arange(p)).ravel()].reshape(len(frames), p, 3)
-            sd = np.full_like(values, np.nan)
+            sd = None  # no standard errors: NaN throughout, made only if another chunk has some (finish)
         else:
             values, sd = history_arrays(frames, self.region_ids, matrix)
         self.ids += [f.id for f in frames]
@@ -241,10 +242,13 @@ class _ViewRows:
         """Oldest first."""
         p = len(self.region_ids)
         values = _oldest_first(self.values, p)
-        sd = _oldest_first(self.sd, p)
+        sd = None
+        if any(c is not None for c in self.sd):  # else every frame's are NaN: none (100k frames: 38 MB not made)
+            sd = _oldest_first([np.full_like(v, np.nan) if c is None else c
+                                for c, v in zip(self.sd, self.values, strict=True)], p)
+            sd = sd if np.isfinite(sd).any() else None
         return ViewHistory(self.region_ids, np.array(self.ids[::-1], dtype=np.int64), self.taken_at[::-1],
-                           self.times[::-1], values, sd if np.isfinite(sd).any() else None,
-                           np.array(self.used[::-1], dtype=np.int64))
+                           self.times[::-1], values, sd, np.array(self.used[::-1], dtype=np.int64))
 
 
 def _oldest_first(chunks: list[NDArray[np.float64]], p: int) -> NDArray[np.float64]:
@@ -429,7 +433,7 @@ def read_history(sessions: sessionmaker[Session], camera_id: int, max_frames: in
                 rows = next(chunks, None)
                 if rows is None:
                     break
-                read.append(np.fromiter((r.id for r in rows), dtype=np.int64, count=len(rows)))
+                read.append(np.fromiter(map(operator.itemgetter(0), rows), dtype=np.int64, count=len(rows)))  # ids
                 usable, left_out, plain = _usable(rows)
                 dropped += left_out
                 for v in {r.view for r in usable}:
@@ -536,10 +540,14 @@ def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit
         written = crud.replace_estimates(s, _estimate_columns(h, fit, late), camera_id=h.camera_id, model=fit.version)
         # frames the refit used but could not estimate (fewer than two regions seen, a non-finite white), and those
         # it left out: no estimate of the previous model stays behind
-        estimated = {int(fid) for fid in fit.estimates.frame_ids()} | {int(fid) for fid in late}
-        reasons = {int(i): "too_few_regions" if n < 2 else "estimate_failed"
-                   for v in fit.models if v in h.by_view
-                   for i, n in zip(h.by_view[v].ids, h.by_view[v].used, strict=True) if int(i) not in estimated}
+        estimated = np.fromiter(chain(map(int, fit.estimates.frame_ids()), map(int, late)), dtype=np.int64)
+        reasons = {}
+        for v in fit.models:
+            if v in h.by_view:  # its frames without an estimate, in order (np.isin: one lookup table of the ids)
+                vh = h.by_view[v]
+                none = ~np.isin(vh.ids, estimated)
+                reasons.update({i: "too_few_regions" if n < 2 else "estimate_failed"
+                                for i, n in zip(vh.ids[none].tolist(), vh.used[none].tolist(), strict=True)})
         reasons.update({d["frame_id"]: "invalid_values" for d in h.dropped})
         crud.drop_estimates(s, reasons)
         if _commit_hook is not None:
@@ -555,7 +563,8 @@ def _estimate_columns(h: History, fit: Refitted, late: dict[str, dict]) -> Itera
     for columns in fit.estimates.columns(crud.WRITE_CHUNK, json_text=True):
         if late and any(fid in late for fid in columns["frame_id"]):
             keep = [fid not in late for fid in columns["frame_id"]]
-            columns = {k: [v for v, ok in zip(c, keep, strict=True) if ok] for k, c in columns.items()}
+            columns = {k: json_texts_like(c, (v for v, ok in zip(c, keep, strict=True) if ok))
+                       for k, c in columns.items()}
         ids = [int(fid) for fid in columns["frame_id"]]
         yield {**columns, "frame_id": ids, "taken_at": [taken[i] for i in ids]}
     rows = list(late.values())

@@ -15,7 +15,7 @@ import json
 import os
 import secrets
 import threading
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from datetime import datetime, timezone
 from itertools import repeat
 from pathlib import Path
@@ -61,6 +61,8 @@ __all__ = [
     "LoginSession",
     "private_sqlite_file",
     "StoredJSON",
+    "JSONTexts",
+    "json_texts_like",
     "json_dumps",
     "json_loads",
     "orjson_loads",
@@ -106,6 +108,23 @@ class StoredJSON(str):
     where :func:`json.dumps` of their lists took half of a 100k-frame write step."""
 
     __slots__ = ()
+
+
+class JSONTexts(list):
+    """A column of values for :func:`insert_columns` in which every ``str`` is JSON text made by the caller, stored
+    as it is (as a :class:`StoredJSON` would be), and any other value is converted as the column's type converts it.
+
+    The texts are plain ``str``: the ``sqlite3`` driver binds a ``str`` as it is, but looks a ``str`` subclass up in
+    its adapters first (a :class:`StoredJSON` per value cost a 100k-frame refit's INSERT ~0.1 s of its five JSON
+    columns, issue 29). Only :func:`insert_columns` reads the marker: elsewhere a ``str`` in a JSON column is a JSON
+    string, so a column taken apart (:func:`json_texts_like`) keeps it."""
+
+    __slots__ = ()
+
+
+def json_texts_like(column: Sequence[Any], values: Iterable[Any]) -> list:
+    """``values`` (some of ``column``'s) as a column of the same kind: :class:`JSONTexts` for one, a list else."""
+    return JSONTexts(values) if type(column) is JSONTexts else list(values)
 
 
 def json_dumps(value: Any) -> str:
@@ -529,7 +548,8 @@ def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequenc
     the engine's serializer, psycopg's JSON wrapper), a column at a time and a constant once, and the rows passed to
     the driver's ``executemany`` (:meth:`~sqlalchemy.engine.Connection.exec_driver_sql`):
     ``session.execute(insert(table), rows)`` prepares every row's parameters on its own, ~10 µs a row. A
-    :class:`StoredJSON` value is handed over as it is where its processor would give its text unchanged
+    :class:`StoredJSON` value, and a ``str`` of a :class:`JSONTexts` column (a plain ``str``, which ``sqlite3`` binds
+    without an adapter lookup), is handed over as it is where its processor would give its text unchanged
     (:func:`_passes_json_text`); a datetime is formatted by :func:`_datetime_text` where that is the processor's
     text (:func:`_writes_datetime_text`: SQLite; 0.15 → 0.07 s per 100k values). Every column with a Python-side
     default must be given (``ValueError`` otherwise: no default is computed here).
@@ -550,6 +570,12 @@ def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequenc
         process = processors[key]
         if process is None:
             values[key] = column
+        elif type(column) is JSONTexts:  # its str values are the caller's JSON text (StoredJSON's)
+            if _passes_json_text(process):  # texts only (a refit's usual column): the column as it is
+                values[key] = column if not set(map(type, column)) - {str} else \
+                    [v if type(v) is str else process(v) for v in column]
+            else:
+                values[key] = [process(StoredJSON(v) if type(v) is str else v) for v in column]
         elif isinstance(table.columns[key].type, JSON) and _passes_json_text(process):  # the caller's JSON text
             values[key] = [v if type(v) is StoredJSON else process(v) for v in column]
         elif isinstance(table.columns[key].type, DateTime) and _writes_datetime_text(process):  # _datetime_text

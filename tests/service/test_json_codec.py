@@ -214,4 +214,35 @@ def test_json_dicts_equal_orjson_row_by_row() -> None:
     assert _json_dicts([]) == []
 
 
+
+def test_interval_texts_equal_the_rows_texts() -> None:
+    """A refit's intervals assembled from one orjson text of each array (issue 29) are the texts of the rows' dicts
+    (``_json_dicts``), bit patterns, ±0, subnormals and huge values among them; where a value is not finite, an array
+    wider than the narrow rows' or of another shape, or there is nothing to write, the rows' path is taken."""
+    from illumon_service.estimation.batch import _interval_texts, _json_dicts
+    from illumon_service.storage import JSONTexts
+
+    rng = np.random.default_rng(5)
+    n = 600
+    bits = rng.integers(0, 2**64, 3 * n, dtype=np.uint64).view(np.float64)
+    finite = np.concatenate([bits[np.isfinite(bits)], [0.0, -0.0, 5e-324, 1e300, 1e16, 0.1]])
+    pick = lambda *shape: rng.choice(finite, shape)  # noqa: E731
+    intervals = {"cct_lo": pick(n), "cct_hi": pick(n), "non_daylight": rng.uniform(0, 1, n),
+                 "gain_lo": pick(n, 3), 'odd "key"\u00e9': pick(n, 2)}
+
+    def rows_texts(arrays: dict) -> list:
+        lists = [v.tolist() for v in arrays.values()]
+        return _json_dicts([dict(zip(arrays, values, strict=True)) for values in zip(*lists, strict=True)])
+
+    got = _interval_texts(intervals, n)
+    assert type(got) is JSONTexts and got == rows_texts(intervals)
+    one = {"cct_lo": intervals["cct_lo"][:1]}
+    assert _interval_texts(one, 1) == rows_texts(one)
+    with_nan = {**intervals, "cct_hi": np.where(np.arange(n) == 7, np.inf, intervals["cct_hi"])}
+    assert _interval_texts(with_nan, n) is None
+    assert _interval_texts({**intervals, "wide": pick(n, 9)}, n) is None
+    assert _interval_texts({"cube": pick(n, 2, 2)}, n) is None
+    assert _interval_texts({}, n) is None and _interval_texts({"cct_lo": pick(0)}, 0) is None
+
+
 from test_faults import pg_url  # noqa: E402, F401 - a throwaway PostgreSQL cluster, or skip

@@ -217,3 +217,29 @@ def test_arrays_from_the_checked_numbers_equal_history_arrays(odd: int | None, m
         assert plain.values is not None and all(plain.start[i] >= 0 for i in (0, 6, 7))
         monkeypatch.setattr(refit, "history_arrays", None)
         _ViewRows(ids).add([f for f in usable if f.id < 7 or f.id > 10], None, plain)
+
+
+@pytest.mark.parametrize("order", ["plain first", "errors first", "plain only"])
+def test_a_view_of_plain_chunks_and_chunks_with_standard_errors(order: str) -> None:
+    """A plain chunk keeps no standard errors of its own (issue 29: 38 MB of NaN at 100k frames); where another chunk
+    of the view has some, its frames get NaN there, as ``history_arrays`` of every chunk gives, bit for bit; a view
+    of plain chunks only has none."""
+    from illumon_service.refit import _usable, _ViewRows
+
+    ids = ["p0", "p1", "p2"]
+    sd = '{"p0": [0.01, 0.02, 0.03], "p2": null}'
+    plain_rows = [_row(i, GOOD) for i in range(1, 5)]
+    error_rows = [_row(i, GOOD, sd=sd if i % 2 else None) for i in range(5, 9)]
+    chunks = {"plain first": [plain_rows, error_rows], "errors first": [error_rows, plain_rows],
+              "plain only": [plain_rows, [_row(i, GOOD) for i in range(5, 9)]]}[order]
+    fast, slow = _ViewRows(ids), _ViewRows(ids)
+    for rows in chunks:
+        usable, _, plain = _usable(rows)
+        fast.add(usable, None, plain)
+        slow.add(usable, None)
+    a, b = fast.finish(), slow.finish()
+    assert np.array_equal(a.values.view(np.uint64), b.values.view(np.uint64))
+    assert (a.sd is None) == (b.sd is None) == (order == "plain only")
+    if a.sd is not None:
+        assert np.array_equal(a.sd.view(np.uint64), b.sd.view(np.uint64)) and np.isfinite(a.sd).any()
+        assert fast.sd[[0, 1][order == "errors first"]] is None  # the plain chunk's

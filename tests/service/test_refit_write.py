@@ -119,6 +119,87 @@ def test_upsert_leaves_the_rows_of_delete_and_insert_on_postgresql(pg_url, monke
         reset.dispose()
 
 
+def _json_columns_written(url: str, non_finite: bool) -> dict[str, list]:
+    """Estimates of frames 1…6 written by :func:`insert_columns` twice: once with their JSON columns as
+    :class:`JSONTexts` (plain ``str`` texts, ``None``, a list, a dict; ``non_finite``: holding NaN and infinity, which
+    PostgreSQL's JSON refuses), once as the same values one by one (:class:`StoredJSON` for a text). Returns each
+    write's JSON columns as stored (text) and as read, by frame."""
+    from illumon_service.storage import JSONTexts, insert_columns
+    from sqlalchemy import Text, cast, delete
+
+    engine = make_engine(url)
+    sessions = make_session_factory(engine)
+    with sessions() as s, s.begin():
+        s.add(Camera(name="c", token_hash="0" * 64, sensitivities=[], regions=[], response={}))
+        s.flush()
+        s.execute(insert(Frame), [{"camera_id": 1, "taken_at": T0 + timedelta(minutes=i), "patches": {}}
+                                  for i in range(1, 7)])
+    odd = float("nan") if non_finite else 0.5
+    texts = {"xy": ["[0.31,0.32]", "[0.3,1e-07]", [0.1, odd], "[1.0,2.5]", "[0.5,0.25]", "[0.0,-0.0]"],
+             "white_rgb": ["[0.5,1.0,0.25]"] * 6, "gains_rgb": ["[2.0,1.0,1.5]"] * 6, "spectrum": ["null"] * 6,
+             "intervals": ['{"cct_lo":4000.5,"gain_lo":[1.0,2.0,3.0]}', None, {"cct_lo": float("inf")},
+                           '{"non_daylight":null}', None, '{"a":1}']}
+    if not non_finite:
+        texts["intervals"][2] = {"cct_lo": 4000.25}
+    base = {"frame_id": list(range(1, 7)), "taken_at": [T0 + timedelta(minutes=i) for i in range(1, 7)],
+            "cct_k": [5000.0] * 6, "duv": [0.0] * 6, "confidence": [0.5] * 6, "source": ["refit:x"] * 6}
+    out = {}
+    for kind in ("texts", "stored"):
+        if kind == "texts":
+            cols = {k: JSONTexts(v) for k, v in texts.items()}
+        else:
+            cols = {k: [StoredJSON(x) if type(x) is str else x for x in v] for k, v in texts.items()}
+        with sessions() as s, s.begin():
+            s.execute(delete(Estimate))
+            insert_columns(s, Estimate.__table__, {**base, **cols},
+                           {"camera_id": 1, "created_at": T0, "model": "m", "spectrum_f32": None})
+        with sessions() as s:
+            keys = list(texts)
+            stored = s.execute(select(*[cast(Estimate.__table__.c[k], Text) for k in keys])
+                               .order_by(Estimate.frame_id)).all()
+            read = s.execute(select(*[Estimate.__table__.c[k] for k in keys]).order_by(Estimate.frame_id)).all()
+            out[kind] = [[tuple(r) for r in stored], [tuple(r) for r in read]]
+    engine.dispose()
+    return out
+
+
+def _json_texts_as_stored_json(url: str, non_finite: bool) -> None:
+    got = _json_columns_written(url, non_finite)
+    assert got["texts"][0] == got["stored"][0]  # the same texts stored
+    assert all(same_value(list(a), list(b)) for a, b in zip(got["texts"][1], got["stored"][1], strict=True))
+    row0 = got["texts"][1][0]
+    assert row0[0] == [0.31, 0.32] and row0[4] == {"cct_lo": 4000.5, "gain_lo": [1.0, 2.0, 3.0]} and row0[3] is None
+
+
+def test_json_texts_columns_store_what_stored_json_values_do_on_sqlite(tmp_path) -> None:
+    """A refit's JSON columns as :class:`JSONTexts` of plain ``str`` (issue 29: the driver binds a ``str`` subclass
+    more slowly) store the texts, ``None`` and the lists exactly as :class:`StoredJSON` values one by one do."""
+    _json_texts_as_stored_json(f"sqlite:///{tmp_path}/texts.sqlite", non_finite=True)
+
+
+def test_json_texts_columns_store_what_stored_json_values_do_on_postgresql(pg_url) -> None:  # noqa: F811
+    from sqlalchemy import create_engine
+
+    reset = create_engine(pg_url)
+    try:
+        with reset.begin() as c:
+            c.execute(text("DROP SCHEMA public CASCADE; CREATE SCHEMA public"))
+        _json_texts_as_stored_json(pg_url, non_finite=False)
+    finally:
+        reset.dispose()
+
+
+def test_a_refits_late_frames_keep_their_columns_json_texts() -> None:
+    """The write step's columns without the frames estimated late (:func:`.refit._estimate_columns`) stay
+    :class:`JSONTexts` where they were (a plain list of texts would be written as JSON strings)."""
+    from illumon_service.storage import JSONTexts, json_texts_like
+
+    column = JSONTexts(["[1.0]", None, "[2.0]"])
+    kept = json_texts_like(column, (v for v, ok in zip(column, [True, False, True], strict=True) if ok))
+    assert type(kept) is JSONTexts and kept == ["[1.0]", "[2.0]"]
+    assert type(json_texts_like([1, 2], iter([2]))) is list
+
+
 def test_insert_columns_refuses_an_upsert_it_cannot_compile() -> None:
     from illumon_service.storage import _insert_statement
     from sqlalchemy.dialects import mysql

@@ -155,7 +155,12 @@ def grey_world_mired(obs: Observations, sensitivities: NDArray[np.float64]) -> N
     gw = grey_world(obs)
     gchrom = np.log(np.clip(gw[:, [0, 2]], 1e-9, None))
     out = np.empty(len(gchrom))
+    c0, c1 = chrom[:, 0], chrom[:, 1]
     for i in range(0, len(gchrom), 8192):  # frames × grid distances a chunk at a time (100k frames: 480 MB at once)
-        d = ((gchrom[i:i + 8192, None, :] - chrom[None, :, :]) ** 2).sum(-1)
+        g = gchrom[i:i + 8192]
+        # the two squared differences added as the sum over their axis adds them (a + b), without the frames × grid
+        # × 2 temporary and its reduction over an axis of two (issue 29: ~5 × faster; the same distances, bit for bit)
+        d = (g[:, 0:1] - c0) ** 2
+        d += (g[:, 1:2] - c1) ** 2
         out[i:i + 8192] = grid[np.argmin(d, axis=1)]
     return out

@@ -311,3 +311,70 @@ def test_the_scene_average_is_expected_where_measured_surfaces_average(shared_da
     pale = pale * np.linspace(0.6, 1.0, len(obs.patches))[None, :, None]  # one colour, ten levels
     grey = expected_scene_offset(model, Observations(list(obs.frames), list(obs.patches), pale))
     np.testing.assert_allclose(grey, 0.0, atol=0.02)
+
+
+def test_the_expected_offset_and_general_whites_read_only_the_frames_they_use(shared_data, monkeypatch):
+    """``expected_scene_offset`` takes the evidence frames before the model's patches, and ``general_whites`` the
+    selected frames before the patches (issue 29): the same numbers, bit for bit, as from the whole history's columns
+    (the patches in another order than the model's, some not the model's)."""
+    from illumon.model import general, lamps
+    from illumon.observations import Observations
+    from illumon.simulation import datasets
+
+    css = datasets.load_camera("Nikon_D3X")
+    obs = measured_daylight_history("Nikon_D3X", frames=40, patches=10, seed=10006).observations
+    model = _fit(obs, css)
+    order = [3, 0, 7, 1, 9, 2, 8, 5, 4, 6]
+    extra = np.full((len(obs.frames), 1, 3), 0.3)
+    mixed = Observations(list(obs.frames), [obs.patches[j] for j in order] + ["other"],
+                         np.concatenate([obs.values[:, order], extra], axis=1), list(obs.times))
+    monkeypatch.setattr(lamps, "EVIDENCE_FRAMES", 7)  # 40 frames: 7 evenly spaced are read
+    index = {p: i for i, p in enumerate(model.patches)}
+    cols = [j for j, p in enumerate(mixed.patches) if p in index]
+    v = mixed.values[:, cols]
+    whole = lamps._expected_offset(v, np.all(np.isfinite(v), axis=-1), model.sensitivities, model.daylight_model(),
+                                   model.reflectance_basis())
+    assert np.array_equal(lamps.expected_scene_offset(model, mixed), whole)
+
+    theta = np.asarray(model.estimate(mixed)[0].info["theta"], dtype=float)
+    frames = np.zeros(len(obs.frames), dtype=bool)
+    frames[[1, 5, 6, 20, 39]] = True
+    got = general.general_whites(model, mixed, theta, frames)
+    ref = _general_whites_of_all_columns(model, mixed, theta, frames)
+    assert np.isfinite(got[frames]).any() and np.isnan(got[~frames]).all()
+    assert np.array_equal(got, ref, equal_nan=True)
+
+
+def _general_whites_of_all_columns(model, obs, theta, frames):  # noqa: ANN001, ANN202
+    """``general_whites`` as it was before issue 29's change: the whole history's columns scaled, then the selected
+    frames read from them."""
+    from illumon.model.general import general_basis
+    from illumon.retrieval.common import imaging_operators
+
+    basis, mu, cov = general_basis()
+    index = {p: i for i, p in enumerate(model.patches)}
+    shared = [(j, index[p]) for j, p in enumerate(obs.patches) if p in index]
+    oj, mi = [s[0] for s in shared], [s[1] for s in shared]
+    k_ops, w_ops = imaging_operators(model.sensitivities, basis, model.reflectance_basis())
+    g = np.einsum("kcj,pj->pck", k_ops, model.coefficients[mi])
+    y = np.asarray(obs.values, dtype=float)[:, oj] / model.noise["scale"]
+    n = model.noise
+    out = np.full((len(y), 3), np.nan)
+    lam = np.linalg.inv(cov)
+    solver = model.solver(mi)
+    for f in np.flatnonzero(frames):
+        ok = np.all(np.isfinite(y[f]), axis=-1)
+        if ok.sum() < 2 or not np.all(np.isfinite(theta[f])):
+            continue
+        yy = y[f, ok]
+        var = n["noise_scale"] ** 2 * ((n["relative_error"] * yy) ** 2 + n["absolute_error"] ** 2)
+        a = g[ok].reshape(-1, basis.shape[1])
+        wgt = 1.0 / var.ravel()
+        b_day = solver._b(theta[f:f + 1, 0], theta[f:f + 1, 1], theta[f:f + 1, 2])[0]
+        k = float(np.linalg.norm(b_day @ solver.daylight.basis.T))
+        prec = a.T @ (wgt[:, None] * a) + lam / k**2
+        rhs = a.T @ (wgt * yy.ravel()) + lam @ (k * mu) / k**2
+        w = np.linalg.solve(prec, rhs) @ w_ops
+        if np.all(w > 0):
+            out[f] = w / w[1]
+    return out

@@ -211,3 +211,32 @@ def test_grey_world_baseline_reports_the_daylight_of_a_grey_scene(shared_data):
     res = retrieve_illuminants(h.observations, h.sensitivities, method="gray_world")
     np.testing.assert_allclose(1e6 / res.cct, 1e6 / cct, atol=1.0)  # MK⁻¹ (the search grid's step is 0.5)
     assert np.max(angular_error_deg(res.white, h.true_white)) < 1e-6
+
+
+def test_grey_world_mired_distances_are_the_summed_squares_bit_for_bit():
+    """``grey_world_mired`` adds each frame's two squared chromaticity differences to every grid point as a sum over
+    their axis did (issue 29: without the frames × grid × 2 temporary): the same grid point for every frame, frames
+    with a missing, clipped or non-finite patch among them, over more frames than one chunk."""
+    from illumon.daylight import daylight_locus_duv, daylight_spectrum, xy_from_cct_duv
+    from illumon.observations import Observations
+    from illumon.retrieval.common import grey_world, grey_world_mired
+
+    rng = np.random.default_rng(3)
+    css = np.abs(rng.normal(size=(61, 3))) + 0.1
+    values = rng.uniform(0.01, 1.0, (9000, 5, 3))
+    values[rng.random((9000, 5)) < 0.2] = np.nan
+    values[::101, 2] = [np.inf, 0.5, 0.5]
+    values[::103] = np.nan
+    values[::107, :, 0] = 0.0
+    obs = Observations([str(i) for i in range(9000)], [f"p{j}" for j in range(5)], values,
+                       [""] * 9000)
+    with np.errstate(all="ignore"):
+        got = grey_world_mired(obs, css)
+        grid = np.linspace(45.0, 380.0, 200)  # the function as it was
+        cct = 1e6 / grid
+        whites = daylight_spectrum(xy_from_cct_duv(cct, daylight_locus_duv(cct))) @ css
+        chrom = np.log(whites[:, [0, 2]] / whites[:, 1:2])
+        gchrom = np.log(np.clip(grey_world(obs)[:, [0, 2]], 1e-9, None))
+        want = np.concatenate([grid[np.argmin(((gchrom[i:i + 8192, None, :] - chrom[None, :, :]) ** 2).sum(-1),
+                                              axis=1)] for i in range(0, 9000, 8192)])
+    assert np.array_equal(got, want)

@@ -665,38 +665,17 @@ def history_lamps(model, obs) -> HistoryJudgement:  # noqa: ANN001
     unbalanced = _unbalanced_offset(model, means)
     camera_sd = float(model.camera.get("white_sd_log", 0.0) or 0.0)
     prior = unbalanced
-    css = model.sensitivities
     if prior is None:
-        # every light judged by the scene average the learned reflectances predict under it (:func:`_scene_camera`):
-        # what is left of the offset is the model's misfit, expected nil
-        css = _scene_camera(model, obs)
         s = math.hypot(SCENE_OFFSET_SD, camera_sd)
-        prior = (np.zeros(2), np.array([s, s]))
-    lp = lamp_posterior(means, css, model.daylight_model(), camera_sd=camera_sd, offset_prior=prior)
+        prior = (expected_scene_offset(model, obs), np.array([s, s]))
+    lp = lamp_posterior(means, model.sensitivities, model.daylight_model(), camera_sd=camera_sd, offset_prior=prior)
     nd = lp.non_daylight
     # lamps only: no daylight frame pins the offset, the lamps' own colours are not the CIE populations' (filtered
     # lamps on the development scenes moved it 1.5 sd from the scene average's reading): the level's offset is kept
     offset, offset_sd = unbalanced if unbalanced is not None else (lp.offset, lp.offset_sd)
     model.lamps = {"offset": offset.tolist(), "offset_sd": offset_sd.tolist(), "prior": LAMP_PRIOR,
                    "daylight_frames": int(np.sum(np.isfinite(nd) & (nd < 0.5))), "frames": int(len(nd))}
-    if css is not model.sensitivities:
-        model.lamps["scene_camera"] = True
     return HistoryJudgement(nd, means)
-
-
-def _scene_camera(model, obs) -> NDArray[np.float64]:  # noqa: ANN001
-    """The model's camera times the mean learned reflectance of the model's patches ``obs`` shows (61 × 3): its
-    "white" under a light is the scene average the model predicts under that light (the model's predictions are
-    linear in the reflectance coefficients, so the average of the patches' predictions is the prediction of their
-    mean). Judged through it, a frame's scene average is compared with where each daylight and each lamp would put
-    it, instead of with their whites plus one offset: a coloured scene's average follows its light's white only in
-    part (development ``imgsim`` clean history 3141, a yellow scene under sun and blue sky: its true offset moved
-    (+0.10, +0.25) log r/g, b/g between 5 300 K and 14 000 K, so one offset fitted neither and the sun read as
-    lamps)."""
-    index = {p: i for i, p in enumerate(model.patches)}
-    mi = [index[p] for p in obs.patches if p in index]
-    rbar = model.basis @ model.coefficients[mi].mean(axis=0)
-    return np.asarray(model.sensitivities, dtype=float) * np.clip(rbar, 1e-4, None)[:, None]
 
 
 def expected_scene_offset(model, obs) -> NDArray[np.float64]:  # noqa: ANN001
@@ -864,8 +843,7 @@ def _judged_frames(model, obs, theta: NDArray[np.float64], solver=None,  # noqa:
     prior = float(lamps.get("prior", LAMP_PRIOR))
     if means is None:
         means = _frame_means(model, obs, theta, solver)
-    css = _scene_camera(model, obs) if lamps.get("scene_camera") else model.sensitivities
-    lp = frame_lamp_posterior(means, css, model.daylight_model(), np.asarray(lamps["offset"]),
+    lp = frame_lamp_posterior(means, model.sensitivities, model.daylight_model(), np.asarray(lamps["offset"]),
                               np.maximum(np.asarray(lamps["offset_sd"]), 0.01), prior=prior)
     return lp, np.where(np.isfinite(lp.non_daylight), lp.non_daylight, prior)
 

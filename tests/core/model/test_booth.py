@@ -31,12 +31,18 @@ def test_booth_d65_frame_reads_d65(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def test_whole_booth_read_from_the_chart(monkeypatch: pytest.MonkeyPatch) -> None:
     """The whole booth (D65 and D50 simulators, A, TL84, cool white; the chart known in the D65 frame), a Nikon
-    D5100 nobody measured, its maker not in the prior: the scene alone bends every frame by ~−100 MK⁻¹ (22 700 K);
-    the chart's reading (bent, probability > 0.5) brings the D65 frame to ~6 070 K and the lamps' median error within
-    20 MK⁻¹, and the model's warnings say why. The reading leaves a daylight-only booth (every frame the D65
-    simulator) combined, not replaced, and without that warning."""
+    D5100 nobody measured, its maker not in the prior: the scene alone bends every frame by ~−100 MK⁻¹ (22 900 K).
+    Two safeguards, each enough alone: the chart's reading (with the lamp rounds off: bent, probability > 0.5, the
+    D65 frame ~6 070 K, the lamps' median error within 20 MK⁻¹, and the model's warnings say why; a daylight-only
+    booth combined, not replaced, and without that warning) and the lamp rounds (with the reading refused, as a
+    camera's colour matrix makes it: the tungsten frame judged lamp-lit and left out of the reflectance fit, the D65
+    frame 6 030 K)."""
     import lightbox
 
+    both = lightbox.run("Nikon_D5100", lightbox.HISTORIES["the whole booth"])
+    assert 5900 <= both["cct"][0] <= 7200 and abs(np.median(both["mired_err"])) < 20 and both["frame0_in_95"]
+    lamp_rounds = fit_mod.LAMP_ROUNDS
+    monkeypatch.setattr(fit_mod, "LAMP_ROUNDS", 0)
     said: list[str] = []
     identifiability = fit_mod.identifiability
 
@@ -66,6 +72,9 @@ def test_whole_booth_read_from_the_chart(monkeypatch: pytest.MonkeyPatch) -> Non
     monkeypatch.setattr(calibration, "_chart_readings", lambda *args: None)
     before = lightbox.run("Nikon_D5100", lightbox.HISTORIES["the whole booth"])
     assert before["cct"][0] > 15000
+    monkeypatch.setattr(fit_mod, "LAMP_ROUNDS", lamp_rounds)
+    rounds = lightbox.run("Nikon_D5100", lightbox.HISTORIES["the whole booth"])
+    assert 5900 <= rounds["cct"][0] <= 7200 and abs(np.median(rounds["mired_err"])) < 20 and rounds["frame0_in_95"]
 
 
 def test_daylight_history_unchanged(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -98,3 +107,40 @@ def test_daylight_history_unchanged(monkeypatch: pytest.MonkeyPatch) -> None:
     cct0, white0 = fit()
     np.testing.assert_array_equal(cct, cct0)
     np.testing.assert_array_equal(white, white0)
+
+
+def test_matrix_camera_booth_lamp_frame_left_out(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A Nikon D5100 that renders through its colour matrix but is declared sensor RGB (its chart's own reading is
+    refused), chart known in the D65-simulator frame, one tungsten frame in the history: with the lamp rounds the
+    tungsten frame leaves the reflectance fit and every frame is within ~20 MK⁻¹ of its lamp (the D65 frame in its
+    95 % interval); without them every frame moved by −66…−72 MK⁻¹, the D65 frame outside its interval."""
+    import lightbox
+
+    frames = lightbox.HISTORIES["+ tungsten"]
+    got = lightbox.run("Nikon_D5100", frames, matrix=True)
+    assert not got["chart_read"]
+    assert got["frame0_in_95"] and abs(np.median(got["mired_err"])) < 30
+    monkeypatch.setattr(fit_mod, "LAMP_ROUNDS", 0)
+    before = lightbox.run("Nikon_D5100", frames, matrix=True)
+    assert not before["frame0_in_95"] and np.median(before["mired_err"]) < -50
+
+
+def test_rendered_booth_level_held(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The whole booth seen by a Nikon D5100 rendering to sRGB with a fixed D65 balance, declared ``srgb``, chart known
+    in the D65 frame: the chart's iterations hold the history's level at the first fit's
+    (:func:`illumon.camera.calibration._held_level`), so the D50-simulator frame's white stays within 0.7° and the lamp
+    frames' within 7°; chasing ``T`` instead ran every frame to the locus's end, the D50 frame read as the D65 one
+    (white 9.3° off) and the lamps' 14–15°. The chart's six greys alone (``T`` diagonal) chase as before until the
+    reference frame runs away, then hold: D50 frame 1.1° and lamps within 4.4° (before: 8.5°, 7.7–12.9°)."""
+    import lightbox
+
+    booth = lightbox.HISTORIES["the whole booth"]
+    got = lightbox.run("Nikon_D5100", booth, matrix=True, primaries="srgb")
+    assert got["white_err"][4] < 1.5 and max(got["white_err"]) < 8.0
+    greys = lightbox.run("Nikon_D5100", booth, matrix=True, primaries="srgb", reference="greys")
+    assert greys["white_err"][4] < 2.0 and max(greys["white_err"]) < 6.0
+    monkeypatch.setattr(calibration, "_held_level", lambda *args: None)
+    before = lightbox.run("Nikon_D5100", booth, matrix=True, primaries="srgb")
+    assert before["white_err"][4] > 5.0 and max(before["white_err"]) > 10.0
+    before = lightbox.run("Nikon_D5100", booth, matrix=True, primaries="srgb", reference="greys")
+    assert before["white_err"][4] > 5.0 and max(before["white_err"]) > 10.0

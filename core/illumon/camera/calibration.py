@@ -46,8 +46,9 @@ from .chart_light import chart_light_illumon
 from .formation import angular_error_deg, flare_scales
 from .references import neutral_references, references_kind
 
-__all__ = ["CAMERA_MIRED_SD", "CAMERA_WHITE_SD", "STATED_WHITE_SPREAD", "CameraCalibration", "prior_sensitivities",
-           "camera_transform_Kinoshita2023", "calibrate_scene_model"]
+__all__ = ["BENT_PRIOR", "CAMERA_MIRED_SD", "CAMERA_WHITE_SD", "PRESET_MIRED_SD", "STATED_WHITE_SPREAD",
+           "CameraCalibration", "prior_sensitivities", "camera_transform_Kinoshita2023", "calibrate_scene_model",
+           "held_or_bent"]
 
 CAMERA_WHITE_SD = {"measured": 0.0, "grey": 0.005, "chart": 0.015, "none": 0.11}
 """Standard deviation (log units per chromatic channel, r/g and b/g) of the camera white that the camera model itself
@@ -110,6 +111,41 @@ were read from (chosen on scenes of measured surfaces, for which the scale is 1)
 again (2026-11-27, the same commands, cases ``chart+rendered`` and ``chart+awb``) when a chart's reference iterations
 stopped chasing ``T`` (:func:`_held_level`): with the former ``(1.30, 0.0187, 0.0)`` it stated 0.35 where 87 % of
 ``rawsim``'s glare-free rendered frames were within 1°."""
+
+
+BENT_PRIOR = 0.2
+"""Prior probability that a history's common temperature is bent: frames no daylight explains (a light booth's
+lamps) moved the static patches' shared reflectances, and every frame's temperature with them."""
+
+PRESET_MIRED_SD = 25.0
+"""Standard deviation (MK⁻¹) of the light a rendered camera's fixed white balance shows grey, around CIE D65 (the
+light the sRGB functions show grey): cameras' "daylight" presets lie at 5 000–6 500 K (154–200 MK⁻¹), their matrices
+depart from the sRGB functions by a few more. Chosen from that range, not measured: the development data have no
+camera's own preset (``rawsim`` and ``benchmarks/real.py``'s rendered sets balance for D65 or the frames' own greys).
+It is the spread of a reference frame's reading of its light through the sRGB functions
+(:func:`_reference_balance_level`)."""
+
+
+def held_or_bent(d: float, var_reading: float, sd_scene: float, sd_bent: float, prior_bent: float = BENT_PRIOR
+                 ) -> tuple[float, float, float]:
+    """How far to move a history's common reciprocal temperature, given a reading that disagrees with it by ``d``.
+
+    Two hypotheses: the scene's level holds (``d ~ N(0, var_reading + sd_scene²)``: the two are combined by their
+    precisions) or frames no daylight explains bent it (``d ~ N(0, var_reading + sd_bent²)``, probability
+    ``prior_bent``: the reading is taken). The more probable one is kept; the spread about it is the mixture's (the
+    other hypothesis's share and distance widen it). Returns the shift, its standard deviation and the probability
+    of the bent hypothesis."""
+
+    def log_n(var: float) -> float:
+        return -0.5 * d * d / var - 0.5 * math.log(var)
+
+    log_bent = math.log(prior_bent) + log_n(var_reading + sd_bent**2)
+    log_held = math.log(1.0 - prior_bent) + log_n(var_reading + sd_scene**2)
+    bent = 1.0 / (1.0 + math.exp(log_held - log_bent))
+    held = (d * sd_scene**2 / (sd_scene**2 + var_reading), 1.0 / (1.0 / sd_scene**2 + 1.0 / var_reading))
+    shift = d if bent > 0.5 else held[0]
+    post_sd = math.sqrt(bent * (var_reading + (d - shift) ** 2) + (1.0 - bent) * (held[1] + (held[0] - shift) ** 2))
+    return shift, post_sd, bent
 
 
 CLIPPED = 0.995
@@ -461,6 +497,7 @@ def calibrate_scene_model(
                                glare_sd=glare_sd)
     if ids and primaries == "srgb":
         model.noise["mired_offset"] = _reporting_offset(theta_first, theta)
+        _reference_balance_level(model, theta[frames], values[frames], spectra, neutral, base)
     if estimate is not None:  # every frame of the whole history; the fit's frames as its rows
         scene = estimate.select_patches(list(scene.patches))
         if model.fit_frames is not None:
@@ -542,6 +579,53 @@ def _ran_away(dm: CIEDaylight, first: NDArray[np.float64], theta: NDArray[np.flo
     at = (theta[:, 0] <= lo[0] + 1.0) | (theta[:, 0] >= hi[0] - 1.0)
     clear = (first[:, 0] > lo[0] + 1.0) & (first[:, 0] < hi[0] - 1.0)
     return bool(np.any(at & clear))
+
+
+def _reference_balance_level(model, theta: NDArray[np.float64], values: NDArray[np.float64],  # noqa: ANN001
+                             spectra: NDArray[np.float64], neutral: NDArray[np.bool_], base: NDArray[np.float64]
+                             ) -> None:
+    """A rendered camera's reference frames read their own light (in place: ``noise["mired_offset"]`` and the common
+    level's model error).
+
+    The history's reported temperature rests on the camera's balance: its mean white is expected near grey
+    (:func:`illumon.model.level.common_level_posterior`). A history lit mostly by lamps (a light booth) breaks that
+    — its mean white is warm — and every frame's temperature moves with it: the booth's D65 frame read 12 300 K. A
+    reference frame's neutral white is a second reading of the same level: through the sRGB functions (the camera's
+    fixed balance, ± :data:`PRESET_MIRED_SD`) it names the locus light that shows it. The two are weighed as
+    :func:`held_or_bent` weighs them (the daylight prior's spread for the bent hypothesis): the reported temperature
+    moves by the shift and the common level's spread becomes the mixture's (CCT and Duv intervals only: the
+    references pin the whites). ``theta``: the reference frames' ``(mired, δ, …)`` in the model's last fit; ``values``:
+    their reference values (frames × references × 3); ``base``: the sRGB functions. Nothing changes without unclipped neutral
+    references."""
+    if not np.any(neutral):
+        return
+    dm = model.daylight_model()
+    frames = np.flatnonzero(np.all(np.isfinite(values[:, neutral]), axis=-1).any(axis=1))
+    lo, hi = dm.bounds()
+    mired, delta = np.meshgrid(np.arange(lo[0], hi[0] + 0.5, 1.0), np.arange(-0.02, 0.0205, 0.001))
+    grid = np.stack([mired.ravel(), np.clip(delta.ravel(), lo[1], hi[1])], axis=1)  # the locus and off it
+    e = dm.spectra(grid)
+    offset = float(model.noise.get("mired_offset", 0.0))
+    diffs = []
+    for f in frames:
+        v = values[f][neutral]
+        ok = np.all(np.isfinite(v), axis=-1) & np.all(v < CLIPPED, axis=-1) & np.all(v > 0, axis=-1)
+        if not ok.any():
+            continue
+        pred = np.einsum("rl,gl,lc->gc", spectra[neutral][ok], e, base)  # the neutrals' sum through base
+        seen = v[ok].sum(axis=0)
+        with np.errstate(divide="ignore", invalid="ignore"):  # the CIE basis goes negative at the grid's corners
+            chroma = np.log(seen[[0, 2]] / seen[1]) - np.log(pred[:, [0, 2]] / pred[:, 1:2])
+        dist = np.where(np.all(pred > 0, axis=1), np.sum(chroma**2, axis=1), np.inf)
+        read = float(grid[np.argmin(dist), 0])
+        diffs.append(read - (theta[f, 0] + offset))
+    if not diffs:
+        return
+    me = model.noise["model_error"]
+    var_reading = PRESET_MIRED_SD**2 / len(diffs)
+    shift, sd, _ = held_or_bent(float(np.mean(diffs)), var_reading, float(me["common_mired"]), float(dm.mired_sigma))
+    model.noise["mired_offset"] = offset + shift
+    me["common_mired"] = sd
 
 
 def _reporting_offset(theta_first: NDArray[np.float64], theta: NDArray[np.float64]) -> float:

@@ -28,7 +28,13 @@ from scipy.linalg.lapack import dposv
 from .._blas import single_blas_thread
 from ..camera import formation
 from ..camera.balance import self_balance_warning
-from ..camera.calibration import SCENE_AVERAGE_SD, calibrate_scene_model, prior_sensitivities, prior_white_spread
+from ..camera.calibration import (
+    SCENE_AVERAGE_SD,
+    calibrate_scene_model,
+    held_or_bent,
+    prior_sensitivities,
+    prior_white_spread,
+)
 from ..camera.primaries import SRGB_BALANCE_SD, check_primaries, daylight_prior_for, srgb_sensitivities, to_srgb_primaries
 from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
@@ -597,11 +603,6 @@ CHART_LIGHT_MODEL_SD = 10.0
 (:mod:`illumon.camera.chart_light`): how far the camera prior, the CIE daylight model and the chart's own values leave
 it off beyond its likelihood's spread."""
 
-BENT_PRIOR = 0.2
-"""Prior probability that a history's common temperature is bent: frames no daylight explains (a light booth's
-lamps) moved the static patches' shared reflectances, and every frame's temperature with them."""
-
-
 def _reference_level(objective: _JointObjective, theta: NDArray[np.float64], coef: NDArray[np.float64],
                      solver_args: tuple, y: NDArray[np.float64], present: NDArray[np.bool_],
                      extra: NDArray[np.float64] | None,
@@ -613,9 +614,9 @@ def _reference_level(objective: _JointObjective, theta: NDArray[np.float64], coe
     ``common_mired``); each chart says its frame's own (± its spread and :data:`CHART_LIGHT_MODEL_SD`). Two
     hypotheses weigh the charts' mean difference ``d``: the scene's level holds (``d ~ N(0, σ_c² + σ_s²)``: the two
     are combined by their precisions) or it was bent by frames no daylight explains (``d ~ N(0, σ_c² + σ_D²)``,
-    ``σ_D`` the daylight prior's spread, probability :data:`BENT_PRIOR`: the charts' reading is taken). The more
-    probable one is kept, as :mod:`.level` does; its standard deviation is the mixture's about that mean (the other
-    hypothesis's share and distance widen it). Every frame's ``(mired)`` moves by the shift and the reflectances
+    ``σ_D`` the daylight prior's spread, probability :data:`~illumon.camera.calibration.BENT_PRIOR`: the charts'
+    reading is taken), by :func:`~illumon.camera.calibration.held_or_bent`: the more probable one is kept, its
+    standard deviation the mixture's about that mean. Every frame's ``(mired)`` moves by the shift and the reflectances
     are re-solved at it. ``y``, ``present``, ``extra``: the chart frames' rows of the history on the fit's scale
     (their scene patches are estimated with the fitted reflectances). Returns ``θ``, the coefficients, the common
     shift's standard deviation (mired, Duv: ``inf``, not constrained) and a summary for ``model.noise``."""
@@ -628,18 +629,7 @@ def _reference_level(objective: _JointObjective, theta: NDArray[np.float64], coe
     d = float(np.sum(w * (mired - scene)) / np.sum(w))
     v_c = float(1.0 / np.sum(w))
     s_s = float(math.hypot(objective.common_shift_sd(theta, noise)[0], MODEL_ERROR["common_mired"]))
-    s_d = float(dm.mired_sigma)
-
-    def log_n(var: float) -> float:
-        return -0.5 * d * d / var - 0.5 * math.log(var)
-
-    log_bent = math.log(BENT_PRIOR) + log_n(v_c + s_d**2)
-    log_held = math.log(1.0 - BENT_PRIOR) + log_n(v_c + s_s**2)
-    bent = 1.0 / (1.0 + math.exp(log_held - log_bent))
-    held = (d * s_s**2 / (s_s**2 + v_c), 1.0 / (1.0 / s_s**2 + 1.0 / v_c))  # the components' means and variances
-    shift = d if bent > 0.5 else held[0]
-    # the spread about the kept mean is the mixture's: the other hypothesis's share and distance widen it
-    post_sd = math.sqrt(bent * (v_c + (d - shift) ** 2) + (1.0 - bent) * (held[1] + (held[0] - shift) ** 2))
+    shift, post_sd, bent = held_or_bent(d, v_c, s_s, float(dm.mired_sigma))
     lo_b, hi_b = dm.bounds()
     theta = theta.copy()
     theta[:, 0] = np.clip(theta[:, 0] + shift, lo_b[0], hi_b[0])

@@ -144,3 +144,23 @@ def test_rendered_booth_level_held(monkeypatch: pytest.MonkeyPatch) -> None:
     assert before["white_err"][4] > 5.0 and max(before["white_err"]) > 10.0
     before = lightbox.run("Nikon_D5100", booth, matrix=True, primaries="srgb", reference="greys")
     assert before["white_err"][4] > 5.0 and max(before["white_err"]) > 10.0
+
+
+def test_rendered_booth_reference_reads_the_level(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The same rendered booth: the camera's balance prior (the history's mean white near grey) reads its D65 frame
+    at ~12 300 K, the lamps' warm mean pulling every frame; the reference frame's greys through the sRGB functions
+    read ~6 500 K, and :func:`illumon.camera.calibration._reference_balance_level` judges the level bent and takes
+    them: the D65 frame within the issue's 5 900–7 200 K and its 95 % interval, with the chart or its greys alone. A
+    daylight-only booth keeps its ~6 580 K."""
+    import lightbox
+
+    booth = lightbox.HISTORIES["the whole booth"]
+    for reference in ("chart", "greys"):
+        got = lightbox.run("Nikon_D5100", booth, matrix=True, primaries="srgb", reference=reference)
+        assert 5900 <= got["cct"][0] <= 7200 and got["frame0_in_95"]
+        assert abs(np.median(got["mired_err"])) < 20
+    day = lightbox.run("Nikon_D5100", lightbox.HISTORIES["D65 simulator only"], matrix=True, primaries="srgb")
+    assert 6300 <= day["cct"][0] <= 6800
+    monkeypatch.setattr(calibration, "_reference_balance_level", lambda *args: None)
+    before = lightbox.run("Nikon_D5100", booth, matrix=True, primaries="srgb")
+    assert before["cct"][0] > 9000 and not before["frame0_in_95"]

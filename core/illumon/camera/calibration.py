@@ -610,7 +610,7 @@ def _reference_balance_level(model, theta: NDArray[np.float64], values: NDArray[
     for f in frames:
         v = values[f][neutral]
         ok = np.all(np.isfinite(v), axis=-1) & np.all(v < CLIPPED, axis=-1) & np.all(v > 0, axis=-1)
-        if not ok.any():
+        if not ok.any() or not np.all(np.isfinite(theta[f, :2])):
             continue
         pred = np.einsum("rl,gl,lc->gc", spectra[neutral][ok], e, base)  # the neutrals' sum through base
         seen = v[ok].sum(axis=0)

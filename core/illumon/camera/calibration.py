@@ -595,8 +595,8 @@ def _reference_balance_level(model, theta: NDArray[np.float64], values: NDArray[
     :func:`held_or_bent` weighs them (the daylight prior's spread for the bent hypothesis): the reported temperature
     moves by the shift and the common level's spread becomes the mixture's (CCT and Duv intervals only: the
     references pin the whites). ``theta``: the reference frames' ``(mired, δ, …)`` in the model's last fit; ``values``:
-    their reference values (frames × references × 3); ``base``: the sRGB functions. Nothing changes without unclipped neutral
-    references."""
+    their reference values (frames × references × 3); ``base``: the sRGB functions. Nothing changes without unclipped
+    neutral references, or when no locus light inside the model's range shows them grey."""
     if not np.any(neutral):
         return
     dm = model.daylight_model()
@@ -618,12 +618,15 @@ def _reference_balance_level(model, theta: NDArray[np.float64], values: NDArray[
             chroma = np.log(seen[[0, 2]] / seen[1]) - np.log(pred[:, [0, 2]] / pred[:, 1:2])
         dist = np.where(np.all(pred > 0, axis=1), np.sum(chroma**2, axis=1), np.inf)
         read = float(grid[np.argmin(dist), 0])
+        if read <= lo[0] or read >= grid[-1, 0]:
+            continue  # no locus light shows these neutrals grey through the sRGB functions: no reading
         diffs.append(read - (theta[f, 0] + offset))
     if not diffs:
         return
     me = model.noise["model_error"]
-    var_reading = PRESET_MIRED_SD**2 / len(diffs)
-    shift, sd, _ = held_or_bent(float(np.mean(diffs)), var_reading, float(me["common_mired"]), float(dm.mired_sigma))
+    # one preset for every reference frame: their readings share its error, so it does not average out
+    shift, sd, _ = held_or_bent(float(np.mean(diffs)), PRESET_MIRED_SD**2, float(me["common_mired"]),
+                                float(dm.mired_sigma))
     model.noise["mired_offset"] = offset + shift
     me["common_mired"] = sd
 

@@ -465,22 +465,23 @@ def calibrate_scene_model(
     glare_sd = 0.0  # how far the reference frames' glare leaves the camera white (log r/g, b/g)
     if ids:
         dm = model.daylight_model()
-        first = _held_level(model, theta) if primaries == "srgb" else None
+        if primaries == "srgb" and kind == "chart":  # rendered output: a chart's iterations hold the first level
+            extra["common_level"] = _held_level(model, theta)
         for it in range(1, max_iterations + 1):  # noqa: B007
             # The references are left out of the scene fit: a reference seen in one frame cannot tell a shift
             # common to every frame's daylight from a change of T, so the frames' daylight comes from the scene
             # (as without references) and T absorbs the rest, pinning the camera white of the reference frames.
-            held = _held_level(model, theta) if first is not None else None  # the level T is fitted at
+            # A rendered camera's grey card chases the level until its reference frame runs away (_held_level).
+            chasing = primaries == "srgb" and "common_level" not in extra
+            held = _held_level(model, theta) if chasing else None  # the level T is fitted at
             t_new, sd = camera_transform_Kinoshita2023(
                 base, spectra, dm.spectra(theta[frames, :2]), values[frames], diagonal=(kind == "grey"),
                 neutral=neutral,
             )
             change = float(angular_error_deg(_d65_white(base @ t), _d65_white(base @ t_new)))
             t = t_new
-            if first is not None and kind == "chart":
-                extra["common_level"] = first
             model, theta = fit(scene, base @ t, **extra)
-            if held is not None and "common_level" not in extra and _ran_away(dm, theta_first[frames], theta[frames]):
+            if chasing and _ran_away(dm, theta_first[frames], theta[frames]):
                 extra["common_level"] = held
                 model, theta = fit(scene, base @ t, **extra)
             if change < tol_deg:

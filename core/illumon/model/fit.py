@@ -876,7 +876,7 @@ def _fit_fixed_camera(
                "model_error": dict(MODEL_ERROR, common_mired=float(math.hypot(common[0], MODEL_ERROR["common_mired"])),
                                    common_duv=float(max(common[1], MODEL_ERROR["common_duv"])))},
     )
-    if common_level is not None:  # the level held is the first fit's, as uncertain as it stated
+    if common_level is not None:  # the level held is an earlier fit's, as uncertain as that fit stated it
         model.noise["model_error"].update(common_mired=float(common_level[2]), common_duv=float(common_level[3]))
     if level is not None and level.unbalanced > 0.5:  # lamps only: the level the scene average gave, for the verdicts
         model.noise.update(unbalanced=level.unbalanced, level=level.mean.tolist(), level_sd=level.sd)

@@ -89,6 +89,7 @@ def run(camera: str, frames: list[str], seed: int = 0, matrix: bool = False, pri
         warnings.simplefilter("ignore")
         prior = camera_prior_without(camera)  # the camera under test is never in its prior
         model = fit_scene_model(obs, None, known_reflectances=refs, camera_prior=prior,  # and its mean
+                                rendered_camera_prior=camera_prior_without(camera, rendered=True),
                                 primaries=primaries)
     res, extra = model.history_estimate
     true = np.array([cct_duv_from_xy(xy_from_spectrum(x[None]))[0][0] for x in e])
@@ -97,6 +98,7 @@ def run(camera: str, frames: list[str], seed: int = 0, matrix: bool = False, pri
             "mired_err": (1e6 / cct - 1e6 / true).tolist(),
             "white_err": angular_error_deg(res.white, white).tolist(),
             "chart_read": "chart_level" in model.noise,
+            "chart_read_as": model.camera.get("chart_read_as"),
             "frame0_in_95": bool(extra["cct_lo"][0] <= true[0] <= extra["cct_hi"][0]),
             "transform_diag": np.diag(np.asarray(model.camera["transform"])).tolist()}
 

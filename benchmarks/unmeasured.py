@@ -72,6 +72,7 @@ from illumon.camera import (  # noqa: E402
     grey_card_reference,
 )
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
+from illumon.camera.primaries import to_srgb_primaries  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
 from illumon.priors import CameraPrior, build_camera_prior  # noqa: E402
@@ -89,11 +90,14 @@ FRAMES, PATCHES = 30, 10
 
 
 @lru_cache(maxsize=8)
-def camera_prior_without(camera: str) -> CameraPrior:
+def camera_prior_without(camera: str, rendered: bool = False) -> CameraPrior:
     """The camera prior (:class:`illumon.priors.CameraPrior`) of the measured cameras of every other manufacturer:
-    what a chart's reading of its frame's light integrates the camera over (:mod:`illumon.camera.chart_light`)."""
+    what a chart's reading of its frame's light integrates the camera over (:mod:`illumon.camera.chart_light`).
+    ``rendered``: those cameras carried to sRGB primaries (:func:`illumon.camera.primaries.to_srgb_primaries`), as
+    :func:`illumon.priors.rendered_camera_prior` is built."""
     own = rawsim.manufacturer(camera)
-    return build_camera_prior([datasets.load_camera(n) for n in datasets.camera_names() if rawsim.manufacturer(n) != own])
+    cams = [datasets.load_camera(n) for n in datasets.camera_names() if rawsim.manufacturer(n) != own]
+    return build_camera_prior([to_srgb_primaries(c) for c in cams] if rendered else cams)
 
 
 def prior_mean_without(camera: str) -> np.ndarray:
@@ -181,8 +185,9 @@ def run_case(sim: str, camera: str, case: str, seed: int, hours: float = 0.0, me
         elif case.endswith(RENDERED):  # the sRGB prior holds no measured camera
             model = fit_scene_model(obs, None, known_reflectances=known or None, primaries="srgb")
         else:
-            model = fit_scene_model(obs, None, known_reflectances=known or None,
-                                    camera_prior=camera_prior_without(camera))  # and its mean
+            model = fit_scene_model(obs, None, known_reflectances=known or None,  # the camera in neither prior
+                                    camera_prior=camera_prior_without(camera),  # nor its mean
+                                    rendered_camera_prior=camera_prior_without(camera, rendered=True))
     seconds = time.perf_counter() - t0
     res, extra = model.history_estimate
     err = angular_error_deg(res.white, white)

@@ -6,6 +6,8 @@ Run: ``python tools/build_sensitivity_priors.py``. Writes
 cameras'
   max-normalised sensitivities, and the per-channel Jiang et al. (2013) eigenvectors
   (``colour.recovery.PCA_Jiang2013``);
+* ``rendered_camera_prior.csv`` / ``.json`` — the same of the 24 cameras each carried to sRGB primaries with a D65
+  daylight preset (``illumon.camera.primaries.to_srgb_primaries``): the prior of a camera whose colour matrix is on;
 * ``daylight_prior.csv`` / ``daylight_prior.json`` — PCA of the 2600 Granada daylight spectra (unit mean on
   400–700 nm) with the Gaussian of their coefficients;
 * ``fluorophores.csv`` — excitation and emission spectra (400–700 nm, 5 nm, peak-normalised) of 12
@@ -23,6 +25,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+from illumon.camera.primaries import to_srgb_primaries
 from illumon.priors import build_camera_prior, build_daylight_prior
 from illumon.simulation import datasets
 from illumon.spectra import WAVELENGTHS, write_spectral_csv
@@ -39,6 +42,16 @@ FLUOROPHORE_TARGETS = tuple(range(430, 671, 12))
 def build_cameras() -> None:
     names = datasets.camera_names()
     cams = [datasets.load_camera(n) for n in names]
+    write_camera_prior("camera_prior", cams, names, "illumon camera-sensitivity prior: joint PCA of max-normalised "
+                       "(r,g,b) curves, measured cameras", "shared/data/cameras")
+    write_camera_prior("rendered_camera_prior", [to_srgb_primaries(c) for c in cams], names,
+                       "illumon rendered-camera prior: joint PCA of max-normalised (r,g,b) curves, measured cameras "
+                       "each carried to sRGB primaries with a D65 preset (illumon.camera.primaries.to_srgb_primaries)",
+                       "shared/data/cameras through illumon.camera.primaries.to_srgb_primaries")
+
+
+def write_camera_prior(stem: str, cams: list[np.ndarray], names: list[str], title: str, built_from: str) -> None:
+    """``<stem>.csv`` / ``<stem>.json``: the camera prior of ``cams`` (as ``illumon.priors`` loads it)."""
     prior = build_camera_prior(cams)
     cols: dict[str, np.ndarray] = {f"mean_{c}": prior.mean[:, i] for i, c in enumerate("rgb")}
     n = WAVELENGTHS.size
@@ -49,12 +62,12 @@ def build_cameras() -> None:
         for i, c in enumerate("rgb"):
             cols[f"jiang{j + 1}_{c}"] = prior.channel_bases[i, :, j]
     write_spectral_csv(
-        OUT / "camera_prior.csv",
+        OUT / f"{stem}.csv",
         WAVELENGTHS,
         cols,
         comments=[
-            "illumon camera-sensitivity prior: joint PCA of max-normalised (r,g,b) curves, measured cameras",
-            "built by tools/build_sensitivity_priors.py from shared/data/cameras: " + ", ".join(names),
+            title,
+            f"built by tools/build_sensitivity_priors.py from {built_from}: " + ", ".join(names),
             "licence: " + CAMERA_LICENCE,
         ],
     )
@@ -65,10 +78,11 @@ def build_cameras() -> None:
         "variances": prior.variances.tolist(),
         "residual_variance": prior.residual_variance,
         "n_channel_basis": int(prior.channel_bases.shape[2]),
-        "source": "shared/data/cameras (Jiang et al. WACV 2013 database, 20; Glenn Butcher 2020, 4)",
+        "source": "shared/data/cameras (Jiang et al. WACV 2013 database, 20; Glenn Butcher 2020, 4)"
+                  + ("" if stem == "camera_prior" else ", through illumon.camera.primaries.to_srgb_primaries"),
         "licence": CAMERA_LICENCE,
     }
-    (OUT / "camera_prior.json").write_text(json.dumps(meta, indent=1))
+    (OUT / f"{stem}.json").write_text(json.dumps(meta, indent=1))
 
 
 def build_daylight() -> None:

@@ -171,6 +171,7 @@ def fit_scene_model(
     known_reflectances: Mapping[str, NDArray[np.float64]] | None = None,
     camera_prior_mean: NDArray[np.float64] | None = None,
     camera_prior: CameraPrior | None = None,
+    rendered_camera_prior: CameraPrior | None = None,
     primaries: str = "camera",
     daylight: CIEDaylight | None = None,
     relative_error: float = 0.02,
@@ -200,6 +201,10 @@ def fit_scene_model(
         The measured cameras' prior a chart's reading of its frame's light integrates an unmeasured sensor-RGB
         camera over (:mod:`illumon.camera.chart_light`; default the shipped prior of every measured camera;
         benchmarks pass one without the scored camera's maker).
+    rendered_camera_prior
+        The rendered cameras' prior a sensor-RGB camera's chart is read with when no sensor explains it (its colour
+        matrix is on; default :func:`illumon.priors.rendered_camera_prior`; benchmarks pass one without the scored
+        camera's maker). The model then warns that the chart looks rendered.
     primaries
         The camera's output space (:data:`illumon.camera.primaries.PRIMARIES`): ``"camera"`` (sensor RGB) or
         ``"srgb"`` (rendered output: white balance and a colour matrix to sRGB primaries). With ``"srgb"`` measured
@@ -238,7 +243,8 @@ def fit_scene_model(
     def fit_once(o: Observations, estimate: Observations | None = None, rows: NDArray[np.intp] | None = None
                  ) -> SceneModel:
         extra = {} if estimate is None else {"estimate": estimate, "rows": rows}
-        return _fit_camera_and_scene(o, sensitivities, known, (camera_prior_mean, camera_prior), primaries,
+        return _fit_camera_and_scene(o, sensitivities, known, (camera_prior_mean, camera_prior, rendered_camera_prior),
+                                     primaries,
                                      {**kwargs, **extra})
 
     model = fit_once(obs)
@@ -295,14 +301,22 @@ def _in_srgb_primaries(sensitivities: NDArray[np.float64] | None, camera_prior_m
         camera_prior_mean = srgb_sensitivities()
     return sensitivities, camera_prior_mean
 
+RENDERED_CHART_WARNING = (
+    "the chart's colours are those of rendered output (a colour matrix to sRGB primaries), not of a sensor's RGB, "
+    "and its light was read as such: if the camera applies a colour matrix, register it with primaries srgb")
+"""The warning of a camera declared sensor RGB whose chart was read with the rendered cameras' prior
+(:func:`illumon.camera.calibration._chart_readings`)."""
+
+
 def _fit_camera_and_scene(o: Observations, sensitivities: NDArray[np.float64] | None,
                           known: Mapping[str, NDArray[np.float64]],
-                          priors: tuple[NDArray[np.float64] | None, CameraPrior | None],
+                          priors: tuple[NDArray[np.float64] | None, CameraPrior | None, CameraPrior | None],
                           primaries: str, kwargs: dict) -> SceneModel:
     """One scene fit of ``o``: through :func:`~illumon.camera.calibration.calibrate_scene_model` for a camera known
     only up to ``T`` (unmeasured, or with references), else the fixed-camera fit; ``camera`` records which.
-    ``priors``: the unmeasured camera's prior mean and the camera prior a chart's reading uses."""
-    camera_prior_mean, camera_prior = priors
+    ``priors``: the unmeasured camera's prior mean and the sensor and rendered cameras' priors a chart's reading
+    uses."""
+    camera_prior_mean, camera_prior, rendered_prior = priors
     if not known and primaries == "camera":
         # sensor RGB without references: the level static patches cannot see is the camera's daylight, unless the
         # scene average says the history is lit by light no daylight through that camera gives (:mod:`.level`) — the
@@ -316,8 +330,11 @@ def _fit_camera_and_scene(o: Observations, sensitivities: NDArray[np.float64] | 
         # a refit of the daylight frames estimates every frame of ``estimate`` once, after the calibration
         target = {"estimate": kwargs.pop("estimate", None), "rows": kwargs.pop("rows", None)}
         m = calibrate_scene_model(o, sensitivities, known, lambda oo, c, **kw: _fit_fixed_camera(oo, c, **kwargs, **kw),
-                                  prior_mean=camera_prior_mean, camera_prior=camera_prior, primaries=primaries,
-                                  **target)
+                                  prior_mean=camera_prior_mean, camera_prior=camera_prior,
+                                  rendered_prior=rendered_prior, primaries=primaries, **target)
+        if m.camera.get("chart_read_as") == "srgb" and primaries == "camera":
+            m.identifiability.setdefault("warnings", []).append(RENDERED_CHART_WARNING)
+            warnings.warn(RENDERED_CHART_WARNING, IdentifiabilityWarning, stacklevel=3)
     else:
         m, _ = _fit_fixed_camera(o, np.asarray(sensitivities, dtype=float), **kwargs)
         m.camera = {"calibration": "measured"}

@@ -10,7 +10,14 @@ The priors sit one layer above :mod:`illumon.spectra` and below everything that 
 retrieval, the scene model, sensitivity, diagnosis), so those import them downwards and never from one another.
 """
 
-from .camera import CameraPrior, build_camera_prior, default_camera_prior, jiang2013_channel_bases, max_normalise
+from .camera import (
+    CameraPrior,
+    build_camera_prior,
+    default_camera_prior,
+    jiang2013_channel_bases,
+    max_normalise,
+    rendered_camera_prior,
+)
 from .daylight import DaylightPrior, build_daylight_prior, default_daylight_prior
 from .surfaces import ReflectanceBasis, colourchecker_reflectances, reflectance_basis, unseen_reflectances
 
@@ -18,6 +25,7 @@ __all__ = [
     "CameraPrior",
     "build_camera_prior",
     "default_camera_prior",
+    "rendered_camera_prior",
     "jiang2013_channel_bases",
     "max_normalise",
     "DaylightPrior",

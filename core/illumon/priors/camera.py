@@ -8,7 +8,10 @@ camera nobody measured (:mod:`illumon.camera.calibration`).
 
 It can be rebuilt from arrays (:func:`build_camera_prior`), which is what the leave-one-camera-out tests and benchmark
 do: the camera under test is never in its own prior. The shipped version (``illumon/data/camera_prior.csv|json``) is
-derived from all 24 measured cameras by ``tools/build_sensitivity_priors.py``.
+derived from all 24 measured cameras by ``tools/build_sensitivity_priors.py``; so is the *rendered* cameras' prior
+(:func:`rendered_camera_prior`, ``illumon/data/rendered_camera_prior.csv|json``): the same cameras each carried to sRGB
+primaries with a D65 daylight preset as a camera's pipeline does it
+(:func:`illumon.camera.primaries.to_srgb_primaries`), what a camera with its colour matrix on delivers.
 
 References
 ----------
@@ -36,6 +39,7 @@ __all__ = [
     "smooth_kernel",
     "build_camera_prior",
     "default_camera_prior",
+    "rendered_camera_prior",
     "max_normalise",
     "jiang2013_channel_bases",
 ]
@@ -208,8 +212,21 @@ def camera_prior_covariance(
 @lru_cache(maxsize=1)
 def default_camera_prior() -> CameraPrior:
     """The shipped camera prior, built from all 24 measured cameras (see ``illumon/data/README.md``)."""
-    values, names = shipped_csv("camera_prior.csv")
-    meta = shipped_json("camera_prior.json")
+    return _shipped_camera_prior("camera_prior")
+
+
+@lru_cache(maxsize=1)
+def rendered_camera_prior() -> CameraPrior:
+    """The shipped prior of rendered cameras: the 24 measured cameras each carried to sRGB primaries with a D65
+    daylight preset (:func:`illumon.camera.primaries.to_srgb_primaries`), as a camera with its colour matrix on
+    delivers them (see ``illumon/data/README.md``)."""
+    return _shipped_camera_prior("rendered_camera_prior")
+
+
+def _shipped_camera_prior(stem: str) -> CameraPrior:
+    """A camera prior shipped as ``illumon/data/<stem>.csv|json`` (``tools/build_sensitivity_priors.py``)."""
+    values, names = shipped_csv(f"{stem}.csv")
+    meta = shipped_json(f"{stem}.json")
     col = {n: i for i, n in enumerate(names)}
     mean = values[:, [col["mean_r"], col["mean_g"], col["mean_b"]]]
     k = int(meta["n_components"])

@@ -77,6 +77,43 @@ def test_refused_where_no_camera_explains_the_chart(shared_data) -> None:
     assert chart_light_illumon(chart("TL84", None), spectra, prior) is None
 
 
+@pytest.mark.parametrize("camera", ["Nikon_D5100", "Point_Grey_Grasshopper2_14S5C"])
+def test_rendered_chart_read_with_the_rendered_prior(shared_data, camera: str) -> None:
+    """The chart of a camera that renders through its colour matrix (declared sensor RGB) under the D65 simulator and
+    CIE A: the rendered cameras' prior (the other makers' cameras carried to sRGB primaries) explains it (misfit
+    below 0.95; the sensors' prior: above 1) and reads the D65 simulator within 15 MK⁻¹ (development: −8…+11) and A
+    within 60 (−53…−7; the sensors' prior reads a sensor's chart under A −75…+20); it refuses the same camera's sensor
+    chart (misfit above 1; development 1.05–1.41), so a sensor's chart is never read as rendered.
+    ``calibration._chart_readings`` tries the sensors' prior first and says which prior read the chart."""
+    import lightbox
+    import rawsim
+    import unmeasured
+    from illumon.camera import calibration
+    from illumon.camera.pipeline import srgb_matrix
+
+    css = datasets.load_camera(camera)
+    sensors = unmeasured.camera_prior_without(camera)
+    rendered = unmeasured.camera_prior_without(camera, rendered=True)
+    spectra = np.stack(list(colourchecker_references().values()))
+
+    def chart(lamp: str, matrix: np.ndarray | None) -> np.ndarray:
+        h = rawsim.simulate_raw_history(css, lightbox.lamp(lamp)[None], spectra, rng=np.random.default_rng(0),
+                                        bits=12, matrix=matrix)
+        return h.linear_output[0]
+
+    for lamp, mired, tol in (("D65 simulator", 153.7, 15.0), ("A", 350.1, 60.0)):
+        values = chart(lamp, srgb_matrix(css))
+        assert chart_light_illumon(values, spectra, sensors) is None
+        read = chart_light_illumon(values, spectra, rendered)
+        assert read is not None and read.misfit < 0.95 and abs(read.mired - mired) < tol, (lamp, read)
+        readings, space = calibration._chart_readings(values[None], np.array([0]), spectra, sensors, rendered)
+        assert space == "srgb" and readings[1][0] == pytest.approx(read.mired)
+    raw = chart("D65 simulator", None)
+    assert chart_light_illumon(raw, spectra, rendered) is None
+    readings, space = calibration._chart_readings(raw[None], np.array([0]), spectra, sensors, rendered)
+    assert space == "camera" and abs(readings[1][0] - 153.7) < 30
+
+
 def test_veiling_glare_integrated_out(shared_data) -> None:
     """A chart under a D65 simulator with veiling glare (an offset of 3–12 % of each channel's mean value, the
     development photographs' range): read within 8 MK⁻¹ of the glare-free reading (the offset is integrated out;

@@ -24,7 +24,7 @@ def test_booth_d65_frame_reads_d65(monkeypatch: pytest.MonkeyPatch) -> None:
     assert 5900 <= got["cct"][0] <= 7200
     assert abs(np.median(got["mired_err"])) < 20
     monkeypatch.setattr(fit_mod, "ROBUST_ROUNDS", 0)
-    monkeypatch.setattr(calibration, "_chart_readings", lambda *args: None)
+    monkeypatch.setattr(calibration, "_chart_readings", lambda *args: (None, "camera"))
     before = lightbox.run("Nikon_D5100", frames)
     assert before["cct"][0] > 15000
 
@@ -69,7 +69,7 @@ def test_whole_booth_read_from_the_chart(monkeypatch: pytest.MonkeyPatch) -> Non
     lightbox.run("Nikon_D5100", lightbox.HISTORIES["D65 simulator only"])
     assert levels and levels[-1]["bent"] < 0.5
     assert not any("disagrees with the chart" in w for w in said[-1]["warnings"])
-    monkeypatch.setattr(calibration, "_chart_readings", lambda *args: None)
+    monkeypatch.setattr(calibration, "_chart_readings", lambda *args: (None, "camera"))
     before = lightbox.run("Nikon_D5100", lightbox.HISTORIES["the whole booth"])
     assert before["cct"][0] > 15000
     monkeypatch.setattr(fit_mod, "LAMP_ROUNDS", lamp_rounds)
@@ -110,19 +110,51 @@ def test_daylight_history_unchanged(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 def test_matrix_camera_booth_lamp_frame_left_out(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A Nikon D5100 that renders through its colour matrix but is declared sensor RGB (its chart's own reading is
-    refused), chart known in the D65-simulator frame, one tungsten frame in the history: with the lamp rounds the
-    tungsten frame leaves the reflectance fit and every frame is within ~20 MK⁻¹ of its lamp (the D65 frame in its
-    95 % interval); without them every frame moved by −66…−72 MK⁻¹, the D65 frame outside its interval."""
+    """A Nikon D5100 that renders through its colour matrix but is declared sensor RGB, chart known in the
+    D65-simulator frame, one tungsten frame in the history, the chart's reading refused (as it was before the rendered
+    cameras' prior read it): with the lamp rounds the tungsten frame leaves the reflectance fit and every frame is
+    within ~20 MK⁻¹ of its lamp (the D65 frame in its 95 % interval); without them every frame moved by −66…−72 MK⁻¹,
+    the D65 frame outside its interval."""
     import lightbox
 
     frames = lightbox.HISTORIES["+ tungsten"]
+    monkeypatch.setattr(calibration, "_chart_readings", lambda *args: (None, "camera"))
     got = lightbox.run("Nikon_D5100", frames, matrix=True)
     assert not got["chart_read"]
     assert got["frame0_in_95"] and abs(np.median(got["mired_err"])) < 30
     monkeypatch.setattr(fit_mod, "LAMP_ROUNDS", 0)
     before = lightbox.run("Nikon_D5100", frames, matrix=True)
     assert not before["frame0_in_95"] and np.median(before["mired_err"]) < -50
+
+
+def test_matrix_camera_booth_chart_read_as_rendered(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The whole booth seen by a Nikon D5100 that renders through its colour matrix, declared sensor RGB: no sensor
+    explains its chart, the rendered cameras' prior does (:func:`illumon.camera.calibration._chart_readings`), and the
+    D65 frame reads 7 470 K (in its 95 % interval, whites within 3.5°) and the model says the chart looks rendered;
+    with the reading refused, as before, 22 400 K and outside its interval."""
+    import lightbox
+
+    booth = lightbox.HISTORIES["the whole booth"]
+    said: list[str] = []
+    identifiability = fit_mod.identifiability
+
+    def kept(*args, **kwargs):
+        out = identifiability(*args, **kwargs)
+        said.append(out)
+        return out
+
+    monkeypatch.setattr(fit_mod, "identifiability", kept)
+    got = lightbox.run("Nikon_D5100", booth, matrix=True)
+    assert got["chart_read"] and got["chart_read_as"] == "srgb"
+    assert got["cct"][0] < 7700 and got["frame0_in_95"] and max(got["white_err"]) < 3.5
+    assert abs(np.median(got["mired_err"])) < 30
+    assert any(fit_mod.RENDERED_CHART_WARNING == w for w in said[-1]["warnings"])
+    plain = lightbox.run("Nikon_D5100", booth)  # a sensor's chart: read as a sensor's, no such warning
+    assert plain["chart_read_as"] == "camera"
+    assert not any(fit_mod.RENDERED_CHART_WARNING == w for w in said[-1]["warnings"])
+    monkeypatch.setattr(calibration, "_chart_readings", lambda *args: (None, "camera"))
+    before = lightbox.run("Nikon_D5100", booth, matrix=True)
+    assert before["cct"][0] > 15000 and not before["frame0_in_95"]
 
 
 def test_rendered_booth_level_held(monkeypatch: pytest.MonkeyPatch) -> None:

@@ -76,3 +76,41 @@ def test_bad_inputs(files: dict, capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["fit", str(d / "one.csv"), "--sensitivities", str(d / "css.csv"), "--model", str(d / "y.json")]) == 2
     assert "one.csv" in capsys.readouterr().err
     np.testing.assert_equal(Path(d / "y.json").exists(), False)
+
+
+def test_rendered_chart_warned_without_the_identifiability_note(tmp_path: Path,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """A light booth seen by a Nikon D5100 rendering through its colour matrix, fitted as sensor RGB with the chart
+    known in frame 0: ``illumon fit`` says the chart looks rendered, and does not add the note that explains the
+    identifiability warnings (the colour common to the history taken from typical daylight), which is not what
+    happened here: the chart read the light."""
+    import lightbox
+    import rawsim
+    from illumon.camera import colourchecker_references
+    from illumon.camera.pipeline import srgb_matrix
+    from illumon.model.fit import RENDERED_CHART_WARNING
+
+    css = datasets.load_camera("Nikon_D5100")
+    refs = colourchecker_references()
+    ids = list(refs)
+    frames = lightbox.HISTORIES["the whole booth"]
+    e = np.stack([lightbox.lamp(f) for f in frames])
+    v = rawsim.simulate_raw_history(css, e, np.stack(list(refs.values())), rng=np.random.default_rng(0), bits=12,
+                                    matrix=srgb_matrix(css)).linear_output
+    scene = [f"scene{j:02d}" for j in range(18)]
+    values = np.full((len(frames), 18 + len(ids), 3), np.nan)
+    values[:, :18] = v[:, :18]
+    values[0, 18:] = v[0]
+    write_observations(tmp_path / "obs.csv", Observations([f"f{i}" for i in range(len(frames))], scene + ids, values,
+                                                          [f"2026-06-01T{10 + i:02d}:00:00Z" for i in range(len(frames))]))
+    with open(tmp_path / "known.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["wavelength_nm", *ids])
+        for k, wl in enumerate(WAVELENGTHS):
+            w.writerow([f"{wl:g}", *(f"{refs[p][k]:.6g}" for p in ids)])
+    assert main(["fit", str(tmp_path / "obs.csv"), "--known-reflectances", str(tmp_path / "known.csv"),
+                 "--white-level", "1", "--model", str(tmp_path / "m.json")]) == 0
+    out = capsys.readouterr().out
+    assert f"illumon: warning: {RENDERED_CHART_WARNING}" in out
+    assert "what this means" not in out
+    assert json.loads((tmp_path / "m.json").read_text())["camera"]["chart_read_as"] == "srgb"

@@ -16,7 +16,8 @@ error (degrees) and whether frame 0's 95 % CCT interval holds its truth.
 
 ``python benchmarks/lightbox.py [--cameras N] [--matrix] [--primaries camera|srgb] [--reference chart|greys]`` prints
 the table and writes ``benchmarks/results/lightbox[_matrix][_srgb][_greys].json``. ``--matrix``: the camera's colour
-matrix to sRGB on; declared sensor RGB, the chart's reading is then refused and the level is the scene's own.
+matrix to sRGB on; declared sensor RGB, no sensor explains its chart, which is read with the rendered cameras' prior
+(the "as srgb" column: the share of cameras whose chart was).
 ``--matrix --primaries srgb``: a rendering camera with a fixed D65 balance, declared so. ``--reference greys``: only
 the chart's six greys known (a grey card's kind).
 """
@@ -69,7 +70,8 @@ def run(camera: str, frames: list[str], seed: int = 0, matrix: bool = False, pri
     """One booth history of ``camera``: its fit's CCTs against the lamps', camera-white errors. ``matrix``: the
     camera applies its colour matrix to sRGB (:func:`illumon.camera.pipeline.srgb_matrix`, as ``rawsim`` does: negative
     values clipped), as an industrial camera with its colour correction on does, and is still
-    declared sensor RGB: its chart's reading of the light is then refused (``ChartLight.misfit`` > 1). ``primaries``:
+    declared sensor RGB: no sensor of the prior explains its chart (``ChartLight.misfit`` > 1), which is read with
+    the rendered cameras' prior instead (``chart_read_as`` "srgb"). ``primaries``:
     as the camera is declared (``srgb`` with ``matrix``: a rendering camera with a fixed D65 balance, declared so).
     ``reference``: what is known in frame 0 — the whole ``chart``, or its six ``greys`` (a grey card's kind)."""
     css = datasets.load_camera(camera)
@@ -107,7 +109,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cameras", type=int, default=len(rawsim.DEV_CAMERAS), help="development cameras (all)")
     ap.add_argument("--matrix", action="store_true",
-                    help="the camera applies its colour matrix to sRGB and is declared sensor RGB (chart refused)")
+                    help="the camera applies its colour matrix to sRGB and is declared sensor RGB")
     ap.add_argument("--primaries", choices=("camera", "srgb"), default="camera",
                     help="as the camera is declared (srgb: with --matrix, a rendering camera declared so)")
     ap.add_argument("--reference", choices=("chart", "greys"), default="chart",
@@ -123,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
           f"FL3.15, 6504 K); {'colour matrix to sRGB, ' if args.matrix else ''}declared "
           f"{'sensor RGB' if args.primaries == 'camera' else 'sRGB'}, no sensitivities")
     print(f"{'history':22} {'frame 0 CCT K: median (range)':32} {'MK⁻¹ err, all frames':>20} {'white °':>8} "
-          f"{'f0 in 95 %':>10} {'chart read':>10}")
+          f"{'f0 in 95 %':>10} {'chart read':>10} {'as srgb':>8}")
     rows = []
     for name, frames in HISTORIES.items():
         got = [run(c, frames, matrix=args.matrix, primaries=args.primaries, reference=args.reference)
@@ -134,8 +136,9 @@ def main(argv: list[str] | None = None) -> int:
         white = np.concatenate([g["white_err"] for g in got])
         inside = np.mean([g["frame0_in_95"] for g in got])
         read = np.mean([g["chart_read"] for g in got])
+        rendered = np.mean([g["chart_read_as"] == "srgb" for g in got])
         print(f"{name:22} {np.median(f0):8.0f} ({f0.min():.0f}–{f0.max():.0f}){'':9} {np.median(mired):+20.1f} "
-              f"{np.median(white):8.2f} {inside:10.2f} {read:10.2f}")
+              f"{np.median(white):8.2f} {inside:10.2f} {read:10.2f} {rendered:8.2f}")
     Path(out).parent.mkdir(parents=True, exist_ok=True)
     Path(out).write_text(json.dumps({"split": "dev", "cameras": cameras, "matrix": args.matrix,
                                      "primaries": args.primaries, "reference": args.reference, "rows": rows}, indent=1))

@@ -456,6 +456,7 @@ def calibrate_scene_model(
     ids = [p for p in obs.patches if p in known]
     scene = obs.select_patches([p for p in obs.patches if p not in known]) if ids else obs
     extra = {}
+    chart_space = "camera"  # the output space a chart's colours are read in (:func:`_chart_readings`)
     if ids:
         values, frames, spectra, neutral = _reference_data(obs, scene, ids, known)
         if kind == "chart" and sensitivities is None and primaries == "camera":
@@ -498,7 +499,7 @@ def calibrate_scene_model(
         model, theta = fit(scene, base @ t)
         it = 1
     model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()
-    if "reference_light" in extra:  # the output space the chart's colours were read in (:func:`_chart_readings`)
+    if "reference_light" in extra:
         model.camera["chart_read_as"] = chart_space
     _record_camera_uncertainty(model, kind, primaries, measured=sensitivities is not None, scene_sd=s_scene,
                                glare_sd=glare_sd)

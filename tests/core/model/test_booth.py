@@ -14,6 +14,20 @@ from illumon.camera import calibration
 from illumon.model import fit as fit_mod
 
 
+def _identifiability_kept(monkeypatch: pytest.MonkeyPatch) -> list[dict]:
+    """Every scene fit's identifiability summary from now on, warnings included (the last is the final model's)."""
+    said: list[dict] = []
+    identifiability = fit_mod.identifiability
+
+    def kept(*args, **kwargs):
+        out = identifiability(*args, **kwargs)
+        said.append(out)
+        return out
+
+    monkeypatch.setattr(fit_mod, "identifiability", kept)
+    return said
+
+
 def test_booth_d65_frame_reads_d65(monkeypatch: pytest.MonkeyPatch) -> None:
     """A Nikon D5100 nobody measured, chart known in the D65-simulator frame, a TL84 and a cool-white frame in the
     history: without the rule 22 900 K or so (every frame ~−110 MK⁻¹), with it 6 080 K."""
@@ -43,15 +57,7 @@ def test_whole_booth_read_from_the_chart(monkeypatch: pytest.MonkeyPatch) -> Non
     assert 5900 <= both["cct"][0] <= 7200 and abs(np.median(both["mired_err"])) < 20 and both["frame0_in_95"]
     lamp_rounds = fit_mod.LAMP_ROUNDS
     monkeypatch.setattr(fit_mod, "LAMP_ROUNDS", 0)
-    said: list[str] = []
-    identifiability = fit_mod.identifiability
-
-    def kept(*args, **kwargs):
-        out = identifiability(*args, **kwargs)
-        said.append(out)
-        return out
-
-    monkeypatch.setattr(fit_mod, "identifiability", kept)
+    said = _identifiability_kept(monkeypatch)
     got = lightbox.run("Nikon_D5100", lightbox.HISTORIES["the whole booth"])
     assert any("disagrees with the chart" in w for w in said[-1]["warnings"])  # the installer is told why
     assert 5900 <= got["cct"][0] <= 7200
@@ -135,15 +141,7 @@ def test_matrix_camera_booth_chart_read_as_rendered(monkeypatch: pytest.MonkeyPa
     import lightbox
 
     booth = lightbox.HISTORIES["the whole booth"]
-    said: list[str] = []
-    identifiability = fit_mod.identifiability
-
-    def kept(*args, **kwargs):
-        out = identifiability(*args, **kwargs)
-        said.append(out)
-        return out
-
-    monkeypatch.setattr(fit_mod, "identifiability", kept)
+    said = _identifiability_kept(monkeypatch)
     got = lightbox.run("Nikon_D5100", booth, matrix=True)
     assert got["chart_read"] and got["chart_read_as"] == "srgb"
     assert got["cct"][0] < 7700 and got["frame0_in_95"] and max(got["white_err"]) < 3.5

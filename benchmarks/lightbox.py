@@ -9,15 +9,17 @@ simulator), fitted as ``illumon fit --known … --primaries camera`` does for a 
 sensitivities. Rows vary which lamps the history holds, so the cause shows: every frame the D65 simulator (control),
 one tungsten frame, two fluorescent frames, the whole booth.
 
-**Development** cameras only (:data:`rawsim.DEV_CAMERAS`); nothing was chosen on this benchmark yet. Printed per row:
+**Development** cameras (:data:`rawsim.DEV_CAMERAS`) by default; ``--split score`` runs the held-out cameras
+(:data:`rawsim.SCORE_CAMERAS`), to score only. Nothing was chosen on this benchmark. Printed per row:
 the D65-simulator frame's CCT (median over cameras, and the range), the median reciprocal-temperature error over
 every frame (MK⁻¹, estimated − true: a common shift shows as the same sign on every lamp), the median camera-white
 error (degrees) and whether frame 0's 95 % CCT interval holds its truth.
 
-``python benchmarks/lightbox.py [--cameras N] [--matrix] [--primaries camera|srgb] [--reference chart|greys]`` prints
-the table and writes ``benchmarks/results/lightbox[_matrix][_srgb][_greys].json``. ``--matrix``: the camera's colour
-matrix to sRGB on; declared sensor RGB, no sensor explains its chart, which is read with the rendered cameras' prior
-(the "as srgb" column: the share of cameras whose chart was).
+``python benchmarks/lightbox.py [--split dev|score] [--cameras N] [--matrix] [--primaries camera|srgb]
+[--reference chart|greys]`` prints the table and writes
+``benchmarks/results/lightbox[_score][_matrix][_srgb][_greys].json``. ``--matrix``: the camera's colour matrix to
+sRGB on; declared sensor RGB, no sensor explains its chart, which is read with the rendered cameras' prior (the "as
+srgb" column: the share of cameras whose chart was).
 ``--matrix --primaries srgb``: a rendering camera with a fixed D65 balance, declared so. ``--reference greys``: only
 the chart's six greys known (a grey card's kind).
 """
@@ -101,26 +103,30 @@ def run(camera: str, frames: list[str], seed: int = 0, matrix: bool = False, pri
             "white_err": angular_error_deg(res.white, white).tolist(),
             "chart_read": "chart_level" in model.noise,
             "chart_read_as": model.camera.get("chart_read_as"),
+            "camera_mired": model.noise["model_error"].get("camera_mired"),
             "frame0_in_95": bool(extra["cct_lo"][0] <= true[0] <= extra["cct_hi"][0]),
             "transform_diag": np.diag(np.asarray(model.camera["transform"])).tolist()}
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cameras", type=int, default=len(rawsim.DEV_CAMERAS), help="development cameras (all)")
+    ap.add_argument("--cameras", type=int, default=None, help="the split's first N cameras (all)")
+    ap.add_argument("--split", choices=("dev", "score"), default="dev",
+                    help="development cameras (choose on these) or the held-out ones (score only)")
     ap.add_argument("--matrix", action="store_true",
                     help="the camera applies its colour matrix to sRGB and is declared sensor RGB")
     ap.add_argument("--primaries", choices=("camera", "srgb"), default="camera",
                     help="as the camera is declared (srgb: with --matrix, a rendering camera declared so)")
     ap.add_argument("--reference", choices=("chart", "greys"), default="chart",
                     help="known in frame 0: the whole chart, or its six greys (a grey card's kind)")
-    ap.add_argument("--out", default=None, help="default benchmarks/results/lightbox[_matrix][_srgb][_greys].json")
+    ap.add_argument("--out", default=None, help="default benchmarks/results/lightbox[_score][_matrix][_srgb][_greys].json")
     args = ap.parse_args(argv)
-    tag = (("_matrix" if args.matrix else "") + ("_srgb" if args.primaries == "srgb" else "")
-           + ("_greys" if args.reference == "greys" else ""))
+    tag = (("_score" if args.split == "score" else "") + ("_matrix" if args.matrix else "")
+           + ("_srgb" if args.primaries == "srgb" else "") + ("_greys" if args.reference == "greys" else ""))
     out = args.out or str(ROOT / "benchmarks" / "results" / f"lightbox{tag}.json")
-    cameras = list(rawsim.DEV_CAMERAS[: args.cameras])
-    print(f"split: development ({len(cameras)} cameras: {', '.join(cameras)}); {args.reference} known in frame 0 "
+    cameras = list((rawsim.DEV_CAMERAS if args.split == "dev" else rawsim.SCORE_CAMERAS)[: args.cameras])
+    print(f"split: {'development' if args.split == 'dev' else 'score (held out: scored, nothing chosen)'} "
+          f"({len(cameras)} cameras: {', '.join(cameras)}); {args.reference} known in frame 0 "
           "(D65 simulator, "
           f"FL3.15, 6504 K); {'colour matrix to sRGB, ' if args.matrix else ''}declared "
           f"{'sensor RGB' if args.primaries == 'camera' else 'sRGB'}, no sensitivities")
@@ -140,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:22} {np.median(f0):8.0f} ({f0.min():.0f}–{f0.max():.0f}){'':9} {np.median(mired):+20.1f} "
               f"{np.median(white):8.2f} {inside:10.2f} {read:10.2f} {rendered:8.2f}")
     Path(out).parent.mkdir(parents=True, exist_ok=True)
-    Path(out).write_text(json.dumps({"split": "dev", "cameras": cameras, "matrix": args.matrix,
+    Path(out).write_text(json.dumps({"split": args.split, "cameras": cameras, "matrix": args.matrix,
                                      "primaries": args.primaries, "reference": args.reference, "rows": rows}, indent=1))
     print(f"wrote {out}")
     return 0

@@ -28,6 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "core"), str(ROOT / "benchmarks")]
 
 import rawsim  # noqa: E402
+from illumon.camera.pipeline import srgb_matrix  # noqa: E402
 from illumon.camera.references import colourchecker_references, grey_card_reference  # noqa: E402
 from illumon.model.fit import fit_scene_model  # noqa: E402
 from illumon.model.intervals import Z95  # noqa: E402
@@ -40,7 +41,7 @@ FRAMES, PATCHES = 24, 10
 D65_MIRED = 1e6 / 6504.0
 
 
-def run(camera: str, case: str, seed: int, primaries: str) -> dict:
+def run(camera: str, case: str, seed: int, primaries: str, matrix: bool = False) -> dict:
     rng = np.random.default_rng(seed)
     css = datasets.load_camera(camera)
     e = rawsim.daylight_run("dev", FRAMES, rng)
@@ -53,6 +54,8 @@ def run(camera: str, case: str, seed: int, primaries: str) -> dict:
     if primaries == "srgb":  # a rendered camera: daylight preset and its matrix to sRGB, negatives clipped
         matrix, _ = rawsim.rendering(css, e, scene, "preset")
         v = np.clip(v @ matrix.T, 0.0, None)
+    elif matrix:  # declared sensor RGB but rendered through its colour matrix (a chart read as rendered)
+        v = np.clip(v @ srgb_matrix(css).T, 0.0, None)
     v = v / v.max() * 0.9 * np.exp(0.1 * rng.standard_normal((FRAMES, 1, 1)))
     v = np.clip(v * (1 + 0.005 * rng.standard_normal(v.shape)), 0, 1)
     v[1:, PATCHES:] = np.nan
@@ -63,8 +66,9 @@ def run(camera: str, case: str, seed: int, primaries: str) -> dict:
         if primaries == "srgb":
             model = fit_scene_model(obs, None, known_reflectances=known or None, primaries="srgb")
         else:
-            model = fit_scene_model(obs, None, known_reflectances=known or None,
-                                    camera_prior=camera_prior_without(camera))  # and its mean
+            model = fit_scene_model(obs, None, known_reflectances=known or None,  # the camera in neither prior
+                                    camera_prior=camera_prior_without(camera),  # nor its mean
+                                    rendered_camera_prior=camera_prior_without(camera, rendered=True))
     res, extra = model.history_estimate
     true_mired = np.array([1e6 / colour.uv_to_CCT(colour.UCS_to_uv(colour.XYZ_to_UCS(
         colour.sd_to_XYZ(colour.SpectralDistribution(s, GRID.range())))), method="Ohno 2013")[0] for s in e])
@@ -86,13 +90,16 @@ def main() -> None:
     ap.add_argument("--split", choices=("dev", "score"), default="dev")
     ap.add_argument("--seeds", type=int, default=2)
     ap.add_argument("--primaries", choices=("camera", "srgb"), default="camera")
+    ap.add_argument("--matrix", action="store_true",
+                    help="declared camera, rendered through its colour matrix to sRGB (its chart read as rendered)")
+    ap.add_argument("--cases", default="chart,grey,none")
     a = ap.parse_args()
     cams = rawsim.DEV_CAMERAS if a.split == "dev" else rawsim.SCORE_CAMERAS
     print(f"cameras: {a.split} ({len(cams)}); reflectances and daylight: development; primaries: {a.primaries} "
           "(camera: prior without the camera's maker; srgb: rendered through its matrix, the sRGB prior)")
     print(f"{'case':6s} {'frame':6s} {'err rms':>8s} {'stated sd':>9s} {'z rms':>6s} {'in 95 %':>7s} {'extra for z=1':>13s}")
-    for case in ("chart", "grey", "none"):
-        rows = [run(c, case, 1000 * s + i, a.primaries) for s in range(a.seeds) for i, c in enumerate(cams)]
+    for case in a.cases.split(","):
+        rows = [run(c, case, 1000 * s + i, a.primaries, a.matrix) for s in range(a.seeds) for i, c in enumerate(cams)]
         for which, sl in (("0", slice(0, 1)), ("all", slice(None))):
             err = np.concatenate([r["err"][sl] for r in rows])
             sd = np.concatenate([r["sd"][sl] for r in rows])

@@ -56,7 +56,8 @@ leaves uncertain, added to every estimate's intervals and confidence. ``none``: 
 daylight whites around the mean camera's (see :func:`prior_white_spread`); ``grey`` and ``chart``: what a reference
 leaves, measured on development cameras (``python benchmarks/unmeasured.py``)."""
 
-CAMERA_MIRED_SD = {"measured": 0.0, "chart": 13.0, "chart read": 0.0, "grey": 21.0, "none": 12.0}
+CAMERA_MIRED_SD = {"measured": 0.0, "chart": 13.0, "chart read": 0.0, "chart read as srgb": 4.0, "grey": 21.0,
+                   "none": 12.0}
 """Standard deviation (MK⁻¹) of the light's reciprocal temperature that an unmeasured camera leaves uncertain, added
 to the CCT intervals (not to the white's: a reference pins the white, not the temperature — a redder camera under bluer
 light shows the same chart). Chosen on the development cameras (``python tools/camera_mired_spread.py --seeds 2``:
@@ -67,8 +68,11 @@ under one light, which the history's static patches cannot tell from a shift of 
 the least certain of the three. ``chart read``: a chart whose frame's light was read with the camera integrated out
 (:mod:`.chart_light`, combined with the scene's in :func:`illumon.model.fit._reference_level`), whose spread the
 intervals then carry already: RMS mired error over all frames 7.2 against a stated 16.9 with 13 added (z RMS 0.42,
-``--seeds 1``) and 14.0 with nothing added (z RMS 0.52), so nothing is added. Rendered (``srgb``) output: see
-:data:`SRGB_CAMERA_MIRED_SD`."""
+``--seeds 1``) and 14.0 with nothing added (z RMS 0.52), so nothing is added. ``chart read as srgb``: a camera
+declared sensor RGB whose chart only the rendered cameras' prior explains (:func:`_chart_readings`): development
+cameras through their colour matrix (``python tools/camera_mired_spread.py --matrix --cases chart --seeds 2``), RMS
+mired error over all frames 13.1 against a stated 11.7 (z RMS 1.05): 4.0 brings it to 1. Rendered (``srgb``)
+output: see :data:`SRGB_CAMERA_MIRED_SD`."""
 
 SRGB_CAMERA_MIRED_SD = {"measured": 0.0, "chart": 6.5, "grey": 6.0, "none": 3.5}
 """As :data:`CAMERA_MIRED_SD` for rendered (``srgb``) output, where the temperature is read with the sRGB functions
@@ -716,8 +720,12 @@ def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bo
     white_sd = SRGB_CAMERA_WHITE_SD if (kind in ("none", "grey") and primaries == "srgb") else CAMERA_WHITE_SD[kind]
     model.camera["white_sd_log"] = white_sd
     read = kind == "chart" and "chart_level" in model.noise  # the frames' light read from the chart too
+    if read and model.camera.get("chart_read_as") == "srgb":
+        read_as = "chart read as srgb"
+    else:
+        read_as = "chart read"
     mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)[
-        "measured" if measured else ("chart read" if read else kind)]
+        "measured" if measured else (read_as if read else kind)]
     scale, stated, glare_k = ((1.0, white_sd, 1.0) if measured
                               else STATED_WHITE_SPREAD.get((primaries, kind), (1.0, white_sd, 1.0)))
     if scene_sd is not None:  # the scene average calibrated the channel scales: as well as it read

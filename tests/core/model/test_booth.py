@@ -147,8 +147,9 @@ def test_matrix_camera_booth_chart_read_as_rendered(monkeypatch: pytest.MonkeyPa
     assert got["cct"][0] < 7700 and got["frame0_in_95"] and max(got["white_err"]) < 3.5
     assert abs(np.median(got["mired_err"])) < 30
     assert any(fit_mod.RENDERED_CHART_WARNING == w for w in said[-1]["warnings"])
+    assert got["camera_mired"] == calibration.CAMERA_MIRED_SD["chart read as srgb"] > 0
     plain = lightbox.run("Nikon_D5100", booth)  # a sensor's chart: read as a sensor's, no such warning
-    assert plain["chart_read_as"] == "camera"
+    assert plain["chart_read_as"] == "camera" and plain["camera_mired"] == 0.0
     assert not any(fit_mod.RENDERED_CHART_WARNING == w for w in said[-1]["warnings"])
     monkeypatch.setattr(calibration, "_chart_readings", lambda *args: (None, "camera"))
     before = lightbox.run("Nikon_D5100", booth, matrix=True)

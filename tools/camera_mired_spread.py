@@ -9,8 +9,10 @@ box) and shows the reference, the other frames by a Granada run; the prior is th
 cameras (the camera under test is never in it). Printed per case: the mired error of frame 0 and of all frames, the
 stated standard deviation (from the 95 % CCT interval), the RMS of their ratio (z) and the 95 % intervals' coverage.
 
-``python tools/camera_mired_spread.py [--split dev|score] [--seeds N] [--primaries camera|srgb]`` prints the figures behind
-:data:`illumon.camera.calibration.CAMERA_MIRED_SD`.
+``python tools/camera_mired_spread.py [--split dev|score] [--seeds N] [--primaries camera|srgb] [--matrix]
+[--cases chart,grey,none]`` prints the figures behind :data:`illumon.camera.calibration.CAMERA_MIRED_SD`
+(``--matrix``: declared sensor RGB, rendered through the camera's colour matrix, its chart read as rendered: the
+``"chart read as srgb"`` entry).
 """
 
 from __future__ import annotations

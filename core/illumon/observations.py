@@ -18,9 +18,19 @@ from numpy.typing import NDArray
 
 from .spectra import finite_number
 
-__all__ = ["Observations", "ObservationError", "read_observations", "write_observations", "sd_variance"]
+__all__ = ["Observations", "ObservationError", "read_observations", "write_observations", "sd_variance", "observed"]
 
 REQUIRED_COLUMNS = ("frame", "time", "patch", "r", "g", "b")
+
+
+def observed(values: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """``np.all(np.isfinite(values), axis=-1)``: which patches of ``values`` (… × 3) have all three channels. With
+    three channels as two ANDs of the channels' masks, ~6 × faster than numpy's reduction over an axis of three
+    (issue 29: ~15 ms each time for a 100k-frame history, computed several times a refit); the same mask."""
+    fin = np.isfinite(values)
+    if fin.ndim and fin.shape[-1] == 3:
+        return fin[..., 0] & fin[..., 1] & fin[..., 2]
+    return np.all(fin, axis=-1)
 
 
 class ObservationError(ValueError):
@@ -73,8 +83,8 @@ class Observations:
 
     @property
     def present(self) -> NDArray[np.bool_]:
-        """Mask (F × P) of patches observed in each frame."""
-        return np.all(np.isfinite(self.values), axis=-1)
+        """Mask (F × P) of patches observed in each frame (:func:`observed`)."""
+        return observed(self.values)
 
     def subset(self, frames: slice | NDArray | list[int]) -> Observations:
         """A new :class:`Observations` with the selected frames."""

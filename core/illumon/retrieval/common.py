@@ -166,11 +166,16 @@ def grey_world_mired(obs: Observations, sensitivities: NDArray[np.float64]) -> N
     gchrom = np.log(np.clip(gw[:, [0, 2]], 1e-9, None))
     out = np.empty(len(gchrom))
     c0, c1 = chrom[:, 0], chrom[:, 1]
-    for i in range(0, len(gchrom), 8192):  # frames × grid distances a chunk at a time (100k frames: 480 MB at once)
-        g = gchrom[i:i + 8192]
+    for i in range(0, len(gchrom), _MIRED_CHUNK):  # frames × grid distances a chunk at a time (100k: 480 MB at once)
+        g = gchrom[i:i + _MIRED_CHUNK]
         # the two squared differences added as the sum over their axis adds them (a + b), without the frames × grid
         # × 2 temporary and its reduction over an axis of two (issue 29: ~5 × faster; the same distances, bit for bit)
         d = (g[:, 0:1] - c0) ** 2
         d += (g[:, 1:2] - c1) ** 2
-        out[i:i + 8192] = grid[np.argmin(d, axis=1)]
+        out[i:i + _MIRED_CHUNK] = grid[np.argmin(d, axis=1)]
     return out
+
+
+_MIRED_CHUNK = 2048
+"""Frames :func:`grey_world_mired` measures against its grid at once (2 048 × 200 distances, ~3 MB: 8 192's ~13 MB
+took a 100k-frame history ~0.04 s against ~0.03 s; the same distances)."""

@@ -260,6 +260,20 @@ NOT_PLAIN = [  # rows of a chunk's plain frames that _plain_chunk leaves to _usa
 ]
 
 
+ODD_VALUES = ["[true, 0.2, 0.3]", "[false, false, false]", "[1, 0, true]", '["0.1", 0.2, 0.3]', '"abc"', '"0.5"',
+              '{"0.1": 1, "0.2": 2, "0.3": 3}', "[0.1, null, 0.3]", "[null, null, null]", "[[0.1], [0.2], [0.3]]",
+              "[[0.1, 0.2, 0.3]]", "[0.1, 0.2]", "[0.1, 0.2, 0.3, 0.4]", "[]", "{}", "0.5", "1", "true", "[1e400, 0.2, 0.3]",
+              "[-0.1, 0.2, 0.3]", "[123456789012345678901234, 0, 1]", "[0, 1, 18446744073709551615]",
+              "[-0.0, 0.5, 1]", "[0, 1, 2]", "[1.0, 1.0, 0.0]", "[2.0000000000000004, 1, 1]", "[1e-320, 0, 1]"]
+"""Values of ``p0`` among plain ``p1`` and ``p2``: each of any other type, length or range than three numbers within
+0…2, and plain ones (-0.0, integers, 0 and 1, a subnormal)."""
+NOT_PLAIN += [(f'{{"p0": {v}, "p1": null, "p2": [0.5, 1.5, 2.0]}}', None, None, None, None, None) for v in ODD_VALUES]
+NOT_PLAIN += [('{"p0": [0.1, 0.2, 0.3], "p1": null, "p2": [0.5, 1.5, 2.0], "p0": [0.1, 0.2, 0.3]}', None, None, None,
+               None, None),  # a key twice
+              ('{"p0": [0.1, 0.2, 0.3], "p1": null, "p2": [0.5, 1.5, 2.0]} ', None, None, None, None, None),
+              ('{"p0": [0.1, 0.2, 0.3], "p1": null, "p\u0032": [0.5, 1.5, 2.0]}', None, None, None, None, None)]
+
+
 def _plain_row(i: int, patches: str = GOOD, gains: str | None = None, exposure: float | None = None,
                registration: str | None = None, sd: str | None = None, view: str | None = None) -> tuple:
     return (i, T0 + timedelta(minutes=i), patches, gains, exposure, view, registration, sd)
@@ -294,9 +308,11 @@ def test_a_plain_chunk_reads_as_usable_reads_it(odd: int | None) -> None:
     rows += [_plain_row(i) for i in range(7, 9)]
     want, dropped, n_usable = _read_as_usable(rows)
     got = _plain_chunk(rows, PLAIN_IDS)
-    if odd is None:
-        assert got is not None and want.values.shape == (8, 3, 3)
-    elif odd >= len(ODD) or not (ODD[odd][0] == GOOD and all(v is None for v in ODD[odd][1:])):
+    plain = _usable(rows)[2]
+    every_plain = not dropped and n_usable == len(rows) and min(plain.start.values()) >= 0
+    if odd is None or (odd < len(ODD) and ODD[odd][0] == GOOD and all(v is None for v in ODD[odd][1:])):
+        assert got is not None and want.values.shape == (len(rows), 3, 3)
+    elif not every_plain:
         assert got is None
     if got is not None:
         assert not dropped and n_usable == len(rows)

@@ -272,9 +272,10 @@ class FrameSolver:
         b = _solve3(a, z)
         if self.H is not None:
             # the reflectance posterior mapped through the current b joins each patch's noise covariance
-            cov = ((b[:, :, None] * b[:, None, :]).reshape(f, 9) @ self._h).reshape(f, n_p, 3, 3)
-            cov[..., _DIAG, _DIAG] += var
-            cinv = np.where(present[..., None, None], _inv3(cov), 0.0)
+            cov = ((b[:, :, None] * b[:, None, :]).reshape(f, 9) @ self._h).reshape(f, n_p, 9)
+            cov[..., ::4] += var  # each 3 × 3's diagonal (entries 0, 4, 8: fancy indexing took twice as long)
+            cinv = _inv3(cov.reshape(f, n_p, 3, 3))
+            cinv[~present] = 0.0  # in place of np.where's copy of the inverses (issue 29: ~0.04 s of 100k frames)
             a = (cinv.reshape(f, n_p * 9) @ self._gge).reshape(f, 3, 3) + _EPS3
             z = (cinv * yy[..., None]).reshape(f, n_p * 9) @ self._ge
             if u is not None:

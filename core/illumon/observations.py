@@ -18,7 +18,8 @@ from numpy.typing import NDArray
 
 from .spectra import finite_number
 
-__all__ = ["Observations", "ObservationError", "read_observations", "write_observations", "sd_variance", "observed"]
+__all__ = ["Observations", "ObservationError", "read_observations", "write_observations", "sd_variance", "observed",
+           "count_over_patches"]
 
 REQUIRED_COLUMNS = ("frame", "time", "patch", "r", "g", "b")
 
@@ -31,6 +32,18 @@ def observed(values: NDArray[np.float64]) -> NDArray[np.bool_]:
     if fin.ndim and fin.shape[-1] == 3:
         return fin[..., 0] & fin[..., 1] & fin[..., 2]
     return np.all(fin, axis=-1)
+
+
+def count_over_patches(mask: NDArray[np.bool_], dtype: type = np.int_) -> NDArray[np.integer]:
+    """``mask.sum(axis=1, dtype=dtype)`` of a frames × patches × … mask: its true values over the patches counted one
+    patch after another, ~5 × faster than numpy's reduction over a middle axis (issue 29; integers: the same
+    counts)."""
+    if mask.ndim < 2 or not mask.shape[1]:
+        return mask.sum(axis=1, dtype=dtype)
+    count = mask[:, 0].astype(dtype)
+    for j in range(1, mask.shape[1]):
+        count += mask[:, j]
+    return count
 
 
 class ObservationError(ValueError):

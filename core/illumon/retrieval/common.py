@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 
 from ..camera import camera_white, gains_from_white
 from ..daylight import cct_duv_from_xy, daylight_locus_duv, daylight_spectrum, xy_from_cct_duv, xy_from_spectrum
-from ..observations import Observations
+from ..observations import Observations, count_over_patches
 from ..priors import ReflectanceBasis
 
 __all__ = ["RetrievalResult", "imaging_operators", "make_result", "grey_world", "grey_world_mired", "CENSORED", "NEAR_WHITE",
@@ -146,7 +146,7 @@ def grey_world(obs: Observations) -> NDArray[np.float64]:
     # and layout, their count and the same division (issue 29: 0.07–0.24 s → ~0.03 s for 100k frames; the same
     # whites, bit for bit, and the same warning for a frame without a patch)
     ok = np.isfinite(obs.values)
-    count = ok.sum(axis=1, dtype=np.intp)
+    count = count_over_patches(ok, np.intp)
     total = np.where(ok, obs.values, 0.0).sum(axis=1)
     if (count == 0).any():
         warnings.warn("Mean of empty slice", RuntimeWarning, stacklevel=2)  # as np.nanmean warns

@@ -287,3 +287,17 @@ def test_observed_is_all_finite_channels():
         v = rng.random(shape)
         v[rng.random(shape) < 0.2] = rng.choice([np.nan, np.inf, -np.inf])
         assert np.array_equal(observed(v), np.all(np.isfinite(v), axis=-1))
+
+
+def test_count_over_patches_is_the_sum_over_axis_one():
+    """``illumon.observations.count_over_patches``: ``mask.sum(axis=1)`` in its dtype, for 2-, 3- and 4-D masks."""
+    from illumon.observations import count_over_patches
+
+    rng = np.random.default_rng(4)
+    for shape in [(50, 16, 3), (7, 1, 3), (5, 0, 3), (0, 4, 3), (9, 4), (6, 5, 3, 3)]:
+        m = rng.random(shape) < 0.7
+        for dtype in (np.int_, np.intp):
+            want = m.sum(axis=1, dtype=dtype)
+            got = count_over_patches(m, dtype)
+            assert got.dtype == want.dtype and np.array_equal(got, want)
+    assert count_over_patches(rng.random((4, 3, 3)) < 0.5).dtype == (rng.random((4, 3, 3)) < 0.5).sum(axis=1).dtype

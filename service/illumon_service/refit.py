@@ -243,7 +243,8 @@ class _ViewRows:
         self.ids += ids
         self.taken_at += taken_at
         self.times += _utc_iso(taken_at)  # history_row's times
-        self.used += np.isfinite(values).any(axis=2).sum(axis=1).tolist()  # stored values are finite (limits)
+        finite = np.isfinite(values)  # stored values are finite (limits): a region with a value has all three
+        self.used += (finite[..., 0] | finite[..., 1] | finite[..., 2]).sum(axis=1).tolist()
         self.values.append(values)
         self.sd.append(sd)
 
@@ -414,7 +415,9 @@ def _plain_chunk(rows: Sequence[Row], region_ids: list[str]
         a = np.fromiter(chain.from_iterable(flat), dtype=float, count=3 * len(flat)).reshape(-1, 3)
     except (TypeError, ValueError, OverflowError):  # not a str or a list; a list in a list; an integer beyond a float
         return None
-    if not (((a >= 0.0) & (a <= MAX_VALUE)).all(axis=1) | missing).all():  # NaN: None in a list, out of range
+    within = (a >= 0.0) & (a <= MAX_VALUE)  # not NaN: None in a list
+    within[missing] = True
+    if not within.all():
         return None
     for k in np.flatnonzero((a == 0.0) | (a == 1.0)).tolist():  # a boolean reads as 0 or 1
         if type(flat[k // 3][k % 3]) is bool:

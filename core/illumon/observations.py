@@ -18,9 +18,32 @@ from numpy.typing import NDArray
 
 from .spectra import finite_number
 
-__all__ = ["Observations", "ObservationError", "read_observations", "write_observations", "sd_variance"]
+__all__ = ["Observations", "ObservationError", "read_observations", "write_observations", "sd_variance", "observed",
+           "count_over_patches"]
 
 REQUIRED_COLUMNS = ("frame", "time", "patch", "r", "g", "b")
+
+
+def observed(values: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """``np.all(np.isfinite(values), axis=-1)``: which patches of ``values`` (… × 3) have all three channels. With
+    three channels as two ANDs of the channels' masks, ~6 × faster than numpy's reduction over an axis of three
+    (issue 29: ~15 ms each time for a 100k-frame history, computed several times a refit); the same mask."""
+    fin = np.isfinite(values)
+    if fin.ndim and fin.shape[-1] == 3:
+        return fin[..., 0] & fin[..., 1] & fin[..., 2]
+    return np.all(fin, axis=-1)
+
+
+def count_over_patches(mask: NDArray[np.bool_], dtype: type = np.int_) -> NDArray[np.integer]:
+    """``mask.sum(axis=1, dtype=dtype)`` of a frames × patches × … mask: its true values over the patches counted one
+    patch after another, ~5 × faster than numpy's reduction over a middle axis (issue 29; integers: the same
+    counts)."""
+    if mask.ndim < 2 or not mask.shape[1]:
+        return mask.sum(axis=1, dtype=dtype)
+    count = mask[:, 0].astype(dtype)
+    for j in range(1, mask.shape[1]):
+        count += mask[:, j]
+    return count
 
 
 class ObservationError(ValueError):
@@ -73,8 +96,8 @@ class Observations:
 
     @property
     def present(self) -> NDArray[np.bool_]:
-        """Mask (F × P) of patches observed in each frame."""
-        return np.all(np.isfinite(self.values), axis=-1)
+        """Mask (F × P) of patches observed in each frame (:func:`observed`)."""
+        return observed(self.values)
 
     def subset(self, frames: slice | NDArray | list[int]) -> Observations:
         """A new :class:`Observations` with the selected frames."""

@@ -231,10 +231,20 @@ class _ViewRows:
             sd = None  # no standard errors: NaN throughout, made only if another chunk has some (finish)
         else:
             values, sd = history_arrays(frames, self.region_ids, matrix)
-        self.ids += [f.id for f in frames]
-        self.taken_at += [f.taken_at for f in frames]
-        self.times += _utc_iso([f.taken_at for f in frames])  # history_row's times
-        self.used += np.isfinite(values).any(axis=2).sum(axis=1).tolist()  # stored values are finite (limits)
+        self._append([f.id for f in frames], [f.taken_at for f in frames], values, sd)
+
+    def add_plain(self, ids: Sequence[int], taken_at: Sequence[datetime], values: NDArray[np.float64]) -> None:
+        """Frames of :func:`_plain_chunk` (``ids``, stored times and its F × P × 3 region means), as :meth:`add` of
+        the same frames gives them: no standard errors."""
+        self._append(list(ids), list(taken_at), values, None)
+
+    def _append(self, ids: list[int], taken_at: list[datetime], values: NDArray[np.float64],
+                sd: NDArray[np.float64] | None) -> None:
+        self.ids += ids
+        self.taken_at += taken_at
+        self.times += _utc_iso(taken_at)  # history_row's times
+        finite = np.isfinite(values)  # stored values are finite (limits): a region with a value has all three
+        self.used += (finite[..., 0] | finite[..., 1] | finite[..., 2]).sum(axis=1).tolist()
         self.values.append(values)
         self.sd.append(sd)
 
@@ -326,6 +336,7 @@ def _decoded(row: Row, loads: Callable[[str], Any]) -> _Stored:
 
 
 _ZERO3 = (0.0, 0.0, 0.0)
+_NAN3 = (math.nan, math.nan, math.nan)
 
 
 class _Plain(NamedTuple):
@@ -366,6 +377,52 @@ def _plain_values(frames: Sequence[_Stored]) -> tuple[list[bool], _Plain | None]
     a[np.fromiter(map(operator.is_, stored, repeat(None)), dtype=bool, count=len(stored))] = math.nan
     start = (np.cumsum(counts) - counts).tolist()
     return plain, _Plain(a, [i if ok else -1 for i, ok in zip(start, plain, strict=True)])
+
+
+def _plain_chunk(rows: Sequence[Row], region_ids: list[str]
+                 ) -> tuple[Sequence[int], Sequence[datetime], NDArray[np.float64]] | None:
+    """The frame ids, stored times and region means (F × P × 3, NaN where ``None``), in the order of ``rows``, of a
+    chunk of :func:`.crud.history_chunks` rows that are all plain frames of the default view, or ``None`` for any
+    other chunk (then read by :func:`_usable`): every row's region means JSON that :func:`orjson.loads` reads as a
+    dict of exactly ``region_ids`` in that order, each ``None`` or three numbers (``float`` or ``int``, not ``bool``)
+    within 0…:data:`~.limits.MAX_VALUE`, and no applied gains, exposure, view, registration or standard errors.
+    Such a chunk is what :func:`_usable` and :meth:`_ViewRows.add` make of it without a colour matrix — every frame
+    used, none left out, the numbers converted by the same calls — found from the chunk's columns instead of a
+    :class:`_Stored` and a check of each frame (issue 29: the 100k-frame read step's CPU 1.3–1.7 → 0.8–0.9 s). The
+    values' types are told apart without the type of each number (~0.1 s of 4.8 million at 100k frames): a string
+    by the texts' quotes, ``None`` in a list by its NaN, a boolean by a look at the values that read as 0 or 1."""
+    n, p = len(rows), len(region_ids)
+    if not n or not p:
+        return None
+    columns = list(zip(*rows, strict=True))
+    if any(columns[k].count(None) != n for k in (3, 4, 5, 6, 7)) or columns[2].count(None):
+        return None
+    try:
+        decoded = list(map(orjson.loads, columns[2]))
+    except orjson.JSONDecodeError:
+        return None
+    if set(map(type, decoded)) != {dict} or list(chain.from_iterable(decoded)) != region_ids * n:
+        return None
+    stored = list(chain.from_iterable(map(dict.values, decoded)))
+    missing = np.fromiter(map(operator.is_, stored, repeat(None)), dtype=bool, count=len(stored))
+    flat = [_NAN3 if v is None else v for v in stored]
+    try:
+        # no value holds a string: a text's only quotes are its keys' (exactly two each); then every value is None
+        # or a list (orjson's types) of three items that float() converts: numbers, booleans, None (NaN), which the
+        # checks below tell apart from numbers without a look at each number's type
+        if sum(map(str.count, columns[2], repeat('"'))) != 2 * p * n or set(map(len, flat)) - {3}:
+            return None
+        a = np.fromiter(chain.from_iterable(flat), dtype=float, count=3 * len(flat)).reshape(-1, 3)
+    except (TypeError, ValueError, OverflowError):  # not a str or a list; a list in a list; an integer beyond a float
+        return None
+    within = (a >= 0.0) & (a <= MAX_VALUE)  # not NaN: None in a list
+    within[missing] = True
+    if not within.all():
+        return None
+    for k in np.flatnonzero((a == 0.0) | (a == 1.0)).tolist():  # a boolean reads as 0 or 1
+        if type(flat[k // 3][k % 3]) is bool:
+            return None
+    return columns[0], columns[1], a.reshape(n, p, 3)
 
 
 def _decoded_chunk(rows: Sequence[Row]) -> list[_Stored]:
@@ -434,6 +491,11 @@ def read_history(sessions: sessionmaker[Session], camera_id: int, max_frames: in
                 if rows is None:
                     break
                 read.append(np.fromiter(map(operator.itemgetter(0), rows), dtype=np.int64, count=len(rows)))  # ids
+                plain_chunk = None if matrix is not None else _plain_chunk(rows, gathered[None].region_ids)
+                if plain_chunk is not None:  # every frame plain, of the default view
+                    gathered[None].add_plain(*plain_chunk)
+                    del rows, plain_chunk
+                    continue
                 usable, left_out, plain = _usable(rows)
                 dropped += left_out
                 for v in {r.view for r in usable}:

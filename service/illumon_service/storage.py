@@ -532,6 +532,15 @@ def _writes_datetime_text(process: Callable[[Any], Any]) -> bool:
     return all(process(v) == _datetime_text(v) for v in _DATETIME_PROBES)
 
 
+def _binds_bytes_as_buffer(dialect: Dialect, process: Callable[[Any], Any]) -> bool:
+    """Whether a binary column's bind processor hands the driver a ``bytes`` value as a buffer of its bytes that
+    ``sqlite3`` binds as that blob (SQLAlchemy's SQLite ``LargeBinary``: ``sqlite3.Binary``, a ``memoryview``), so
+    that :func:`insert_columns` may hand it a ``bytearray`` of them instead — an exact type, which ``sqlite3`` binds
+    without looking for an adapter first (a ``memoryview`` or ``bytes`` it looks up: ~0.4 µs a value, 0.04 s of the
+    executemany of a 100k-frame refit's rows)."""
+    return dialect.name == "sqlite" and dialect.driver == "pysqlite" and type(process(b"\x00\x01")) is memoryview
+
+
 def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequence[Any]],
                    constants: Mapping[str, Any] | None = None, *, replace_on: Sequence[str] | None = None) -> int:
     """One executemany INSERT into ``table`` of rows given a column at a time, within the session's transaction, the
@@ -580,6 +589,8 @@ def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequenc
             values[key] = [v if type(v) is StoredJSON else process(v) for v in column]
         elif isinstance(table.columns[key].type, DateTime) and _writes_datetime_text(process):  # _datetime_text
             values[key] = [v.isoformat(" ", "microseconds")[:26] if type(v) is datetime else process(v) for v in column]
+        elif isinstance(table.columns[key].type, LargeBinary) and _binds_bytes_as_buffer(dialect, process):
+            values[key] = [bytearray(v) if type(v) is bytes else process(v) for v in column]
         else:
             values[key] = [process(v) for v in column]
     for key, value in constants.items():

@@ -107,7 +107,7 @@ def test_engine_stores_json_text_as_it_is_and_reads_values_as_json(tmp_path) -> 
 
 def _estimate_rows(n: int, non_finite: bool) -> tuple[list[dict], dict]:
     """Estimate rows with datetimes, -0.0, JSON text given, JSON null, NaN and infinity in JSON (``non_finite``:
-    PostgreSQL refuses them, whoever writes them); and constants."""
+    PostgreSQL refuses them, whoever writes them), binary values (``None``, empty, bytes); and constants."""
     from datetime import datetime, timedelta, timezone
 
     t0 = datetime(2025, 1, 1, 12, tzinfo=timezone.utc)
@@ -115,6 +115,7 @@ def _estimate_rows(n: int, non_finite: bool) -> tuple[list[dict], dict]:
              "duv": -0.0 if i == 2 else 0.001, "xy": [0.31, float("nan") if non_finite else 1e-5],
              "white_rgb": StoredJSON("[0.5,1.0,0.25]"), "gains_rgb": [2.0, float("inf") if non_finite else 3.0, 4.0],
              "confidence": 0.5, "spectrum": [1e-7] * 61,
+             "spectrum_f32": None if i == 1 else b"" if i == 3 else bytes(range(8 * i, 8 * i + 244 % (i + 7))),
              "intervals": None if i % 2 else {"cct_lo": 4000.0, "gain_lo": [1.0, None, 2.0]}, "source": "refit:model"}
             for i in range(n)]
     return rows, {"camera_id": 1, "model": "v1", "created_at": t0}

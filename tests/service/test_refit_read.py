@@ -243,3 +243,89 @@ def test_a_view_of_plain_chunks_and_chunks_with_standard_errors(order: str) -> N
     if a.sd is not None:
         assert np.array_equal(a.sd.view(np.uint64), b.sd.view(np.uint64)) and np.isfinite(a.sd).any()
         assert fast.sd[[0, 1][order == "errors first"]] is None  # the plain chunk's
+
+
+PLAIN_IDS = ["p0", "p1", "p2"]
+NOT_PLAIN = [  # rows of a chunk's plain frames that _plain_chunk leaves to _usable: (patches, gains, exposure,
+    # registration, standard errors, view)
+    ('{"p1": [0.1, 0.2, 0.3], "p0": null, "p2": [0.5, 1.5, 2.0]}', None, None, None, None, None),  # another order
+    ('{"p0": [0.1, 0.2, 0.3], "p2": [0.5, 1.5, 2.0]}', None, None, None, None, None),  # a region missing
+    ('{"p0": [0.1, 0.2, 0.3], "p1": null, "p2": [0.5, 1.5, 2.0], "p3": [1.0, 1.0, 1.0]}', None, None, None, None,
+     None),  # an extra region
+    ('{"p0": null, "p1": null, "p2": [0.5, 1.5, 2.0000000000000004]}', None, None, None, None, None),  # > MAX_VALUE
+    (GOOD, None, 0.5, None, None, None),  # an exposure alone
+    (GOOD, None, None, '{"state": "ok"}', None, None),
+    (GOOD, None, None, None, '{"p0": [0.01, 0.02, 0.03]}', None),
+    (GOOD, None, None, None, None, "preset-1"),
+]
+
+
+ODD_VALUES = ["[true, 0.2, 0.3]", "[false, false, false]", "[1, 0, true]", '["0.1", 0.2, 0.3]', '"abc"', '"0.5"',
+              '{"0.1": 1, "0.2": 2, "0.3": 3}', "[0.1, null, 0.3]", "[null, null, null]", "[[0.1], [0.2], [0.3]]",
+              "[[0.1, 0.2, 0.3]]", "[0.1, 0.2]", "[0.1, 0.2, 0.3, 0.4]", "[]", "{}", "0.5", "1", "true", "[1e400, 0.2, 0.3]",
+              "[-0.1, 0.2, 0.3]", "[123456789012345678901234, 0, 1]", "[0, 1, 18446744073709551615]",
+              "[-0.0, 0.5, 1]", "[0, 1, 2]", "[1.0, 1.0, 0.0]", "[2.0000000000000004, 1, 1]", "[1e-320, 0, 1]"]
+"""Values of ``p0`` among plain ``p1`` and ``p2``: each of any other type, length or range than three numbers within
+0…2, and plain ones (-0.0, integers, 0 and 1, a subnormal)."""
+NOT_PLAIN += [(f'{{"p0": {v}, "p1": null, "p2": [0.5, 1.5, 2.0]}}', None, None, None, None, None) for v in ODD_VALUES]
+NOT_PLAIN += [('{"p0": [0.1, 0.2, 0.3], "p1": null, "p2": [0.5, 1.5, 2.0], "p0": [0.1, 0.2, 0.3]}', None, None, None,
+               None, None),  # a key twice
+              ('{"p0": [0.1, 0.2, 0.3], "p1": null, "p2": [0.5, 1.5, 2.0]} ', None, None, None, None, None),
+              ('{"p0": [0.1, 0.2, 0.3], "p1": null, "p\u0032": [0.5, 1.5, 2.0]}', None, None, None, None, None)]
+
+
+def _plain_row(i: int, patches: str = GOOD, gains: str | None = None, exposure: float | None = None,
+               registration: str | None = None, sd: str | None = None, view: str | None = None) -> tuple:
+    return (i, T0 + timedelta(minutes=i), patches, gains, exposure, view, registration, sd)
+
+
+def _read_as_usable(rows: list[tuple]) -> tuple:
+    """A chunk as ``_usable`` and ``_ViewRows.add`` read it (the default view's frames, those left out)."""
+    from illumon_service.refit import _ViewRows
+
+    usable, dropped, plain = _usable(rows)
+    view = _ViewRows(PLAIN_IDS)
+    view.add([f for f in usable if f.view is None], None, plain)
+    return view.finish(), dropped, len(usable)
+
+
+@pytest.mark.parametrize("odd", [None, *range(len(ODD) + len(NOT_PLAIN))])
+def test_a_plain_chunk_reads_as_usable_reads_it(odd: int | None) -> None:
+    """``refit._plain_chunk`` (a chunk whose every frame is plain, read without looking at each): its ids, times and
+    region means equal what ``_usable`` and ``_ViewRows.add`` make of the chunk bit for bit — integers, ``null``, 0
+    and 2 (``MAX_VALUE``) among them — and a chunk with any other row (each odd row of the tests above, another key
+    order, a missing or extra region, a value above ``MAX_VALUE``, an exposure, a registration, standard errors, a
+    view) is left to ``_usable``: ``None``, or where the row is plain after all, the same arrays."""
+    from illumon_service.refit import _plain_chunk, _ViewRows
+
+    rows = [_plain_row(0, '{"p0": [0, 1, 2], "p1": [0.0, 0.5, 1], "p2": null}'),
+            _plain_row(1, '{"p0": [2.0, 2, 1e-300], "p1": null, "p2": [0.25, 0.1, 0.3]}'),
+            _plain_row(2, '{"p0":[0.1,0.2,0.3],"p1":null,"p2":[0.5,1.5,2.0]}')]
+    rows += [_plain_row(i) for i in range(3, 6)]
+    if odd is not None:
+        extra = ODD[odd] if odd < len(ODD) else NOT_PLAIN[odd - len(ODD)]
+        rows.append(_plain_row(6, *extra))
+    rows += [_plain_row(i) for i in range(7, 9)]
+    want, dropped, n_usable = _read_as_usable(rows)
+    got = _plain_chunk(rows, PLAIN_IDS)
+    plain = _usable(rows)[2]
+    every_plain = not dropped and n_usable == len(rows) and min(plain.start.values()) >= 0
+    if odd is None or (odd < len(ODD) and ODD[odd][0] == GOOD and all(v is None for v in ODD[odd][1:])):
+        assert got is not None and want.values.shape == (len(rows), 3, 3)
+    elif not every_plain:
+        assert got is None
+    if got is not None:
+        assert not dropped and n_usable == len(rows)
+        view = _ViewRows(PLAIN_IDS)
+        view.add_plain(*got)
+        have = view.finish()
+        assert np.array_equal(have.values.view(np.uint64), want.values.view(np.uint64))
+        assert np.array_equal(have.ids, want.ids) and have.taken_at == want.taken_at and have.times == want.times
+        assert np.array_equal(have.used, want.used) and have.sd is None and want.sd is None
+
+
+def test_a_chunk_of_no_regions_or_no_rows_is_left_to_usable() -> None:
+    from illumon_service.refit import _plain_chunk
+
+    assert _plain_chunk([], PLAIN_IDS) is None
+    assert _plain_chunk([_plain_row(0, "{}")], []) is None

@@ -15,6 +15,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..observations import count_over_patches
+
 __all__ = [
     "FLARE_SD",
     "flare_scales",
@@ -49,7 +51,7 @@ def flare_scales(values: NDArray[np.float64], weighted: NDArray[np.bool_], flare
     offsets out)."""
     if flare_sd <= 0:
         return None
-    n = np.maximum(weighted.sum(axis=1), 1)
+    n = np.maximum(count_over_patches(weighted), 1)
     return np.maximum(np.where(weighted, values, 0.0).sum(axis=1) / n, floor) * flare_sd
 
 

@@ -38,7 +38,7 @@ from ..camera.calibration import (
 from ..camera.primaries import SRGB_BALANCE_SD, check_primaries, daylight_prior_for, srgb_sensitivities, to_srgb_primaries
 from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
-from ..observations import Observations, sd_variance
+from ..observations import Observations, observed, sd_variance
 from ..priors import CameraPrior, ReflectanceBasis, reflectance_basis
 from ..priors.scene_average import scene_average_evidence
 from ..retrieval.common import censored, grey_world_mired, imaging_operators, white_level
@@ -792,7 +792,7 @@ def _fit_fixed_camera(
     y_all = np.asarray(obs.values, dtype=float)
     if y_all.shape[0] < 2:
         raise ValueError("fitting a scene model needs at least two frames")
-    present_all = np.all(np.isfinite(y_all), axis=-1)
+    present_all = observed(y_all)
     if present_all.any(axis=0).sum() < 2:
         raise ValueError("fitting a scene model needs at least two patches")
     unseen = [p for p, s in zip(obs.patches, present_all.any(axis=0), strict=True) if not s]

@@ -52,6 +52,7 @@ from scipy.special import ndtri
 from .._blas import single_blas_thread
 from .._tables import cached_arrays
 from ..daylight import CIEDaylight
+from ..observations import observed
 from ..priors import ReflectanceBasis, reflectance_basis
 from ..priors.scene_average import expected_offset, scene_average_evidence
 from .general import cie_lamp_spectra, general_whites
@@ -635,7 +636,7 @@ def _frame_means(model, obs, theta: NDArray[np.float64], solver=None) -> NDArray
         th = np.where(np.isfinite(theta[i:i + _MEANS_CHUNK]), theta[i:i + _MEANS_CHUNK], 0.0)
         b = solver._b(th[:, 0], th[:, 1], th[:, 2])
         pred = (b @ solver.G.reshape(-1, 3).T).reshape(len(b), -1, 3)  # Σ_k G[p, c, k] b[f, k]
-        present = np.all(np.isfinite(y), axis=-1)
+        present = observed(y)
         filled = np.where(present[..., None], y, pred)
         part = filled.mean(axis=1)
         # a scene average needs most of the scene: frames showing fewer than half the model's patches have none

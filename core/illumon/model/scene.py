@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from .._blas import single_blas_thread
 from ..daylight import CIEDaylight
-from ..observations import Observations, sd_variance
+from ..observations import Observations, observed, sd_variance
 from ..priors import ReflectanceBasis, reflectance_basis
 from ..retrieval.common import RetrievalResult
 from ..spectra import GRID
@@ -214,7 +214,7 @@ class SceneModel:
         n = len(obs.frames)
         chunks = [slice(i, i + ESTIMATE_CHUNK) for i in range(0, n, ESTIMATE_CHUNK)] or [slice(0, 0)]
         ys = [values[c][:, oj] / scale for c in chunks]  # made once (issue 29: twice was ~0.04 s of 100k frames)
-        present = np.concatenate([np.all(np.isfinite(y), axis=-1) for y in ys])
+        present = np.concatenate([observed(y) for y in ys])
         few = present.sum(axis=1) < 2
         if few.all():
             raise ValueError("no frame has two or more of the model's patches")

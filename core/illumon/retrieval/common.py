@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -9,7 +10,7 @@ from numpy.typing import NDArray
 
 from ..camera import camera_white, gains_from_white
 from ..daylight import cct_duv_from_xy, daylight_locus_duv, daylight_spectrum, xy_from_cct_duv, xy_from_spectrum
-from ..observations import Observations
+from ..observations import Observations, count_over_patches
 from ..priors import ReflectanceBasis
 
 __all__ = ["RetrievalResult", "imaging_operators", "make_result", "grey_world", "grey_world_mired", "CENSORED", "NEAR_WHITE",
@@ -140,8 +141,17 @@ def grey_world(obs: Observations) -> NDArray[np.float64]:
     ----------
     .. [Buchsbaum1980] Buchsbaum, 1980: grey world.
     """
-    v = np.where(np.isfinite(obs.values), obs.values, np.nan)
-    white = np.nanmean(v, axis=1)
+    # np.nanmean over the patches of the finite values (np.where → NaN, then NaN → 0, counts and sum) without its
+    # copies: the values with 0 for those not finite summed by numpy over the same axis of an array of the same shape
+    # and layout, their count and the same division (issue 29: 0.07–0.24 s → ~0.03 s for 100k frames; the same
+    # whites, bit for bit, and the same warning for a frame without a patch)
+    ok = np.isfinite(obs.values)
+    count = count_over_patches(ok, np.intp)
+    total = np.where(ok, obs.values, 0.0).sum(axis=1)
+    if (count == 0).any():
+        warnings.warn("Mean of empty slice", RuntimeWarning, stacklevel=2)  # as np.nanmean warns
+    with np.errstate(invalid="ignore", divide="ignore"):
+        white = np.true_divide(total, count, out=total, casting="unsafe")
     return white / white[:, 1:2]
 
 
@@ -156,11 +166,16 @@ def grey_world_mired(obs: Observations, sensitivities: NDArray[np.float64]) -> N
     gchrom = np.log(np.clip(gw[:, [0, 2]], 1e-9, None))
     out = np.empty(len(gchrom))
     c0, c1 = chrom[:, 0], chrom[:, 1]
-    for i in range(0, len(gchrom), 8192):  # frames × grid distances a chunk at a time (100k frames: 480 MB at once)
-        g = gchrom[i:i + 8192]
+    for i in range(0, len(gchrom), _MIRED_CHUNK):  # frames × grid distances a chunk at a time (100k: 480 MB at once)
+        g = gchrom[i:i + _MIRED_CHUNK]
         # the two squared differences added as the sum over their axis adds them (a + b), without the frames × grid
         # × 2 temporary and its reduction over an axis of two (issue 29: ~5 × faster; the same distances, bit for bit)
         d = (g[:, 0:1] - c0) ** 2
         d += (g[:, 1:2] - c1) ** 2
-        out[i:i + 8192] = grid[np.argmin(d, axis=1)]
+        out[i:i + _MIRED_CHUNK] = grid[np.argmin(d, axis=1)]
     return out
+
+
+_MIRED_CHUNK = 2048
+"""Frames :func:`grey_world_mired` measures against its grid at once (2 048 × 200 distances, ~3 MB: 8 192's ~13 MB
+took a 100k-frame history ~0.04 s against ~0.03 s; the same distances)."""

@@ -240,3 +240,64 @@ def test_grey_world_mired_distances_are_the_summed_squares_bit_for_bit():
         want = np.concatenate([grid[np.argmin(((gchrom[i:i + 8192, None, :] - chrom[None, :, :]) ** 2).sum(-1),
                                               axis=1)] for i in range(0, 9000, 8192)])
     assert np.array_equal(got, want)
+
+
+def _grey_world_nanmean(values: np.ndarray) -> np.ndarray:
+    """``grey_world`` as it was written: np.nanmean of the finite values over the patches."""
+    white = np.nanmean(np.where(np.isfinite(values), values, np.nan), axis=1)
+    return white / white[:, 1:2]
+
+
+@pytest.mark.parametrize("shape", [(20_000, 16, 3), (1, 16, 3), (3, 1, 3), (9000, 2, 3), (0, 5, 3), (7, 0, 3)])
+def test_grey_world_equals_nanmean_bit_for_bit(shape):
+    """``grey_world`` sums a chunk of frames one patch after another (issue 29): the whites of np.nanmean over the
+    finite values bit for bit — missing patches, infinities, -0.0, 0 in green, frames without a patch, one patch,
+    no frames, no patches, and a history that is not C-contiguous — and the same warning for a frame without any."""
+    import warnings
+
+    from illumon.retrieval.common import grey_world
+
+    rng = np.random.default_rng(len(shape) + shape[0] + shape[1])
+    values = rng.random(shape) * 10.0 ** rng.integers(-3, 3, shape)
+    if values.size:
+        values[rng.random(shape[:2]) < 0.2] = np.nan
+        flat = values.reshape(-1)
+        flat[rng.random(flat.size) < 0.01] = np.inf
+        flat[rng.random(flat.size) < 0.01] = -np.inf
+        flat[rng.random(flat.size) < 0.01] = -0.0
+        flat[rng.random(flat.size) < 0.01] = 0.0
+        values[0] = np.nan  # a frame without any patch
+    for v in (values, np.asfortranarray(values), values[::-1]):
+        with warnings.catch_warnings(record=True) as want_w:
+            warnings.simplefilter("always")
+            want = _grey_world_nanmean(v)
+        with warnings.catch_warnings(record=True) as got_w:
+            warnings.simplefilter("always")
+            got = grey_world(Observations([str(i) for i in range(shape[0])], [f"p{j}" for j in range(shape[1])], v))
+        assert got.shape == want.shape and np.array_equal(got.view(np.uint64), want.view(np.uint64))
+        assert sorted(str(w.message) for w in got_w) == sorted(str(w.message) for w in want_w)
+
+
+def test_observed_is_all_finite_channels():
+    """``illumon.observations.observed``: ``np.all(np.isfinite(values), axis=-1)``, three channels or not."""
+    from illumon.observations import observed
+
+    rng = np.random.default_rng(3)
+    for shape in [(50, 16, 3), (4, 3), (3,), (6, 5, 4), (0, 3), (2, 0)]:
+        v = rng.random(shape)
+        v[rng.random(shape) < 0.2] = rng.choice([np.nan, np.inf, -np.inf])
+        assert np.array_equal(observed(v), np.all(np.isfinite(v), axis=-1))
+
+
+def test_count_over_patches_is_the_sum_over_axis_one():
+    """``illumon.observations.count_over_patches``: ``mask.sum(axis=1)`` in its dtype, for 2-, 3- and 4-D masks."""
+    from illumon.observations import count_over_patches
+
+    rng = np.random.default_rng(4)
+    for shape in [(50, 16, 3), (7, 1, 3), (5, 0, 3), (0, 4, 3), (9, 4), (6, 5, 3, 3)]:
+        m = rng.random(shape) < 0.7
+        for dtype in (np.int_, np.intp):
+            want = m.sum(axis=1, dtype=dtype)
+            got = count_over_patches(m, dtype)
+            assert got.dtype == want.dtype and np.array_equal(got, want)
+    assert count_over_patches(rng.random((4, 3, 3)) < 0.5).dtype == (rng.random((4, 3, 3)) < 0.5).sum(axis=1).dtype

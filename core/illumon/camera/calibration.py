@@ -554,7 +554,8 @@ def _chart_readings(values: NDArray[np.float64], frames: NDArray[np.int64], spec
     with the rendered cameras' prior (``rendered``, default :func:`~illumon.priors.rendered_camera_prior`, the
     measured cameras carried to sRGB primaries), which explains them (misfit 0.48–0.94, readings −8…+11 MK⁻¹ under the
     D65 simulator) and refuses the sensors' charts (1.05–1.41): ``python tools/chart_output_space.py``. The two
-    readings are not mixed: every chart frame is read in the output space the first frame's chart fits."""
+    are not mixed: the charts are read in the first output space (the sensors', then the rendered cameras') in which
+    any of them is read, and the frames it refuses give no reading."""
     spaces = (("camera", prior if prior is not None else default_camera_prior()),
               ("srgb", rendered if rendered is not None else rendered_camera_prior()))
     shown = frames[np.all(np.isfinite(values[frames]), axis=-1).sum(axis=1) >= 6]
@@ -720,10 +721,7 @@ def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bo
     white_sd = SRGB_CAMERA_WHITE_SD if (kind in ("none", "grey") and primaries == "srgb") else CAMERA_WHITE_SD[kind]
     model.camera["white_sd_log"] = white_sd
     read = kind == "chart" and "chart_level" in model.noise  # the frames' light read from the chart too
-    if read and model.camera.get("chart_read_as") == "srgb":
-        read_as = "chart read as srgb"
-    else:
-        read_as = "chart read"
+    read_as = "chart read as srgb" if model.camera.get("chart_read_as") == "srgb" else "chart read"
     mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)[
         "measured" if measured else (read_as if read else kind)]
     scale, stated, glare_k = ((1.0, white_sd, 1.0) if measured

@@ -434,7 +434,6 @@ def _plain_chunk(rows: Sequence[Row], region_ids: list[str]
     if set(map(type, decoded)) != {dict} or list(chain.from_iterable(decoded)) != region_ids * n:
         return None
     stored = list(chain.from_iterable(map(dict.values, decoded)))
-    missing = np.fromiter(map(operator.is_, stored, repeat(None)), dtype=bool, count=len(stored))
     flat = [_NAN3 if v is None else v for v in stored]
     try:
         # no value holds a string: a text's only quotes are its keys' (exactly two each); then every value is None
@@ -446,8 +445,9 @@ def _plain_chunk(rows: Sequence[Row], region_ids: list[str]
     except (TypeError, ValueError, OverflowError):  # not a str or a list; a list in a list; an integer beyond a float
         return None
     within = (a >= 0.0) & (a <= MAX_VALUE)  # not NaN: None in a list
-    within[missing] = True
-    if not within.all():
+    # the regions whose three numbers are within are as many as those with a value (None's three NaN never are):
+    # no value holds NaN or a number out of range (counted, not marked per value: ~0.03 s of a 100k-frame read)
+    if np.count_nonzero(within[:, 0] & within[:, 1] & within[:, 2]) != len(stored) - stored.count(None):
         return None
     for k in np.flatnonzero((a == 0.0) | (a == 1.0)).tolist():  # a boolean reads as 0 or 1
         if type(flat[k // 3][k % 3]) is bool:

@@ -631,10 +631,12 @@ def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit
                                  for v, p in fit.models.items()})
         late = _late_estimates(crud.frames_not_read(s, h.camera_id, h.read_ids), data_dir, h, fit,
                                ids_of)
-        written = crud.replace_estimates(s, _estimate_columns(h, fit, late), camera_id=h.camera_id, model=fit.version)
+        ids: list[int] = []
+        written = crud.replace_estimates(s, _estimate_columns(h, fit, late, ids), camera_id=h.camera_id,
+                                         model=fit.version)
         # frames the refit used but could not estimate (fewer than two regions seen, a non-finite white), and those
         # it left out: no estimate of the previous model stays behind
-        estimated = np.fromiter(chain(map(int, fit.estimates.frame_ids()), map(int, late)), dtype=np.int64)
+        estimated = np.array(ids, dtype=np.int64)  # the fit's and the late frames' (ids of the rows written)
         reasons = {}
         for v in fit.models:
             if v in h.by_view:  # its frames without an estimate, in order (np.isin: one lookup table of the ids)
@@ -649,10 +651,12 @@ def write_refit(sessions: sessionmaker[Session], data_dir: Path, h: History, fit
     return written
 
 
-def _estimate_columns(h: History, fit: Refitted, late: dict[str, dict]) -> Iterator[dict[str, list]]:
+def _estimate_columns(h: History, fit: Refitted, late: dict[str, dict], ids_out: list[int]
+                      ) -> Iterator[dict[str, list]]:
     """The estimates to write but their camera and model, a column at a time, :data:`~.crud.WRITE_CHUNK` frames at a
     time: the fit's (their frames' stored times; JSON columns as text, :meth:`~.estimation.RefitEstimates.columns`),
-    then those of the frames stored since the read step (``late``)."""
+    then those of the frames stored since the read step (``late``); their frame ids are added to ``ids_out`` as they
+    are given (the frames that have an estimate, without reading the fit's ids again)."""
     taken = {i: t for vh in h.by_view.values() for i, t in zip(vh.ids.tolist(), vh.taken_at, strict=True)}
     for columns in fit.estimates.columns(crud.WRITE_CHUNK, json_text=True):
         if late and any(fid in late for fid in columns["frame_id"]):
@@ -660,10 +664,12 @@ def _estimate_columns(h: History, fit: Refitted, late: dict[str, dict]) -> Itera
             columns = {k: json_texts_like(c, (v for v, ok in zip(c, keep, strict=True) if ok))
                        for k, c in columns.items()}
         ids = list(map(int, columns["frame_id"]))
+        ids_out += ids
         yield {**columns, "frame_id": ids, "taken_at": DateTimeTexts(map(taken.__getitem__, ids))}
     rows = list(late.values())
     for start in range(0, len(rows), crud.WRITE_CHUNK):
         part = rows[start : start + crud.WRITE_CHUNK]
+        ids_out += [r["frame_id"] for r in part]
         yield {k: [r[k] for r in part] for k in part[0]}
 
 

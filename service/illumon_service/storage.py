@@ -61,6 +61,7 @@ __all__ = [
     "LoginSession",
     "private_sqlite_file",
     "StoredJSON",
+    "DateTimeTexts",
     "JSONTexts",
     "json_texts_like",
     "json_dumps",
@@ -125,6 +126,16 @@ class JSONTexts(list):
 def json_texts_like(column: Sequence[Any], values: Iterable[Any]) -> list:
     """``values`` (some of ``column``'s) as a column of the same kind: :class:`JSONTexts` for one, a list else."""
     return JSONTexts(values) if type(column) is JSONTexts else list(values)
+
+
+class DateTimeTexts(list):
+    """A column of times for :func:`insert_columns` in which every ``str`` is a time as SQLite stores it, in the form
+    SQLAlchemy's SQLite ``DATETIME`` writes (:func:`_datetime_text`: ``YYYY-MM-DD HH:MM:SS.ffffff``; a refit's times
+    read as stored and written back), stored as it is where the column's processor writes that form, and converted as
+    the time it reads as (:meth:`datetime.fromisoformat`) elsewhere; any other value is converted as the column's type
+    converts it."""
+
+    __slots__ = ()
 
 
 def json_dumps(value: Any) -> str:
@@ -560,8 +571,9 @@ def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequenc
     :class:`StoredJSON` value, and a ``str`` of a :class:`JSONTexts` column (a plain ``str``, which ``sqlite3`` binds
     without an adapter lookup), is handed over as it is where its processor would give its text unchanged
     (:func:`_passes_json_text`); a datetime is formatted by :func:`_datetime_text` where that is the processor's
-    text (:func:`_writes_datetime_text`: SQLite; 0.15 → 0.07 s per 100k values). Every column with a Python-side
-    default must be given (``ValueError`` otherwise: no default is computed here).
+    text (:func:`_writes_datetime_text`: SQLite; 0.15 → 0.07 s per 100k values), and a ``str`` of a
+    :class:`DateTimeTexts` column is handed over as it is there (SQLite's stored text of the time). Every column
+    with a Python-side default must be given (``ValueError`` otherwise: no default is computed here).
     """
     constants = dict(constants or {})
     n = len(next(iter(columns.values()))) if columns else 0
@@ -588,7 +600,10 @@ def insert_columns(session: Session, table: Table, columns: Mapping[str, Sequenc
         elif isinstance(table.columns[key].type, JSON) and _passes_json_text(process):  # the caller's JSON text
             values[key] = [v if type(v) is StoredJSON else process(v) for v in column]
         elif isinstance(table.columns[key].type, DateTime) and _writes_datetime_text(process):  # _datetime_text
-            values[key] = [v.isoformat(" ", "microseconds")[:26] if type(v) is datetime else process(v) for v in column]
+            values[key] = [v.isoformat(" ", "microseconds")[:26] if type(v) is datetime
+                           else v if type(v) is str and type(column) is DateTimeTexts else process(v) for v in column]
+        elif type(column) is DateTimeTexts:  # its texts as the times they are
+            values[key] = [process(datetime.fromisoformat(v) if type(v) is str else v) for v in column]
         elif isinstance(table.columns[key].type, LargeBinary) and _binds_bytes_as_buffer(dialect, process):
             values[key] = [bytearray(v) if type(v) is bytes else process(v) for v in column]
         else:

@@ -329,3 +329,24 @@ def test_a_chunk_of_no_regions_or_no_rows_is_left_to_usable() -> None:
 
     assert _plain_chunk([], PLAIN_IDS) is None
     assert _plain_chunk([_plain_row(0, "{}")], []) is None
+
+
+def test_stored_times_carry_sqlites_text() -> None:
+    """``refit._stored_times``: texts of SQLite's form are kept as stored, their ISO forms those of the times they
+    read as (``_utc_iso``), a text that is no time fails as reading it does; any other chunk is read by the column's
+    conversion (texts of other forms, datetimes)."""
+    from illumon_service.refit import _stored_times, _utc_iso
+
+    times = [T0, T0 + timedelta(microseconds=1), T0 + timedelta(seconds=59.5), datetime(999, 12, 31, 23, 59, 59)]
+    texts = [t.isoformat(" ", "microseconds") for t in times]
+    assert _stored_times(texts, None) == (texts, _utc_iso(times))
+    assert _stored_times(texts[:1], datetime.fromisoformat) == (texts[:1], _utc_iso(times[:1]))
+    for odd in ("2025-06-01 00:00:00", "2025-06-01T00:00:00.000000", "2025-W22-7 00:00:00.000000",
+                "2025-06-01 00:00:00,000000", "2025-06-01 00:00:00.000000+00:00"):
+        got, iso = _stored_times([texts[2], odd], datetime.fromisoformat)
+        assert got == [times[2], datetime.fromisoformat(odd)] and iso == _utc_iso(got)
+    assert _stored_times(times, None) == (times, _utc_iso(times))
+    assert _stored_times([], None) == ([], [])
+    for bad in ("2025-02-30 00:00:00.000000", texts[0] + "\n" + texts[1]):  # no time: read, and failing
+        with pytest.raises(ValueError):
+            _stored_times([texts[0], bad], datetime.fromisoformat)

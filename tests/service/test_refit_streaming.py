@@ -221,3 +221,43 @@ def test_refit_stores_values_equal_to_the_lists_json_dumps_wrote(tmp_path, monke
         np.testing.assert_equal(parse, [json.loads(v) if j in (4, 5, 6, 8, 9) and v is not None else v
                                         for j, v in enumerate(b)])
     assert json.dumps(new[3]) == json.dumps(old[3]) and json.dumps(new[4]) == json.dumps(old[4])
+
+
+def test_refit_writes_the_stored_times_of_its_frames(tmp_path) -> None:
+    """The estimates' ``taken_at`` is their frames' stored text (carried from the read step, not formatted again),
+    and frames whose time was stored in another form that SQLAlchemy reads (milliseconds, no fraction) get what
+    writing the time read stores: the same rows, summary and reasons as when stored in SQLAlchemy's form."""
+    import sqlite3
+
+    def times(name: str) -> list[tuple]:
+        con = sqlite3.connect(f"{tmp_path}/{name}.sqlite")
+        rows = con.execute("SELECT e.frame_id, e.taken_at, f.taken_at FROM estimates e JOIN frames f "
+                           "ON f.id = e.frame_id ORDER BY e.frame_id").fetchall()
+        con.close()
+        return rows
+
+    plain = _refit(tmp_path, "plain")
+    stored = times("plain")
+    assert len(stored) > 40 and all(e == f and len(e) == 26 for _, e, f in stored)
+
+    url = f"sqlite:///{tmp_path}/odd.sqlite"
+    _store(url)
+    con = sqlite3.connect(f"{tmp_path}/odd.sqlite")
+    con.execute("UPDATE frames SET taken_at = substr(taken_at, 1, 23) WHERE id % 5 = 0")  # the same order
+    con.execute("UPDATE frames SET taken_at = substr(taken_at, 1, 19) WHERE id % 5 = 1")
+    con.commit()
+    con.close()
+    sessions = make_session_factory(make_engine(url))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        summary = refit.refit_camera(sessions, 1, data_dir=tmp_path / "odd", max_frames=80)
+    with sessions() as s:
+        est = [tuple(getattr(e, c.name) for c in Estimate.__table__.columns if c.name not in ("created_at", "model"))
+               for e in s.scalars(select(Estimate).order_by(Estimate.frame_id))]
+        reasons = [tuple(r) for r in s.execute(select(Frame.id, Frame.not_estimated).order_by(Frame.id)).all()]
+    for k in ("seconds", "read_s", "fit_s", "write_s", "response_check_s", "version"):
+        summary.pop(k)
+    assert (summary, est, reasons) == plain
+    odd = times("odd")
+    assert [e for _, e, _ in odd] == [e for _, e, _ in stored]
+    assert {len(f) for _, _, f in odd} == {19, 23, 26}

@@ -209,3 +209,36 @@ def test_insert_columns_refuses_an_upsert_it_cannot_compile() -> None:
 
 
 from test_faults import pg_url  # noqa: E402, F401 - a throwaway PostgreSQL cluster, or skip
+
+
+@pytest.mark.parametrize("sqlite_text", [True, False])
+def test_datetime_texts_store_the_times_they_read_as(tmp_path, monkeypatch, sqlite_text) -> None:
+    """A :class:`DateTimeTexts` column (a refit's stored times carried from its read step: SQLite's text, and
+    datetimes) stores what the times themselves store, the texts as they are where the column writes that text and
+    read as times where it does not (``sqlite_text`` false: the other path, as on PostgreSQL)."""
+    import illumon_service.storage as storage
+    from illumon_service.storage import DateTimeTexts, insert_columns
+    from sqlalchemy import String, delete, type_coerce
+
+    if not sqlite_text:
+        monkeypatch.setattr(storage, "_writes_datetime_text", lambda _process: False)
+    engine = make_engine(f"sqlite:///{tmp_path}/times.sqlite")
+    sessions = make_session_factory(engine)
+    times = [T0 + timedelta(minutes=i, microseconds=7 * (i % 2)) for i in range(1, 5)]
+    with sessions() as s, s.begin():
+        s.add(Camera(name="c", token_hash="0" * 64, sensitivities=[], regions=[], response={}))
+        s.flush()
+        s.execute(insert(Frame), [{"camera_id": 1, "taken_at": t, "patches": {}} for t in times])
+    texts = [t.replace(tzinfo=None).isoformat(" ", "microseconds") for t in times]
+    out = []
+    for column in (times, DateTimeTexts([texts[0], times[1], texts[2], texts[3]])):
+        row = {"cct_k": [5000.0] * 4, "duv": [0.0] * 4, "confidence": [0.5] * 4, "source": ["refit:x"] * 4,
+               **{k: ["[1.0]"] * 4 for k in ("xy", "white_rgb", "gains_rgb")}}
+        with sessions() as s, s.begin():
+            s.execute(delete(Estimate))
+            insert_columns(s, Estimate.__table__, {"frame_id": [1, 2, 3, 4], "taken_at": column, **row},
+                           {"camera_id": 1, "created_at": T0, "model": "m"})
+        with sessions() as s:
+            out.append(s.execute(select(type_coerce(Estimate.taken_at, String)).order_by(Estimate.frame_id)).all())
+    engine.dispose()
+    assert out[1] == out[0] and [r[0] for r in out[0]] == texts

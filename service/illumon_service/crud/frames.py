@@ -7,7 +7,7 @@ from collections.abc import Collection, Iterator, Sequence
 from datetime import datetime
 
 import numpy as np
-from sqlalchemy import Text, cast, delete, func, select
+from sqlalchemy import String, Text, cast, delete, func, select, type_coerce
 from sqlalchemy.engine import Row
 from sqlalchemy.orm import Session
 
@@ -132,13 +132,15 @@ _HISTORY = (Frame.id, Frame.taken_at, Frame.patches, Frame.applied_gains, Frame.
 """The columns of a frame a refit reads."""
 
 _HISTORY_TEXT = tuple(cast(c, Text).label(c.key) if c.key in ("patches", "applied_gains", "registration", "patch_sd")
-                      else c for c in _HISTORY)
-"""The same columns, the JSON ones as their stored text (the caller decodes them)."""
+                      else type_coerce(c, String).label(c.key) if c.key == "taken_at" else c for c in _HISTORY)
+"""The same columns, the JSON ones as their stored text and the time as the driver gives it (SQLite: its stored
+text; the caller decodes them)."""
 
 
 def history_chunks(session: Session, camera_id: int, limit: int, chunk: int) -> Iterator[Sequence[Row]]:
     """The camera's ``limit`` most recent frames (the columns a refit reads, its JSON columns as their stored text:
-    ``patches``, ``applied_gains``, ``registration``, ``patch_sd``), newest first, ``chunk`` rows at a time (one
+    ``patches``, ``applied_gains``, ``registration``, ``patch_sd``; ``taken_at`` as the driver gives it, not through
+    the column type's conversion: SQLite's stored text, PostgreSQL's datetime), newest first, ``chunk`` rows at a time (one
     query whose rows are fetched as they are used), so that a refit never holds the whole history as rows."""
     q = select(*_HISTORY_TEXT).where(Frame.camera_id == camera_id).order_by(*_NEWEST_FIRST).limit(limit)
     # the session's connection: Core rows as the driver fetches them, without the ORM's loading of each row

@@ -19,6 +19,7 @@ from starlette.exceptions import HTTPException as StarletteHTTPException
 from . import crud
 from .api.routes import calibration, cameras, estimates, frames, gains, health, jobs, pages, proposals
 from .jobs import JobRunner
+from .memory import tune_allocator
 from .metrics import Metrics
 from .retention import Housekeeper
 from .settings import Settings
@@ -81,6 +82,7 @@ def allowed_methods(app: FastAPI, scope: dict) -> str:
 def create_app(settings: Settings | None = None) -> FastAPI:
     """Build the service: database (tables created), admin token, job runner, routes and error handlers."""
     settings = settings or Settings()
+    tune_allocator()  # decoded frames reuse freed memory (:mod:`.memory`)
     Path(settings.data_dir).mkdir(parents=True, exist_ok=True, mode=0o700)  # a new data dir: its owner's only
     engine = make_engine(settings.resolved_database_url)
     crud.relativize_paths(engine, settings.data_dir)  # databases of older versions stored absolute file paths

@@ -157,6 +157,23 @@ def widen_cct_intervals(result: RetrievalResult, extra: dict, extra_sd: float) -
     extra["cct_hi"] = np.where(ok, hi, extra["cct_hi"])
 
 
+def widen_white_intervals(result: RetrievalResult, extra: dict, extra_log_sd: float) -> None:
+    """Add ``extra_log_sd`` (log r/g and log b/g, each) to every frame's camera-white uncertainty, in place: as
+    :func:`_gain_spread` adds the model error ``camera_log_gain`` — ``2·extra_log_sd²`` to the angle's variance behind
+    ``confidence`` and ``(gain · extra_log_sd)²`` to each gain's — for an estimate made before the model learned it
+    (:func:`widen_cct_intervals`' counterpart)."""
+    rho2 = math.radians(1.0) ** 2
+    c = np.clip(np.asarray(extra["confidence"], dtype=float), 0.0, 1.0)
+    with np.errstate(divide="ignore"):
+        tr = np.where(c < 1.0, -rho2 / np.log1p(-c), 0.0)  # the angle's variance the confidence was stated with
+    extra["confidence"] = np.where(np.isfinite(c) & (c > 0), -np.expm1(-rho2 / (tr + 2 * extra_log_sd**2)), c)
+    g = np.asarray(result.gains, dtype=float)
+    half = (np.asarray(result.info["gain_hi"], dtype=float) - np.asarray(result.info["gain_lo"], dtype=float)) / 2
+    half = np.sqrt(half**2 + (Z95 * g * extra_log_sd) ** 2)
+    result.info["gain_lo"] = g - half
+    result.info["gain_hi"] = g + half
+
+
 def interval_columns(result: RetrievalResult, extra: dict[str, NDArray[np.float64]]) -> dict[str, NDArray[np.float64]]:
     """The ESTIMATES.csv interval columns of :meth:`SceneModel.estimate`'s output: ``cct_lo, cct_hi, duv_lo, duv_hi,
     confidence`` then ``gain_r_lo, gain_r_hi, gain_b_lo, gain_b_hi`` (95 % intervals; the green gain is 1), then

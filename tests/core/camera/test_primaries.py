@@ -163,6 +163,36 @@ def test_self_balancing_camera_is_named(shared_data):
     assert self_balance_warning(times, np.full(30, 150.0)) is not None
 
 
+def test_self_balanced_confidence_says_what_it_is(shared_data):
+    """Rendered output with no reference from cameras that rebalance every frame (``benchmarks/unmeasured.py`` case
+    ``none+awb``, ``rawsim``, the first six development cameras and their seeds), frames over 24 hours: every history
+    is read as self-balanced, and its whites' confidence then carries the camera's own frame-to-frame residual
+    (``SELF_BALANCED_WHITE_SD``): 0.114 stated where 11.1 % of frames are within 1°. Without the frames' times nothing
+    tells such a camera from a fixed preset, and the same whites state 0.215. The history's estimate and the model's
+    later estimates of the same frames state the same."""
+    from datetime import datetime, timedelta, timezone
+
+    import unmeasured
+    from illumon.model.fit import SELF_BALANCED_WHITE_SD
+
+    t0 = datetime(2026, 6, 1, 6, 0, tzinfo=timezone.utc)
+    times = [(t0 + timedelta(hours=24 * i / 29)).isoformat() for i in range(30)]
+    stated, untimed, within = [], [], []
+    for i, camera in enumerate(rawsim.DEV_CAMERAS[:6]):
+        obs, white, _ = unmeasured.render("rawsim", camera, "none+awb", 7_000 + 100 * i)
+        untimed += np.asarray(_fit(obs, "srgb").history_estimate[1]["confidence"]).tolist()
+        obs = Observations(obs.frames, obs.patches, obs.values, times)
+        model = _fit(obs, "srgb")
+        assert model.noise["model_error"]["balanced_log_gain"] == SELF_BALANCED_WHITE_SD
+        res, extra = model.history_estimate
+        later = model.estimate(obs)[1]
+        np.testing.assert_allclose(extra["confidence"], later["confidence"], atol=1e-12)
+        stated += np.asarray(extra["confidence"]).tolist()
+        within += (angular_error_deg(res.white, white) < 1.0).tolist()
+    assert abs(np.mean(stated) - np.mean(within)) <= 0.03, (np.mean(stated), np.mean(within))
+    assert np.mean(untimed) - np.mean(within) >= 0.07, (np.mean(untimed), np.mean(within))
+
+
 def test_no_reference_confidence_follows_the_scene_average(shared_data):
     """Sensor RGB of a camera nobody measured, no reference: the scene average sets its channel scales, as precisely
     as the scene reads (:func:`illumon.camera.calibration.scene_calibrated_scale`). Over pale surfaces (walls,

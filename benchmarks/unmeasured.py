@@ -231,6 +231,7 @@ def summarise(rows: list[dict]) -> list[dict]:
 
 
 def main() -> int:
+    global FRAMES
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", choices=["dev", "score"], default="score")
     ap.add_argument("--seeds", type=int, default=2, help="histories per camera, case and simulator")
@@ -244,11 +245,14 @@ def main() -> int:
                     help=f"give the camera's own sensitivities (cases {', '.join(MEASURED_CASES)} only)")
     ap.add_argument("--flare", action="store_true",
                     help="veiling glare in every frame (rawsim.flare_draw: what the real photographs showed)")
+    ap.add_argument("--frames", type=int, default=FRAMES,
+                    help=f"frames per history (default {FRAMES}; over the fit's 300 the scene is fitted on a subsample)")
     ap.add_argument("--flare-sd", type=float,
                     help=f"the model's prior on each frame's offset (default {formation.FLARE_SD}; 0: the model without it)")
     args = ap.parse_args()
     if args.flare_sd is not None:
         formation.FLARE_SD = args.flare_sd
+    FRAMES = args.frames
     if datasets.shared_data_dir() is None:
         print("skipped: measured data (../shared/data) not available")
         return 0

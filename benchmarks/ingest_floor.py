@@ -54,7 +54,7 @@ from illumon_service.process import free_port, stop_process, wait_healthy
 from illumon_service.proposals import make_thumbnail
 from illumon_service.regions import Region, region_stats, response_for
 from illumon_service.registration import _prepared_reference, phase_shift
-from ingest import RESULTS, T0, FramePoster, H, W, regions, render_frames
+from ingest import RESULTS, T0, FramePoster, H, W, _cpu_seconds, regions, render_frames
 
 STEPS = ("decode", "+ regions", "+ durable", "+ register")
 
@@ -85,21 +85,15 @@ def http_only(frames: list[bytes], rounds: int) -> tuple[list[float], list[float
         post = FramePoster(port, 1, {"Authorization": "Bearer -"})
         for _ in range(rounds):
             post(frames[0], "image/jpeg", T0)  # warm
-            s0, c0, t0 = _proc_cpu(proc.pid), time.process_time(), time.perf_counter()
+            s0, c0, t0 = _cpu_seconds(proc.pid), time.process_time(), time.perf_counter()
             for data in frames:
                 post(data, "image/jpeg", T0)
             wall.append((time.perf_counter() - t0) / len(frames))
-            cpu.append((_proc_cpu(proc.pid) - s0 + time.process_time() - c0) / len(frames))
+            cpu.append((_cpu_seconds(proc.pid) - s0 + time.process_time() - c0) / len(frames))
         post.close()
     finally:
         stop_process(proc, grace=5)
     return wall, cpu
-
-
-def _proc_cpu(pid: int) -> float:
-    """User + system CPU seconds of process ``pid`` (``/proc``)."""
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def main() -> None:
@@ -114,10 +108,11 @@ def main() -> None:
         return
     cv2.setNumThreads(1)
     frames, _, _ = render_frames(args.frames, "jpeg")
-    regs = [Region(r["id"], r["x"], r["y"], r["width"], r["height"]) for r in regions()]
+    boxes = regions()
+    regs = [Region(**r) for r in boxes]
     response = response_for({"encoding": "srgb"}, 255.0)
     ref = make_thumbnail(decode_frame(frames[0], regs).image, response, 0.98, (W, H))
-    prepared = _prepared_reference(ref, regions())
+    prepared = _prepared_reference(ref, boxes)
 
     with tempfile.TemporaryDirectory() as tmp:
         db = sqlite3.connect(Path(tmp) / "floor.sqlite", isolation_level=None)
@@ -138,7 +133,7 @@ def main() -> None:
                 db.execute("COMMIT")
             if step >= 3:
                 thumb = make_thumbnail(frame.image, response, 0.98, frame.size)
-                phase_shift(ref, thumb, regions(), prepared)
+                phase_shift(ref, thumb, boxes, prepared)
 
         wall = {s: [] for s in STEPS}
         cpu = {s: [] for s in STEPS}

@@ -137,9 +137,17 @@ def _gain_spread(solver: FrameSolver, mired: NDArray[np.float64], delta: NDArray
     unit = [w / np.linalg.norm(w, axis=1, keepdims=True) for w in wh]
     ju = np.stack([(unit[1] - unit[0]) / h[0], (unit[2] - unit[0]) / h[1]], axis=-1)
     tr = np.einsum("fci,fij,fcj->f", ju, white_cov[:, :2, :2], ju) + 2 * log_gain**2  # angular variance (rad²)
-    rho = math.radians(1.0)
-    confidence = 1.0 - np.exp(-(rho**2) / np.clip(tr, 1e-30, None))  # Rayleigh with σ² = tr/2
-    return gains[0], sg, confidence
+    return gains[0], sg, _within_one_degree(tr)
+
+
+_RHO2 = math.radians(1.0) ** 2
+"""1° in radians, squared: the radius of ``confidence``."""
+
+
+def _within_one_degree(tr: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``confidence``: the probability that a white whose angular error has variance ``tr`` (rad², the trace of its
+    2-D covariance) is within 1° of the truth — Rayleigh with σ² = tr/2."""
+    return 1.0 - np.exp(-_RHO2 / np.clip(tr, 1e-30, None))
 
 
 def widen_cct_intervals(result: RetrievalResult, extra: dict, extra_sd: float) -> None:
@@ -160,13 +168,12 @@ def widen_cct_intervals(result: RetrievalResult, extra: dict, extra_sd: float) -
 def widen_white_intervals(result: RetrievalResult, extra: dict, extra_log_sd: float) -> None:
     """Add ``extra_log_sd`` (log r/g and log b/g, each) to every frame's camera-white uncertainty, in place: as
     :func:`_gain_spread` adds the model error ``camera_log_gain`` — ``2·extra_log_sd²`` to the angle's variance behind
-    ``confidence`` and ``(gain · extra_log_sd)²`` to each gain's — for an estimate made before the model learned it
-    (:func:`widen_cct_intervals`' counterpart)."""
-    rho2 = math.radians(1.0) ** 2
+    ``confidence`` (:func:`_within_one_degree`, inverted to find it) and ``(gain · extra_log_sd)²`` to each gain's —
+    for an estimate made before the model learned it (:func:`widen_cct_intervals`' counterpart)."""
     c = np.clip(np.asarray(extra["confidence"], dtype=float), 0.0, 1.0)
     with np.errstate(divide="ignore"):
-        tr = np.where(c < 1.0, -rho2 / np.log1p(-c), 0.0)  # the angle's variance the confidence was stated with
-    extra["confidence"] = np.where(np.isfinite(c) & (c > 0), -np.expm1(-rho2 / (tr + 2 * extra_log_sd**2)), c)
+        tr = np.where(c < 1.0, -_RHO2 / np.log1p(-c), 0.0)  # the variance :func:`_within_one_degree` was given
+    extra["confidence"] = np.where(np.isfinite(c) & (c > 0), _within_one_degree(tr + 2 * extra_log_sd**2), c)
     g = np.asarray(result.gains, dtype=float)
     half = (np.asarray(result.info["gain_hi"], dtype=float) - np.asarray(result.info["gain_lo"], dtype=float)) / 2
     half = np.sqrt(half**2 + (Z95 * g * extra_log_sd) ** 2)

@@ -66,7 +66,7 @@ from .._blas import single_blas_thread
 from ..camera import angular_error_deg
 from ..camera.primaries import check_primaries
 from ..model import fit_scene_model
-from ..model.lamps import frame_verdicts
+from ..model.lamps import frame_verdicts, unbalanced_probability
 from ..observations import Observations
 from ..retrieval import retrieve_illuminants
 from .candidate import NONE_MARGIN, RANK, Candidate
@@ -361,7 +361,7 @@ def _level_verdict(obs: Observations, css: NDArray[np.float64] | None, primaries
     nd = np.asarray(model.history_estimate[1].get("non_daylight", []), dtype=float)
     if nd.shape != (len(obs.frames),):
         return None
-    return model, float(model.noise.get("unbalanced", 0.0) or 0.0), nd
+    return model, unbalanced_probability(model), nd
 
 
 def _sensor_rgb_verdict(given: Verdict | None, unmeasured: Verdict | None, obs: Observations) -> Verdict | None:

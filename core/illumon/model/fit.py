@@ -45,7 +45,14 @@ from ..retrieval.common import censored, grey_world_mired, imaging_operators, wh
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
 from .intervals import MODEL_ERROR, widen_cct_intervals, widen_white_intervals
-from .lamps import LAMP_PRIOR, HistoryJudgement, apply_lamps, history_lamps, lamp_population
+from .lamps import (
+    LAMP_PRIOR,
+    HistoryJudgement,
+    apply_lamps,
+    history_lamps,
+    lamp_population,
+    unbalanced_probability,
+)
 from .level import anchor_common_level, common_level_posterior, daylight_level, mean_log_chroma, scene_reading
 from .scene import SceneModel
 from .solver import FrameSolver, flare_scales
@@ -304,7 +311,7 @@ def _light_unseen(model: SceneModel) -> None:
         widen_cct_intervals(model.history_estimate[0], model.history_estimate[1], sd)
     camera = getattr(model, "camera", None) or {}
     if (camera.get("calibration") == "none" and camera.get("primaries") == "srgb"
-            and float(model.noise.get("unbalanced", 0.0) or 0.0) <= 0.5):
+            and unbalanced_probability(model) <= 0.5):
         # rendered output, no reference, daylight: the camera's own balance moved from frame to frame, which the
         # history's balance prior (a fixed pipeline) does not know of
         me = model.noise["model_error"]

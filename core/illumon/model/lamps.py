@@ -70,6 +70,7 @@ __all__ = [
     "HistoryJudgement",
     "history_lamps",
     "apply_lamps",
+    "unbalanced_probability",
     "log_chroma_confidence",
     "non_daylight_column",
     "frame_verdicts",
@@ -722,6 +723,13 @@ def _evidence_frames(n: int) -> slice | NDArray[np.intp]:
     return slice(None) if n <= EVIDENCE_FRAMES else np.linspace(0, n - 1, EVIDENCE_FRAMES).round().astype(np.intp)
 
 
+def unbalanced_probability(model) -> float:  # noqa: ANN001
+    """The probability the fit gave the history of being lit throughout by light its camera was not balanced for
+    (:func:`illumon.model.level.common_level_posterior`'s ``unbalanced``, in ``model.noise`` when above one half); 0
+    for a model without it."""
+    return float(model.noise.get("unbalanced", 0.0) or 0.0)
+
+
 def _unbalanced_offset(model, means: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
     """For a history lit only by light its camera was not balanced for (:mod:`.level`; ``model.noise["level"]``), the
     scene-average offset ``a`` that level implies — the frames' mean scene-average chroma minus the level, with the
@@ -734,7 +742,7 @@ def _unbalanced_offset(model, means: NDArray[np.float64]) -> tuple[NDArray[np.fl
     ``rawsim none+lamps`` (``python benchmarks/unmeasured.py --split dev --seeds 1 --cases none+lamps``) had two
     histories 11.4° and 8.6° off (median) where gray-world was 2.7° and 0.7°; the case's median 2.26 → 1.17°
     (gray-world 1.46°), its stated confidence 0.39 where 20 % of frames were within 1° → 0.41 where 41 % are."""
-    if float(model.noise.get("unbalanced", 0.0) or 0.0) <= 0.5 or "level" not in model.noise:
+    if unbalanced_probability(model) <= 0.5 or "level" not in model.noise:
         return None
     ok = np.all(np.isfinite(means), axis=1) & np.all(means > 0, axis=1)
     fitted = getattr(model, "fit_frames", None)
@@ -787,7 +795,7 @@ def _unbalanced_whites(model, lp: LampPosterior, result, extra: dict) -> bool:
     ``non_daylight`` at least the history's probability of being lamp-lit. A measured sensor's frames are judged each
     on its own against that offset instead (its daylight whites are known): those more likely lamp-lit take the
     scene-average white, the others keep the daylight fit's and their own verdict. In place; ``True`` if it applied."""
-    unbalanced = float(model.noise.get("unbalanced", 0.0) or 0.0)
+    unbalanced = unbalanced_probability(model)
     if unbalanced <= 0.5 or "level" not in model.noise:
         return False
     lit = np.all(np.isfinite(lp.white), axis=1)

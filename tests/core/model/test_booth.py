@@ -161,8 +161,8 @@ def test_rendered_booth_level_held(monkeypatch: pytest.MonkeyPatch) -> None:
     in the D65 frame: the chart's iterations hold the history's level at the first fit's
     (:func:`illumon.camera.calibration._held_level`), so the D50-simulator frame's white stays within 0.7° and the lamp
     frames' within 7°; chasing ``T`` instead ran every frame to the locus's end, the D50 frame read as the D65 one
-    (white 9.3° off) and the lamps' 14–15°. The chart's six greys alone (``T`` diagonal) chase as before until the
-    reference frame runs away, then hold: D50 frame 1.1° and lamps within 4.4° (before: 8.5°, 7.7–12.9°)."""
+    (white 9.3° off) and the lamps' 14–15°. The chart's six greys alone (``T`` diagonal) hold it too: D50 frame 1.1°
+    and lamps within 4.4° (chasing: 8.5°, 7.7–12.9°)."""
     import lightbox
 
     booth = lightbox.HISTORIES["the whole booth"]

@@ -1,6 +1,9 @@
 """Spread of a scene's average colour around the mean measured surface's (``SCENE_AVERAGE_SD`` of
 ``illumon.camera.calibration``), on the development split only (``benchmarks/rawsim.py``): 14 development cameras,
-20 scenes each of ten surfaces from the five measured reflectance sets under development Granada runs.
+20 scenes each of ten surfaces from the five measured reflectance sets under development Granada runs. Also the
+scenes' chromaticity spread (:attr:`illumon.priors.scene_average.SceneAverage.spread`) as sensor RGB and as rendered
+output (each camera's colour matrix to sRGB primaries, ``rawsim.rendering``):
+``illumon.priors.scene_average.SURFACE_SPREAD``.
 
     python tools/scene_average_spread.py
 """
@@ -16,6 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import rawsim  # noqa: E402
 from illumon.priors import reflectance_basis  # noqa: E402
+from illumon.priors.scene_average import scene_average_evidence  # noqa: E402
 from illumon.simulation import datasets  # noqa: E402
 
 
@@ -26,17 +30,25 @@ def log_chroma(w: np.ndarray) -> np.ndarray:
 def main() -> None:
     rb = reflectance_basis()
     mean_surface = np.clip(rb.functions @ rb.prior_mean, 0, 1)
-    out = []
+    out, spread = [], {"camera": [], "srgb": []}
     for i, cam in enumerate(rawsim.DEV_CAMERAS):
         css = datasets.load_camera(cam)
         for s in range(20):
             rng = np.random.default_rng(900 + 50 * i + s)
             e = rawsim.daylight_run("dev", 30, rng)
             r = rawsim.draw_reflectances("dev", 10, rng)
-            scene = np.einsum("fl,pl,lc->fpc", e, r, css).mean(1)
+            values = np.einsum("fl,pl,lc->fpc", e, r, css)
+            scene = values.mean(1)
+            seen = np.ones(values.shape[:2], dtype=bool)
+            spread["camera"].append(scene_average_evidence(values, seen).spread)
+            matrix, _ = rawsim.rendering(css, e, r, "preset")
+            spread["srgb"].append(scene_average_evidence(np.clip(values @ matrix.T, 0.0, None), seen).spread)
             out.append((log_chroma(scene) - log_chroma((e * mean_surface) @ css)).mean(0))
     d = np.array(out)
     print(f"{len(d)} scenes: mean {d.mean(0).round(3)}, sd {d.std(0).round(3)} (log r/g, log b/g)")
+    for space, v in spread.items():
+        print(f"chromaticity spread, {space}: median {np.median(v):.3f} (10–90 %: {np.percentile(v, 10):.3f}–"
+              f"{np.percentile(v, 90):.3f})")
 
 
 if __name__ == "__main__":

@@ -698,15 +698,16 @@ def expected_scene_offset(model, obs) -> NDArray[np.float64]:  # noqa: ANN001
     # 4 096 of a 100k-frame history, ~0.05 s a judgement); the same values
     v = values[_evidence_frames(len(values))][:, cols]
     return _expected_offset(v, np.all(np.isfinite(v), axis=-1), model.sensitivities, model.daylight_model(),
-                            model.reflectance_basis())
+                            model.reflectance_basis(), model.camera.get("primaries", "camera"))
 
 
 def _expected_offset(values: NDArray[np.float64], present: NDArray[np.bool_], sensitivities: NDArray[np.float64],
-                     dm: CIEDaylight, rb: ReflectanceBasis) -> NDArray[np.float64]:
+                     dm: CIEDaylight, rb: ReflectanceBasis, primaries: str = "camera") -> NDArray[np.float64]:
     """:func:`illumon.priors.scene_average.expected_offset` under the daylight prior's mean light, of the scene
-    average of ``values`` (F × P × 3, ``present`` F × P) read from at most :data:`EVIDENCE_FRAMES` of its frames."""
+    average of ``values`` (F × P × 3, ``present`` F × P, in the output space ``primaries``) read from at most
+    :data:`EVIDENCE_FRAMES` of its frames."""
     rows = _evidence_frames(len(values))
-    average = scene_average_evidence(values[rows], present[rows])
+    average = scene_average_evidence(values[rows], present[rows], primaries)
     light = dm.spectra(np.array([[dm.mired_mean, 0.0]]))
     return expected_offset(light, np.asarray(sensitivities, dtype=float), rb, average)[0]
 

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["SCENE_GREY_SD", "MEASURED_SURFACE_SPREAD", "SceneAverage", "scene_average_evidence", "grey_share",
-           "expected_offset"]
+__all__ = ["SCENE_GREY_SD", "MEASURED_SURFACE_SPREAD", "SURFACE_SPREAD", "SceneAverage", "scene_average_evidence",
+           "grey_share", "expected_offset"]
 
 SCENE_GREY_SD = 0.033
 """Spread (log r/g, b/g) of a nearly achromatic scene's average colour around grey: the RMS of the gray-world errors
@@ -34,6 +34,21 @@ measured reflectance sets under development Granada runs, 14 development cameras
 The development lamp-lit scenes' regions spread 0.004–0.09, a ColorChecker's colour patches 0.49 (sensor RGB) to 1.8
 (rendered, clipped). A scene that spreads like the measured surfaces averages like them (SCENE_AVERAGE_SD around the
 mean measured surface); one whose patches barely differ averages near grey (:data:`SCENE_GREY_SD`)."""
+
+SURFACE_SPREAD = {"camera": MEASURED_SURFACE_SPREAD, "srgb": 0.81}
+""":data:`MEASURED_SURFACE_SPREAD` per output space (:data:`illumon.camera.primaries.PRIMARIES`). Rendered output
+spreads the same surfaces 2.4 × as much: a colour matrix to sRGB primaries undoes the overlap of the sensor's
+channels. The 280 development scenes through each development camera's matrix to sRGB (``python
+tools/scene_average_spread.py``): median 1.26, 10–90 % 0.81–1.65 (as sensor RGB 0.53, 0.38–0.71). Held against the
+sensor's 0.53, a rendered scene of pale surfaces (their saturation cut to 15 %: spread 0.115 rendered, 0.065 as sensor
+RGB) read as a fifth of the measured surfaces' spread instead of about a tenth, and its expected average kept twice
+the mean surface's warmth it has: a rendered camera lit only by lamps read its level that far off (development
+``none+lamps``, ``python benchmarks/unmeasured.py --split dev --seeds 1``: the Nikon D80's history 3.70° median where
+gray-world was 0.32°). Rendered output is held against the low end (10 %) of its measured-surface scenes, not their
+median: against 1.26 a rendered daylight scene of measured surfaces spreading 0.90 read as 29 % grey, its reading
+moved towards its gray-world (24° off) and the history was judged lamp-lit (the Nikon D3's, 3.1° → 13.6°; with
+veiling glare, which narrows the spread, 8 of the 56 rendered daylight histories without a reference). Sensor RGB
+keeps the median the lamp-lit and pale cases were chosen with; its low end (0.38) is not tried."""
 
 _CHROMA_FLOOR = 0.01
 """Added to each channel (× the frame's mean level) before the log-chromaticities of dark or clipped patches."""
@@ -51,15 +66,21 @@ class SceneAverage:
     """The patches' chromaticity spread (log units, pooled over r/g and b/g; median over frames)."""
     patches: float
     """Mean number of patches per frame."""
+    reference: float = MEASURED_SURFACE_SPREAD
+    """The spread of a scene of measured surfaces in the same output space (:data:`SURFACE_SPREAD`)."""
 
 
-def scene_average_evidence(y: NDArray[np.float64], present: NDArray[np.bool_]) -> SceneAverage:
+def scene_average_evidence(y: NDArray[np.float64], present: NDArray[np.bool_], primaries: str = "camera"
+                           ) -> SceneAverage:
     """Gray-world over a history's patches (log r/g, b/g), its standard deviation and the patches' spread.
 
     ``y`` (F × P × 3) are the observations, ``present`` (F × P) where all three channels were seen. The mean over
     frames of each frame's gray-world white, and ``sqrt(SCENE_GREY_SD² + spread² / N)`` with the patches' chromaticity
-    spread (median over frames, pooled over r/g and b/g) and the mean number of patches per frame.
+    spread (median over frames, pooled over r/g and b/g) and the mean number of patches per frame. ``primaries``: the
+    observations' output space, which sets the measured surfaces' spread the patches' is held against
+    (:data:`SURFACE_SPREAD`).
     """
+    reference = SURFACE_SPREAD[primaries]
     y = np.asarray(y, dtype=float)
     present = np.asarray(present, dtype=bool)
     count = present.sum(axis=1)
@@ -83,18 +104,18 @@ def scene_average_evidence(y: NDArray[np.float64], present: NDArray[np.bool_]) -
         spreads[rows] = np.sqrt((dev.sum(axis=1) / k).mean(axis=1))
         used[rows] = True
     if not used.any():
-        return SceneAverage(np.zeros(2), math.inf, math.inf, 0.0)
+        return SceneAverage(np.zeros(2), math.inf, math.inf, 0.0, reference)
     spread, n = float(np.median(spreads[used])), float(np.mean(count[used]))
-    return SceneAverage(np.mean(logs[used], axis=0), math.sqrt(SCENE_GREY_SD**2 + spread**2 / n), spread, n)
+    return SceneAverage(np.mean(logs[used], axis=0), math.sqrt(SCENE_GREY_SD**2 + spread**2 / n), spread, n, reference)
 
 
 def grey_share(average: SceneAverage) -> float:
     """How far a scene's expected average moves from the mean measured surface's towards grey: 1 for a scene whose
-    patches do not differ in colour, 0 for one that spreads like the measured surfaces
-    (``1 − min(1, spread / MEASURED_SURFACE_SPREAD)``)."""
+    patches do not differ in colour, 0 for one that spreads like the measured surfaces in its output space
+    (``1 − min(1, spread / reference)``, :attr:`SceneAverage.reference`)."""
     if not math.isfinite(average.spread):
         return 0.0
-    return 1.0 - min(1.0, average.spread / MEASURED_SURFACE_SPREAD)
+    return 1.0 - min(1.0, average.spread / average.reference)
 
 
 def expected_offset(light: NDArray[np.float64], sensitivities: NDArray[np.float64], rb, average: SceneAverage

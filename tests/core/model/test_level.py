@@ -132,6 +132,28 @@ def test_simulated_lamp_only_history_follows_the_lamps(shared_data, camera, seed
     assert "unbalanced" not in model.noise  # the daylight history keeps its balance
 
 
+def test_rendered_pale_scene_is_held_against_rendered_surfaces(shared_data, monkeypatch: pytest.MonkeyPatch):
+    """A rendered scene's chromaticity spread is held against the measured surfaces' *rendered* spread
+    (:data:`illumon.priors.scene_average.SURFACE_SPREAD`: a colour matrix spreads them 2.4 × as much as sensor RGB). The
+    ``illumon`` Nikon D80 lit only by lamps over pale surfaces (``none+lamps``, seed 8 100; spread 0.16) was read as a
+    fifth of the sensor's 0.53 and its level kept twice the mean surface's warmth it has: 3.70° median where gray-world
+    is 0.32°, now 2.57°. A rendered daylight scene of measured surfaces (``rawsim`` Nikon D3 ``none+rendered``,
+    seed 7 100; spread 0.90) is no pale one: held against the rendered median (1.26) instead of its low end it read as
+    29 % grey and was judged lamp-lit (13.6°)."""
+    from illumon.priors import scene_average
+
+    lamp_lit = ("illumon", "Nikon_D80", "none+lamps", 8_100)
+    daylight = ("rawsim", "Nikon_D3", "none+rendered", 7_100)
+    err, grey_world, _, _ = _fit_case(*lamp_lit, primaries="srgb")
+    assert err < 3.0 and grey_world < 0.5, (err, grey_world)
+    err, _, _, model = _fit_case(*daylight, primaries="srgb")
+    assert err < 4.0 and "unbalanced" not in model.noise, err
+    monkeypatch.setitem(scene_average.SURFACE_SPREAD, "srgb", scene_average.MEASURED_SURFACE_SPREAD)  # as before
+    assert _fit_case(*lamp_lit, primaries="srgb")[0] > 3.5
+    monkeypatch.setitem(scene_average.SURFACE_SPREAD, "srgb", 1.26)  # the rendered median
+    assert _fit_case(*daylight, primaries="srgb")[0] > 10.0
+
+
 @pytest.mark.parametrize("camera,seed", [("Nikon_D50", 7_600), ("Nikon_Z6_ssf", 8_200)])
 def test_lamp_only_history_offset_is_that_of_the_fitted_frames(shared_data, camera, seed):
     """A lamp-lit history whose lamp rounds leave frames out of the scene fit: the level is the mean white of the

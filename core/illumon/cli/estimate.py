@@ -78,7 +78,7 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
             result = retrieve_illuminants(obs, css, method=args.method, **kwargs)
         from ..model.lamps import non_daylight_column
 
-        extra = {"non_daylight": non_daylight_column(obs, css)}
+        extra = {"non_daylight": non_daylight_column(obs, css, primaries=args.primaries)}
     write_estimates(args.out, result, extra)
     if args.reflectances:
         write_reflectances(args.reflectances, result)
@@ -100,7 +100,8 @@ def _estimate_calibrated(args: argparse.Namespace, obs, known: dict[str, np.ndar
     from ..retrieval import retrieve_illuminants
 
     return (retrieve_illuminants(scene, model.sensitivities, method=args.method),
-            {"non_daylight": non_daylight_column(scene, model.sensitivities)})
+            {"non_daylight": non_daylight_column(scene, model.sensitivities,
+                                                 primaries=model.camera.get("primaries", "camera"))})
 
 
 def add_estimate_command(sub: Any) -> None:

@@ -883,12 +883,13 @@ def frame_verdicts(model, obs) -> NDArray[np.float64] | None:  # noqa: ANN001
     return _judged_frames(model, obs, np.asarray(model.history_estimate[0].info["theta"], dtype=float))[1]
 
 
-def non_daylight_column(obs, sensitivities: NDArray[np.float64], daylight: CIEDaylight | None = None) -> NDArray[np.float64]:
+def non_daylight_column(obs, sensitivities: NDArray[np.float64], daylight: CIEDaylight | None = None,
+                        primaries: str = "camera") -> NDArray[np.float64]:
     """``non_daylight`` of every frame of ``obs`` for a measured camera without a scene model (``illumon estimate``'s
     multi-frame retrieval): the frames' averages over the patches seen in every frame (all patches where fewer than
     two are), judged with the default priors (:func:`lamp_posterior`), the scene-average offset expected where
-    :func:`expected_scene_offset` expects it (through the shipped reflectance prior). 0 where a frame has no
-    average."""
+    :func:`expected_scene_offset` expects it (through the shipped reflectance prior; ``primaries``: the output space
+    of ``obs``). 0 where a frame has no average."""
     v = np.asarray(obs.values, dtype=float)
     present = np.all(np.isfinite(v), axis=-1)
     common = present.all(axis=0)
@@ -897,6 +898,6 @@ def non_daylight_column(obs, sensitivities: NDArray[np.float64], daylight: CIEDa
         means = np.nanmean(np.where(present[..., None], v, np.nan)[:, cols], axis=1)
     dm = daylight or CIEDaylight()
     css = np.asarray(sensitivities, dtype=float)
-    expected = _expected_offset(v[:, cols], present[:, cols], css, dm, reflectance_basis())
+    expected = _expected_offset(v[:, cols], present[:, cols], css, dm, reflectance_basis(), primaries)
     nd = lamp_posterior(means, css, dm, offset_prior=(expected, np.full(2, SCENE_OFFSET_SD))).non_daylight
     return np.where(np.isfinite(nd), nd, 0.0)

@@ -2,7 +2,7 @@
 ``illumon.camera.calibration``), on the development split only (``benchmarks/rawsim.py``): 14 development cameras,
 20 scenes each of ten surfaces from the five measured reflectance sets under development Granada runs. Also the
 scenes' chromaticity spread (:attr:`illumon.priors.scene_average.SceneAverage.spread`) as sensor RGB and as rendered
-output (each camera's colour matrix to sRGB primaries, ``rawsim.rendering``):
+output (each camera's colour matrix to sRGB primaries, as ``rawsim.rendering`` applies it):
 ``illumon.priors.scene_average.SURFACE_SPREAD``.
 
     python tools/scene_average_spread.py
@@ -18,6 +18,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 
 import rawsim  # noqa: E402
+from illumon.camera.primaries import srgb_matrix_for  # noqa: E402
 from illumon.priors import reflectance_basis  # noqa: E402
 from illumon.priors.scene_average import scene_average_evidence  # noqa: E402
 from illumon.simulation import datasets  # noqa: E402
@@ -33,6 +34,7 @@ def main() -> None:
     out, spread = [], {"camera": [], "srgb": []}
     for i, cam in enumerate(rawsim.DEV_CAMERAS):
         css = datasets.load_camera(cam)
+        matrix = srgb_matrix_for(css).T  # the camera's colour matrix to sRGB, as rawsim.rendering's preset applies it
         for s in range(20):
             rng = np.random.default_rng(900 + 50 * i + s)
             e = rawsim.daylight_run("dev", 30, rng)
@@ -41,7 +43,6 @@ def main() -> None:
             scene = values.mean(1)
             seen = np.ones(values.shape[:2], dtype=bool)
             spread["camera"].append(scene_average_evidence(values, seen).spread)
-            matrix, _ = rawsim.rendering(css, e, r, "preset")
             spread["srgb"].append(scene_average_evidence(np.clip(values @ matrix.T, 0.0, None), seen).spread)
             out.append((log_chroma(scene) - log_chroma((e * mean_surface) @ css)).mean(0))
     d = np.array(out)

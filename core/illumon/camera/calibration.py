@@ -576,9 +576,9 @@ def _held_level(model, theta: NDArray[np.float64]) -> tuple[float, float, float,
     A reference seen in one frame cannot tell a shift common to every frame from a change of ``T``: refitted at the
     effective sensitivities ``base @ T``, the balance anchor (the history's mean white near grey through them) moves
     the level, ``T`` follows to keep the reference frame's white, and the two chase each other. The chase has no
-    fixed point: on daylight with a grey card it moved the level by up to 31 MK⁻¹ an iteration, most histories still moving
-    at the sixth and last (the 56 development ``grey+rendered`` and ``grey+awb`` histories; the Nikon D300s
-    of ``unmeasured.py``'s ``grey+awb``, seed 7 200: 146 → 263 MK⁻¹, ``T`` diagonal (0.57, 1, 1.93), whites 5.5° off
+    fixed point: on daylight with a grey card it moved the level by up to 31 MK⁻¹ an iteration, most histories still
+    moving at the sixth and last (the 56 development ``grey+rendered`` and ``grey+awb`` histories; the Nikon D300s of
+    ``unmeasured.py``'s ``grey+awb``, seed 7 200: 146 → 263 MK⁻¹, ``T`` diagonal (0.57, 1, 1.93), whites 5.5° off
     where the held level's are 1.0°), so where it stopped was set by the iteration count. Every rendered reference
     holds the first fit's level from the start. Medians chased → held, ``python benchmarks/unmeasured.py --split
     dev``: ``chart+rendered`` and ``chart+awb``, with and without ``--flare`` (``--seeds 1``), ``rawsim`` 0.88 → 0.38°,

@@ -887,7 +887,8 @@ def _fit_fixed_camera(
         # the level static patches cannot see (:mod:`.level`): a rendered camera's balance, or sensor RGB's daylight
         # through the camera, against the scene average; the lamp-lit component's mixed lamps are half the prior's
         # mean daylight (chosen so on the MIMO scenes)
-        average = scene_average_evidence(y, present, "srgb" if balance_sd is not None else "camera")  # balanced: srgb
+        # the observations' output space: a balance anchor is rendered output's (fit_scene_model gives it for srgb)
+        average = scene_average_evidence(y, present, "srgb" if balance_sd is not None else "camera")
         fit_level = mean_log_chroma(dm, css, theta)
         reading = scene_reading(dm, css, theta, average, rb)
         if balance_sd is not None:

@@ -49,7 +49,8 @@ def main() -> None:
     print(f"{len(d)} scenes: mean {d.mean(0).round(3)}, sd {d.std(0).round(3)} (log r/g, log b/g)")
     for space, v in spread.items():
         print(f"chromaticity spread, {space}: median {np.median(v):.3f} (10–90 %: {np.percentile(v, 10):.3f}–"
-              f"{np.percentile(v, 90):.3f})")
+              f"{np.percentile(v, 90):.3f}; 1–99 %: {np.percentile(v, 1):.3f}–{np.percentile(v, 99):.3f}; "
+              f"range {np.min(v):.3f}–{np.max(v):.3f}; log sd {np.std(np.log(v)):.3f})")
 
 
 if __name__ == "__main__":

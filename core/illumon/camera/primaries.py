@@ -25,11 +25,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..daylight import CIEDaylight
+from ..priors.scene_average import SCENE_SPREAD, rendered_probability, scene_average_evidence
 from ..registry import Registry
 from ..spectra import GRID
 
-__all__ = ["PRIMARIES", "SRGB_BALANCE_SD", "srgb_sensitivities", "check_primaries", "to_srgb_primaries",
-           "srgb_matrix_for", "daylight_prior_for"]
+__all__ = ["PRIMARIES", "SRGB_BALANCE_SD", "RENDERED_WARNING_PROBABILITY", "srgb_sensitivities", "check_primaries",
+           "to_srgb_primaries", "srgb_matrix_for", "daylight_prior_for", "output_space_warning"]
 
 PRIMARIES = Registry.choices({
     "camera": "sensor RGB: raw output, machine-vision cameras without a colour matrix",
@@ -48,6 +49,36 @@ spectra through the D65-balanced linear-sRGB colour-matching functions (``python
 SRGB_MIRED_BETWEEN = 11.0
 """:data:`SRGB_BALANCE_SD` along the daylight locus (MK⁻¹): the spread of a rendered camera's history-mean light
 around the D65 it is balanced for, the ``mired_between`` of its hierarchical daylight prior."""
+
+
+RENDERED_WARNING_PROBABILITY = 0.9
+"""A history declared sensor RGB whose patches spread like rendered output with at least this probability
+(:func:`illumon.priors.scene_average.rendered_probability`: a spread of 0.95 or more) is warned of
+(:func:`output_space_warning`). None of the 280 development scenes of measured surfaces seen as sensor RGB reaches it
+(largest 0.90, probability 0.81; ``python tools/scene_average_spread.py``)."""
+
+
+def output_space_warning(values: NDArray[np.float64]) -> str | None:
+    """A warning when observations declared sensor RGB (``primaries`` ``camera``) spread like rendered output, else
+    ``None``. ``values`` (F × P × 3): the static scene's patches, references left out.
+
+    Declared the wrong way, a camera's white is wrong by several degrees whichever it is: rendered output fitted as
+    sensor RGB without a reference was 8.3° off (median of the 14 development cameras, ``benchmarks/unmeasured.py``
+    case ``none+matrix``; 1.6° when declared ``srgb``), sensor RGB fitted as rendered 8.8° (2.3° declared
+    ``camera``). Only the first shows in the data: a colour matrix spreads the patches' colours beyond what a sensor's
+    overlapping channels give (:func:`illumon.priors.scene_average.rendered_probability`)."""
+    y = np.asarray(values, dtype=float)
+    present = np.all(np.isfinite(y) & (y > 0), axis=-1)
+    spread = scene_average_evidence(np.where(present[..., None], y, 0.0), present).spread
+    p = rendered_probability(spread)
+    if p < RENDERED_WARNING_PROBABILITY:
+        return None
+    lo, hi = (SCENE_SPREAD["camera"][0] * np.exp(-2.33 * SCENE_SPREAD["camera"][1]),
+              SCENE_SPREAD["camera"][0] * np.exp(2.33 * SCENE_SPREAD["camera"][1]))
+    return (f"the patches' colours spread like rendered output (chromaticity spread {spread:.2f}; scenes seen as "
+            f"sensor RGB spread {lo:.2f}–{hi:.2f}), not like the sensor RGB the camera was declared: if it applies a "
+            "colour matrix (IP, surveillance and phone cameras do), use primaries srgb — declared the wrong way, its "
+            "white is several degrees off")
 
 
 def daylight_prior_for(primaries: str):

@@ -90,6 +90,8 @@ def _estimate_calibrated(args: argparse.Namespace, obs, known: dict[str, np.ndar
     (:mod:`illumon.camera.calibration`); ``joint`` gives the fit's own estimates with intervals, other methods run
     on the calibrated sensitivities."""
     model = fit_camera_and_scene(args, obs, known)
+    for msg in model.identifiability.get("warnings", []):  # as `illumon fit` says them (here beside the CSV written)
+        print(f"illumon: warning: {msg}", file=sys.stderr)
     scene = obs.select_patches(model.patches)
     if args.method == "joint":
         from ..model import interval_columns

@@ -35,7 +35,14 @@ from ..camera.calibration import (
     prior_sensitivities,
     prior_white_spread,
 )
-from ..camera.primaries import SRGB_BALANCE_SD, check_primaries, daylight_prior_for, srgb_sensitivities, to_srgb_primaries
+from ..camera.primaries import (
+    SRGB_BALANCE_SD,
+    check_primaries,
+    daylight_prior_for,
+    output_space_warning,
+    srgb_sensitivities,
+    to_srgb_primaries,
+)
 from ..camera.references import check_known_reflectances
 from ..daylight import CIEDaylight
 from ..observations import Observations, observed, sd_variance
@@ -279,6 +286,11 @@ def fit_scene_model(
         model.identifiability.setdefault("warnings", []).append(msg)
         warnings.warn(msg, IdentifiabilityWarning, stacklevel=2)
         _light_unseen(model)
+    if primaries == "camera" and RENDERED_CHART_WARNING not in model.identifiability.get("warnings", []):
+        msg = output_space_warning(scene.values)  # rendered output declared sensor RGB (a chart says so itself)
+        if msg:
+            model.identifiability.setdefault("warnings", []).append(msg)
+            warnings.warn(msg, IdentifiabilityWarning, stacklevel=2)
     return model
 
 

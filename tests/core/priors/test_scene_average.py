@@ -44,3 +44,35 @@ def test_equals_frame_by_frame_bit_for_bit() -> None:
         np.testing.assert_array_equal(got.mean, want.mean)
         assert (got.sd, got.spread, got.patches) == (want.sd, want.spread, want.patches) or (
             math.isinf(got.sd) and math.isinf(want.sd)), trial
+
+
+def test_rendered_probability_separates_the_output_spaces() -> None:
+    """A scene's chromaticity spread as evidence of rendered output: the development scenes' sensor-RGB spreads
+    (1–99 % 0.29–0.87, largest 0.90) stay below the warning's 0.9, rendered ones from 1.0 up are above it, and the
+    probability rises with the spread; pale scenes (0.03–0.19 in the simulated histories) read as sensor RGB."""
+    from illumon.camera.primaries import RENDERED_WARNING_PROBABILITY
+    from illumon.priors.scene_average import rendered_probability
+
+    spreads = np.array([0.03, 0.19, 0.29, 0.53, 0.87, 0.90, 1.0, 1.26, 1.94])
+    p = np.array([rendered_probability(s) for s in spreads])
+    assert np.all(np.diff(p) > 0) and p[0] < 1e-6
+    assert np.all(p[spreads <= 0.90] < RENDERED_WARNING_PROBABILITY)
+    assert np.all(p[spreads >= 1.0] > RENDERED_WARNING_PROBABILITY)
+    assert rendered_probability(float("inf")) == 0.0 and rendered_probability(0.0) == 0.0
+
+
+def test_output_space_warning_on_a_matrixed_scene() -> None:
+    """Ten ColorChecker surfaces seen through the sRGB colour-matching functions (output clipped at 0, as a camera
+    clips what its matrix makes negative) spread like rendered output (1.29) and are warned of; the same surfaces
+    through the measured cameras' mean sensitivities (sensor RGB, 0.64) are not."""
+    from illumon.camera.calibration import prior_sensitivities
+    from illumon.camera.primaries import output_space_warning, srgb_sensitivities
+    from illumon.daylight import CIEDaylight
+    from illumon.priors import colourchecker_reflectances
+
+    _, refl = colourchecker_reflectances()
+    surfaces = refl[[0, 2, 3, 6, 7, 10, 11, 13, 14, 17]]
+    light = CIEDaylight().spectra(np.array([[160.0, 0.0], [180.0, 0.0], [200.0, 0.0]]))
+    for css, warned in ((srgb_sensitivities(), True), (prior_sensitivities(), False)):
+        values = np.clip(np.einsum("fl,pl,lc->fpc", light, surfaces, css), 0.0, None)  # an output clips at 0
+        assert (output_space_warning(values) is not None) is warned

@@ -21,7 +21,7 @@ from datetime import datetime
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["MIN_HOURS", "MAX_SPREAD_MIRED", "self_balance_warning"]
+__all__ = ["MIN_HOURS", "MAX_SPREAD_MIRED", "self_balance_warning", "unbalanced_warning"]
 
 MIN_HOURS = 6.0
 """A history must span at least this many hours before a steady light colour is taken as a sign of self-balancing."""
@@ -60,3 +60,23 @@ def self_balance_warning(times: Sequence[str], mired: NDArray[np.float64]) -> st
     return (f"the light's colour hardly changed over {hours:.0f} hours (σ = {spread:.1f} MK⁻¹; daylight moves tens): "
             "either a steady lamp lights the scene, or the camera's white balance is automatic — if so, lock it, or send "
             "applied_gains with every frame; a reference then holds for every frame")
+
+
+def unbalanced_warning(level: Sequence[float]) -> str:
+    """The warning of rendered output (``primaries`` ``srgb``) whose every frame reads as lit by light the camera was
+    not balanced for (:func:`illumon.model.lamps.unbalanced_probability` above 0.5): the history's mean white,
+    ``level`` (log r/g, b/g), is far from the grey a camera balanced for daylight shows.
+
+    Either lamps light the scene throughout — then the estimates follow them — or the output is not what ``srgb``
+    declares: a camera that does not white-balance (raw sensor values, whose daylight white is far from grey) or one
+    locked to an indoor preset. Sensor RGB declared ``srgb`` reads so in most histories (development, no reference,
+    ``python tools/output_space_check.py --declared srgb``: 20 of 28 ``none``, 28 of 28 ``pale``; its white then
+    8.8° off, 2.3° declared ``camera``; held out: 20 of 20, 20 of 20); rendered daylight histories never (0 of 56,
+    ``none+rendered``, ``none+awb``; held out 0 of 40).
+    """
+    w = np.exp(np.array([level[0], 0.0, level[1]], dtype=float))
+    angle = float(np.degrees(np.arccos(np.clip(w.sum() / (np.linalg.norm(w) * np.sqrt(3.0)), -1.0, 1.0))))
+    return (f"every frame reads as lit by lamps: the history's mean white is {angle:.0f}° from the grey a camera "
+            "balanced for daylight shows. If daylight lights the scene, the frames are not balanced rendered output: "
+            "raw sensor values need primaries camera, and a camera locked to an indoor white-balance preset should be "
+            "set to daylight (or send applied_gains)")

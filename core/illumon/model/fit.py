@@ -27,7 +27,7 @@ from scipy.linalg.lapack import dposv
 
 from .._blas import single_blas_thread
 from ..camera import formation
-from ..camera.balance import self_balance_warning
+from ..camera.balance import self_balance_warning, unbalanced_warning
 from ..camera.calibration import (
     SCENE_AVERAGE_SD,
     calibrate_scene_model,
@@ -286,11 +286,14 @@ def fit_scene_model(
         model.identifiability.setdefault("warnings", []).append(msg)
         warnings.warn(msg, IdentifiabilityWarning, stacklevel=2)
         _light_unseen(model)
+    msg = None
     if primaries == "camera" and RENDERED_CHART_WARNING not in model.identifiability.get("warnings", []):
         msg = output_space_warning(scene.values)  # rendered output declared sensor RGB (a chart says so itself)
-        if msg:
-            model.identifiability.setdefault("warnings", []).append(msg)
-            warnings.warn(msg, IdentifiabilityWarning, stacklevel=2)
+    elif primaries == "srgb" and not known and unbalanced_probability(model) > 0.5 and "level" in model.noise:
+        msg = unbalanced_warning(model.noise["level"])  # lamps throughout, or output that is not balanced srgb
+    if msg:
+        model.identifiability.setdefault("warnings", []).append(msg)
+        warnings.warn(msg, IdentifiabilityWarning, stacklevel=2)
     return model
 
 

@@ -240,3 +240,28 @@ def test_measured_sensor_pale_daylight_scene_takes_the_scene_average(shared_data
     assert reading_sd("none") > FIT_LEVEL_SD > reading_sd("pale")
     err, *_ = _fit_case("illumon", camera, "pale", seed, datasets.load_camera(camera))
     assert err < bound, err  # the fit's level alone: 2.19° and 1.00° (1.3° median over the development cameras)
+
+
+def test_unbalanced_rendered_history_is_warned(shared_data):
+    """Rendered output whose every frame reads as lit by lamps gets a warning naming both readings — lamps throughout,
+    or frames that are not balanced rendered output (:func:`illumon.camera.balance.unbalanced_warning`). Sensor RGB
+    declared ``srgb`` (``rawsim`` Nikon D300s ``none``, seed 7 200: its white 10.0° off) is warned of; the same day
+    rendered (``none+rendered``) is not; a real lamp-lit scene (MIMO ``bmug``, development) is, with its mean white
+    9° from grey."""
+    import lamps
+    from illumon.model import fit_scene_model
+
+    said = "every frame reads as lit by lamps"
+    err, _, nd, model = _fit_case("rawsim", "Nikon_D300s", "none", 7_200, primaries="srgb")
+    assert err > 5.0 and np.mean(nd >= 0.5) > 0.5
+    assert any(w.startswith(said) and "primaries camera" in w for w in model.identifiability["warnings"])
+    _, _, nd, model = _fit_case("rawsim", "Nikon_D300s", "none+rendered", 7_200, primaries="srgb")
+    assert not np.any(nd >= 0.5) and not any(w.startswith(said) for w in model.identifiability["warnings"])
+    folder = shared_data / "real" / "mimo-lab"
+    if not folder.is_dir():
+        pytest.skip("real photographs (../shared/data/real) not available")
+    obs, _ = lamps.load_scene(folder, "bmug")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model = fit_scene_model(obs, None, primaries="srgb")
+    assert any(w.startswith(said) for w in model.identifiability["warnings"])

@@ -495,8 +495,16 @@ def calibrate_scene_model(
                                    neutral, _reference_offset_sd(obs, frames, model.noise.get("flare_sd", 0.0)))
     if kind == "none" and primaries == "camera":
         # A rendered camera's own white balance already set its channel scales; its prior is in the daylight model.
+        # The lamp-lit-or-daylight verdict is weighed through the prior camera, before the transform: the transform
+        # reads the scene average as daylight's, which makes the two components' levels nearly one in the refit while
+        # the light's temperature still hangs on the verdict (illumon.model.level.verdict_shift)
+        verdict = {k: v for k, v in model.noise.get("model_error", {}).items() if k in ("verdict_shift", "verdict_p")}
         t, s_scene = _scene_average_transform(scene, base, model, theta)
         model, theta = fit(scene, base @ t)
+        me = model.noise.setdefault("model_error", {})
+        me.pop("verdict_shift", None)
+        me.pop("verdict_p", None)
+        me.update(verdict)
         it = 1
     model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()
     if "reference_light" in extra:

@@ -60,7 +60,14 @@ from .lamps import (
     lamp_population,
     unbalanced_probability,
 )
-from .level import anchor_common_level, common_level_posterior, daylight_level, mean_log_chroma, scene_reading
+from .level import (
+    anchor_common_level,
+    common_level_posterior,
+    daylight_level,
+    mean_log_chroma,
+    scene_reading,
+    verdict_shift,
+)
 from .scene import SceneModel
 from .solver import FrameSolver, flare_scales
 
@@ -892,6 +899,7 @@ def _fit_fixed_camera(
             objective, theta, coef, (css, dm, rb, relative_error, absolute_error), y_all[chart] / scale,
             present_all[chart], None if obs.sd is None else sd_variance(obs.sd[chart]) / scale**2, reference_light,
             measured_noise())
+    verdict = (0.0, 0.0)  # the lamp-lit-or-balanced verdict's other reading of the light's temperature (shift, p)
     if common_level is not None:
         lo_b, hi_b = dm.bounds()
         held = np.array(common_level[:2]) - np.median(theta[:, :2], axis=0)
@@ -912,13 +920,16 @@ def _fit_fixed_camera(
         else:
             base, camera_sd, measured = camera_level
             days, days_logw, lamps, _ = lamp_population(base, dm, 1)
-            level = common_level_posterior(fit_level, SCENE_AVERAGE_SD, camera_sd, average, reading, lamps,
-                                           balanced=(days, days_logw), camera_sd=camera_sd)
+            level = posterior = common_level_posterior(fit_level, SCENE_AVERAGE_SD, camera_sd, average, reading,
+                                                       lamps, balanced=(days, days_logw), camera_sd=camera_sd)
             if level.unbalanced <= 0.5:
                 # daylight: an unmeasured camera keeps the prior camera's level (the calibration's scene-average
                 # transform); a measured one the fit's, joined by the scene average where that is the better evidence
                 level = (daylight_level(fit_level, FIT_LEVEL_SD, average, reading, level.unbalanced)
                          if measured else None)
+            # sensor RGB's verdict (not a balance's: rendered output's was right on every development history, lamp-lit
+            # or not) was wrong on 5 of 14 lamp-only ones, so its other reading joins the temperature's interval
+            verdict = verdict_shift(dm, css, theta, fit_level if level is None else level.mean, posterior)
         if level is not None:
             theta, coef, anchored_sd = anchor_common_level(objective, theta, css, level)
     noise_scale = measured_noise()
@@ -938,7 +949,8 @@ def _fit_fixed_camera(
         noise={"relative_error": relative_error, "absolute_error": absolute_error, "noise_scale": noise_scale,
                "scale": scale, "white_level": white if math.isfinite(white) else None, "flare_sd": flare_sd,
                "model_error": dict(MODEL_ERROR, common_mired=float(math.hypot(common[0], MODEL_ERROR["common_mired"])),
-                                   common_duv=float(max(common[1], MODEL_ERROR["common_duv"])))},
+                                   common_duv=float(max(common[1], MODEL_ERROR["common_duv"])),
+                                   **({"verdict_shift": verdict[0], "verdict_p": verdict[1]} if verdict[1] > 0 else {}))},
     )
     if common_level is not None:  # the level held is an earlier fit's, as uncertain as that fit stated it
         model.noise["model_error"].update(common_mired=float(common_level[2]), common_duv=float(common_level[3]))

@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.special import ndtr
 
 from ..camera.formation import gains_from_white
 from ..daylight import xy_from_cct_duv
@@ -23,7 +24,7 @@ from ..observations import Observations
 from ..retrieval.common import RetrievalResult
 from .solver import FrameSolver
 
-__all__ = ["MODEL_ERROR", "Z95", "assemble_estimates", "interval_columns"]
+__all__ = ["MODEL_ERROR", "Z95", "assemble_estimates", "interval_columns", "mixture_interval"]
 
 Z95 = 1.959963984540054
 
@@ -84,9 +85,10 @@ def assemble_estimates(
     # an unmeasured camera's own reading of the light's temperature (a reference pins its white, not its CCT)
     sm = np.sqrt(np.clip(cov[:, 0, 0], 0, None) + me["mired"] ** 2 + me.get("camera_mired", 0.0) ** 2
                  + me.get("balanced_mired", 0.0) ** 2)
-    cct_lo = 1e6 / np.clip(shown[:, 0] + Z95 * sm, 1e-3, None)
-    cct_hi = 1e6 / np.clip(shown[:, 0] - Z95 * sm, 1e-3, None)
-    cct_hi = np.where(shown[:, 0] - Z95 * sm > 0, cct_hi, np.inf)
+    # … and the history's lamp-lit-or-balanced verdict, whose other reading moves every frame (a two-point mixture)
+    m_lo, m_hi = mixture_interval(shown[:, 0], sm, me.get("verdict_shift", 0.0), me.get("verdict_p", 0.0))
+    cct_lo = 1e6 / np.clip(m_hi, 1e-3, None)
+    cct_hi = np.where(m_lo > 0, 1e6 / np.clip(m_lo, 1e-3, None), np.inf)
     dlocus = (solver.table.lookup(shown[:, 0] + 0.5)[:, 4] - solver.table.lookup(shown[:, 0] - 0.5)[:, 4]) / 1.0
     g = np.stack([dlocus, np.ones_like(dlocus)], axis=1)
     sduv = np.sqrt(np.clip(np.einsum("fi,fij,fj->f", g, cov[:, :2, :2], g), 0, None) + me["duv"] ** 2)
@@ -115,6 +117,32 @@ def assemble_estimates(
         "too_few_patches": few,
     }
     return res, extra
+
+
+def mixture_interval(mired: NDArray[np.float64], sd: NDArray[np.float64], shift: float, p: float
+                     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The central 95 % interval of each frame's reciprocal temperature (MK⁻¹) when it is ``N(mired, sd²)`` with
+    probability ``1 − p`` and ``N(mired + shift, sd²)`` with probability ``p`` (the other reading of the history's
+    lamp-lit-or-balanced verdict, :func:`illumon.model.level.verdict_shift`); ``mired ± Z95·sd`` when ``p`` is 0.
+    Found by bisection on the mixture's distribution function."""
+    mired, sd = np.asarray(mired, dtype=float), np.asarray(sd, dtype=float)
+    if not (p > 0 and math.isfinite(shift) and shift != 0):
+        return mired - Z95 * sd, mired + Z95 * sd
+    s = np.clip(sd, 1e-9, None)
+
+    def cdf(x: NDArray[np.float64]) -> NDArray[np.float64]:
+        return (1 - p) * ndtr((x - mired) / s) + p * ndtr((x - mired - shift) / s)
+
+    out = []
+    for q in (0.025, 0.975):
+        lo = mired + min(shift, 0.0) - 8 * s
+        hi = mired + max(shift, 0.0) + 8 * s
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            below = cdf(mid) < q
+            lo, hi = np.where(below, mid, lo), np.where(below, hi, mid)
+        out.append(0.5 * (lo + hi))
+    return out[0], out[1]
 
 
 def _gain_spread(solver: FrameSolver, mired: NDArray[np.float64], delta: NDArray[np.float64], a0: NDArray[np.float64],
@@ -153,13 +181,16 @@ def _within_one_degree(tr: NDArray[np.float64]) -> NDArray[np.float64]:
 def widen_cct_intervals(result: RetrievalResult, extra: dict, extra_sd: float) -> None:
     """Add ``extra_sd`` (MK⁻¹) in quadrature to the reciprocal-temperature spread of every frame's 95 % CCT interval,
     in place (an estimate made before the model learned it: ``model_error["balanced_mired"]``, which
-    :func:`assemble_estimates` adds for later estimates)."""
+    :func:`assemble_estimates` adds for later estimates). Each side of the interval is widened on its own (a
+    verdict's mixture makes them differ, :func:`mixture_interval`)."""
     mired = 1e6 / np.asarray(result.cct, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):
-        sm = (1e6 / np.asarray(extra["cct_lo"], dtype=float) - mired) / Z95
-    sm = np.sqrt(np.clip(sm, 0, None) ** 2 + extra_sd**2)
-    lo = 1e6 / np.clip(mired + Z95 * sm, 1e-3, None)
-    hi = np.where(mired - Z95 * sm > 0, 1e6 / np.clip(mired - Z95 * sm, 1e-3, None), np.inf)
+        up = (1e6 / np.asarray(extra["cct_lo"], dtype=float) - mired) / Z95  # towards warmer light
+        down = (mired - 1e6 / np.asarray(extra["cct_hi"], dtype=float)) / Z95  # towards bluer (1e6/inf = 0)
+    up = np.sqrt(np.clip(up, 0, None) ** 2 + extra_sd**2)
+    down = np.sqrt(np.clip(down, 0, None) ** 2 + extra_sd**2)
+    lo = 1e6 / np.clip(mired + Z95 * up, 1e-3, None)
+    hi = np.where(mired - Z95 * down > 0, 1e6 / np.clip(mired - Z95 * down, 1e-3, None), np.inf)
     ok = np.isfinite(extra["cct_lo"])
     extra["cct_lo"] = np.where(ok, lo, extra["cct_lo"])
     extra["cct_hi"] = np.where(ok, hi, extra["cct_hi"])

@@ -117,7 +117,7 @@ def test_rendered_chart_warned_without_the_identifiability_note(tmp_path: Path,
 
 
 def test_rendered_output_declared_sensor_rgb_is_warned(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """Rendered output (the Nikon D50's colour matrix to sRGB and its daylight preset, Foster et al. sensitivities;
+    """Rendered output (the Nikon D50's colour matrix to sRGB and its daylight preset, Butcher's single-spectrum measurement;
     ``benchmarks/unmeasured.py`` ``none+rendered``, ``rawsim``, seed 7 700) fitted without ``--primaries`` (the
     default, sensor RGB): ``illumon fit`` warns that the patches spread like rendered output (1.58), and the white it
     gives is far off (8.2° median); declared ``--primaries srgb`` the warning goes and the white is right (1.0°). The

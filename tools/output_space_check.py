@@ -2,7 +2,8 @@
 
 * Declared sensor RGB (default): :func:`illumon.camera.primaries.output_space_warning` on the scene patches (two
   seeds × each camera of the split × both simulators, with and without veiling glare) — sensor-RGB cases should
-  never be warned of, rendered ones are caught where their patches spread beyond what sensor RGB gives.
+  never be warned of, rendered ones are caught where their patches spread beyond what sensor RGB gives or a
+  saturated patch's weakest channel was clipped away.
 * ``--declared srgb``: each history fitted as rendered output without a reference (one seed × each camera × both
   simulators), counting those read as lit by lamps throughout, which :func:`illumon.camera.balance.unbalanced_warning`
   says — sensor RGB declared ``srgb`` mostly is, rendered daylight should never be.
@@ -26,7 +27,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import rawsim  # noqa: E402
 import unmeasured  # noqa: E402
 from illumon.camera import angular_error_deg  # noqa: E402
-from illumon.camera.primaries import output_space_warning  # noqa: E402
+from illumon.camera.primaries import output_space_warning, weakest_channel  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.model.lamps import unbalanced_probability  # noqa: E402
 from illumon.priors.scene_average import scene_average_evidence  # noqa: E402
@@ -77,10 +78,10 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print(f"split {args.split} ({'development' if args.split == 'dev' else 'held out'}): {len(cams)} cameras × 2 seeds "
           "× 2 simulators per case, declared camera")
-    print(f"{'case':14} {'glare':5} {'warned':>8} {'spread median':>14} {'range':>11}")
+    print(f"{'case':14} {'glare':5} {'warned':>8} {'spread median':>14} {'range':>11} {'weakest channel median':>23}")
     for case in CASES:
         for flare in (False, True):
-            warned, spreads = 0, []
+            warned, spreads, weakest = 0, [], []
             for sim in ("illumon", "rawsim"):
                 for i, cam in enumerate(cams):
                     for s in range(2):
@@ -89,8 +90,9 @@ def main(argv: list[str] | None = None) -> int:
                         warned += output_space_warning(v) is not None
                         seen = np.all(np.isfinite(v) & (v > 0), axis=-1)
                         spreads.append(scene_average_evidence(np.where(seen[..., None], v, 0.0), seen).spread)
+                        weakest.append(weakest_channel(v))
             print(f"{case:14} {'yes' if flare else 'no':5} {warned:4d}/{len(spreads):<3d} {np.median(spreads):14.2f} "
-                  f"{min(spreads):5.2f}–{max(spreads):.2f}")
+                  f"{min(spreads):5.2f}–{max(spreads):.2f} {np.median(weakest):23.3f}")
     return 0
 
 

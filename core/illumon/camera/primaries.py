@@ -18,6 +18,7 @@ References
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import colour
@@ -29,8 +30,9 @@ from ..priors.scene_average import SCENE_SPREAD, rendered_probability, scene_ave
 from ..registry import Registry
 from ..spectra import GRID
 
-__all__ = ["PRIMARIES", "SRGB_BALANCE_SD", "RENDERED_WARNING_PROBABILITY", "srgb_sensitivities", "check_primaries",
-           "to_srgb_primaries", "srgb_matrix_for", "daylight_prior_for", "output_space_warning"]
+__all__ = ["PRIMARIES", "SRGB_BALANCE_SD", "RENDERED_WARNING_PROBABILITY", "WEAKEST_CHANNEL", "srgb_sensitivities",
+           "check_primaries", "to_srgb_primaries", "srgb_matrix_for", "daylight_prior_for", "weakest_channel",
+           "output_space_warning"]
 
 PRIMARIES = Registry.choices({
     "camera": "sensor RGB: raw output, machine-vision cameras without a colour matrix",
@@ -58,27 +60,61 @@ RENDERED_WARNING_PROBABILITY = 0.9
 (largest 0.90, probability 0.81; ``python tools/scene_average_spread.py``)."""
 
 
+WEAKEST_CHANNEL = 0.02
+"""A history declared sensor RGB whose most saturated well-exposed patch keeps, in most frames, less than this share
+of its strongest channel in its weakest is warned of too (:func:`output_space_warning`). A sensor's channels overlap,
+so every lit surface gives all three: the 280 development scenes of measured surfaces as sensor RGB keep at least
+0.032 (1 %: 0.041, median 0.139; ``python tools/scene_average_spread.py``), the real sensor-RGB chart (``sony-raw``)
+0.22–0.27 and the real lamp-lit scenes 0.43–0.84; through each camera's colour matrix to sRGB, 232 of the 280 fall
+below 0.03 (median 0: the matrix takes a saturated surface's weakest channel below zero and the output clips it)."""
+
+
+def weakest_channel(values: NDArray[np.float64]) -> float:
+    """The median over frames of the smallest ratio of a patch's weakest channel to its strongest, among the patches
+    whose strongest channel is at least a tenth of the frame's brightest value (dark patches' ratios are noise);
+    ``values`` F × P × 3, NaN where unseen. ``inf`` where no frame has such a patch."""
+    y = np.asarray(values, dtype=float)
+    hi = np.nanmax(np.where(np.isfinite(y), y, -np.inf), axis=-1)  # F × P
+    lo = np.nanmin(np.where(np.isfinite(y), y, np.inf), axis=-1)
+    ok = np.all(np.isfinite(y), axis=-1) & (hi > 0)
+    frame_max = np.max(np.where(ok, hi, 0.0), axis=1, keepdims=True)
+    lit = ok & (hi >= 0.1 * frame_max) & (frame_max > 0)
+    ratio = np.where(lit, np.clip(lo, 0.0, None) / np.where(lit, hi, 1.0), np.inf)
+    per_frame = ratio.min(axis=1)
+    per_frame = per_frame[np.isfinite(per_frame)]
+    return float(np.median(per_frame)) if per_frame.size else math.inf
+
+
 def output_space_warning(values: NDArray[np.float64]) -> str | None:
-    """A warning when observations declared sensor RGB (``primaries`` ``camera``) spread like rendered output, else
+    """A warning when observations declared sensor RGB (``primaries`` ``camera``) look like rendered output, else
     ``None``. ``values`` (F × P × 3): the static scene's patches, references left out.
 
     Declared the wrong way, a camera's white is wrong by several degrees whichever it is: rendered output fitted as
     sensor RGB without a reference was 8.3° off (median of the 14 development cameras, ``benchmarks/unmeasured.py``
     case ``none+matrix``; 1.6° when declared ``srgb``), sensor RGB fitted as rendered 8.8° (2.3° declared
-    ``camera``). Only the first shows in the data: a colour matrix spreads the patches' colours beyond what a sensor's
-    overlapping channels give (:func:`illumon.priors.scene_average.rendered_probability`)."""
+    ``camera``). Only the first shows in the data, two ways: a colour matrix spreads the patches' colours beyond what
+    a sensor's overlapping channels give (:func:`illumon.priors.scene_average.rendered_probability` at least
+    :data:`RENDERED_WARNING_PROBABILITY`), and it takes a saturated patch's weakest channel to nothing
+    (:func:`weakest_channel` below :data:`WEAKEST_CHANNEL`)."""
     y = np.asarray(values, dtype=float)
     present = np.all(np.isfinite(y) & (y > 0), axis=-1)
     spread = scene_average_evidence(np.where(present[..., None], y, 0.0), present).spread
-    p = rendered_probability(spread)
-    if p < RENDERED_WARNING_PROBABILITY:
+    weakest = weakest_channel(y)
+    if rendered_probability(spread) >= RENDERED_WARNING_PROBABILITY:
+        seen = f"the patches' colours spread like rendered output (chromaticity spread {spread:.2f}; {_SENSOR_SPREAD})"
+    elif weakest < WEAKEST_CHANNEL:
+        seen = (f"a saturated patch's weakest channel is {100 * weakest:.1f} % of its strongest (a sensor's overlapping "
+                "channels keep 3 % or more: a colour matrix clipped it)")
+    else:
         return None
-    lo, hi = (SCENE_SPREAD["camera"][0] * np.exp(-2.33 * SCENE_SPREAD["camera"][1]),
-              SCENE_SPREAD["camera"][0] * np.exp(2.33 * SCENE_SPREAD["camera"][1]))
-    return (f"the patches' colours spread like rendered output (chromaticity spread {spread:.2f}; scenes seen as "
-            f"sensor RGB spread {lo:.2f}–{hi:.2f}), not like the sensor RGB the camera was declared: if it applies a "
-            "colour matrix (IP, surveillance and phone cameras do), use primaries srgb — declared the wrong way, its "
-            "white is several degrees off")
+    return (f"{seen}, not like the sensor RGB the camera was declared: if it applies a colour matrix (IP, "
+            "surveillance and phone cameras do), use primaries srgb — declared the wrong way, its white is several "
+            "degrees off")
+
+
+_SENSOR_SPREAD = "scenes seen as sensor RGB spread {:.2f}–{:.2f}".format(
+    SCENE_SPREAD["camera"][0] * math.exp(-2.33 * SCENE_SPREAD["camera"][1]),
+    SCENE_SPREAD["camera"][0] * math.exp(2.33 * SCENE_SPREAD["camera"][1]))
 
 
 def daylight_prior_for(primaries: str):

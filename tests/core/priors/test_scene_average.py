@@ -76,3 +76,29 @@ def test_output_space_warning_on_a_matrixed_scene() -> None:
     for css, warned in ((srgb_sensitivities(), True), (prior_sensitivities(), False)):
         values = np.clip(np.einsum("fl,pl,lc->fpc", light, surfaces, css), 0.0, None)  # an output clips at 0
         assert (output_space_warning(values) is not None) is warned
+
+
+def test_weakest_channel_tells_a_clipped_matrix_from_a_sensor() -> None:
+    """:func:`illumon.camera.primaries.weakest_channel`: a sensor's overlapping channels leave every lit surface all
+    three (the ColorChecker's colour patches through the measured cameras' mean keep ≥ 3 %); a colour matrix to sRGB
+    takes a saturated patch's weakest channel below zero, clipped to nothing — warned of even in a scene of greys
+    that spreads too little to tell (one saturated patch among nine greys); a dark patch's noisy channel is not
+    counted (its strongest channel under a tenth of the frame's brightest)."""
+    from illumon.camera.calibration import prior_sensitivities
+    from illumon.camera.primaries import WEAKEST_CHANNEL, output_space_warning, srgb_sensitivities, weakest_channel
+    from illumon.daylight import CIEDaylight
+    from illumon.priors import colourchecker_reflectances
+
+    _, refl = colourchecker_reflectances()
+    light = CIEDaylight().spectra(np.array([[160.0, 0.0], [180.0, 0.0], [200.0, 0.0]]))
+    sensor = np.einsum("fl,pl,lc->fpc", light, refl[:18], prior_sensitivities())
+    assert weakest_channel(sensor) > 1.5 * WEAKEST_CHANNEL
+    scene = np.concatenate([refl[[17]], np.repeat(refl[[19, 20, 21]], 3, axis=0)])  # cyan among greys
+    rendered = np.clip(np.einsum("fl,pl,lc->fpc", light, scene, srgb_sensitivities()), 0.0, None)
+    assert weakest_channel(rendered) < WEAKEST_CHANNEL
+    said = output_space_warning(rendered)
+    assert said is not None and "weakest channel" in said
+    dark = sensor.copy()
+    dark[:, 0] = [1e-4, 0.0, 1e-4]  # a black patch with a channel at zero: not lit, not counted
+    assert weakest_channel(dark) == weakest_channel(sensor)
+    assert weakest_channel(np.full((2, 3, 3), np.nan)) == np.inf

@@ -85,6 +85,12 @@ def weakest_channel(values: NDArray[np.float64]) -> float:
     return float(np.median(per_frame)) if per_frame.size else math.inf
 
 
+_SENSOR_SPREAD = "scenes seen as sensor RGB spread {:.2f}–{:.2f}".format(
+    SCENE_SPREAD["camera"][0] * math.exp(-2.33 * SCENE_SPREAD["camera"][1]),
+    SCENE_SPREAD["camera"][0] * math.exp(2.33 * SCENE_SPREAD["camera"][1]))
+"""What :func:`output_space_warning` says of sensor RGB's spread: the 1–99 % of :data:`SCENE_SPREAD`'s log-normal."""
+
+
 def output_space_warning(values: NDArray[np.float64]) -> str | None:
     """A warning when observations declared sensor RGB (``primaries`` ``camera``) look like rendered output, else
     ``None``. ``values`` (F × P × 3): the static scene's patches, references left out.
@@ -110,11 +116,6 @@ def output_space_warning(values: NDArray[np.float64]) -> str | None:
     return (f"{seen}, not like the sensor RGB the camera was declared: if it applies a colour matrix (IP, "
             "surveillance and phone cameras do), use primaries srgb — declared the wrong way, its white is several "
             "degrees off")
-
-
-_SENSOR_SPREAD = "scenes seen as sensor RGB spread {:.2f}–{:.2f}".format(
-    SCENE_SPREAD["camera"][0] * math.exp(-2.33 * SCENE_SPREAD["camera"][1]),
-    SCENE_SPREAD["camera"][0] * math.exp(2.33 * SCENE_SPREAD["camera"][1]))
 
 
 def daylight_prior_for(primaries: str):

@@ -74,8 +74,8 @@ def weakest_channel(values: NDArray[np.float64]) -> float:
     whose strongest channel is at least a tenth of the frame's brightest value (dark patches' ratios are noise);
     ``values`` F × P × 3, NaN where unseen. ``inf`` where no frame has such a patch."""
     y = np.asarray(values, dtype=float)
-    hi = np.nanmax(np.where(np.isfinite(y), y, -np.inf), axis=-1)  # F × P
-    lo = np.nanmin(np.where(np.isfinite(y), y, np.inf), axis=-1)
+    hi = np.max(np.where(np.isfinite(y), y, -np.inf), axis=-1)  # F × P
+    lo = np.min(np.where(np.isfinite(y), y, np.inf), axis=-1)
     ok = np.all(np.isfinite(y), axis=-1) & (hi > 0)
     frame_max = np.max(np.where(ok, hi, 0.0), axis=1, keepdims=True)
     lit = ok & (hi >= 0.1 * frame_max) & (frame_max > 0)

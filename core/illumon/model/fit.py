@@ -55,6 +55,7 @@ from .intervals import MODEL_ERROR, widen_cct_intervals, widen_white_intervals
 from .lamps import (
     LAMP_PRIOR,
     HistoryJudgement,
+    _evidence_frames,
     apply_lamps,
     history_lamps,
     lamp_population,
@@ -295,7 +296,8 @@ def fit_scene_model(
         _light_unseen(model)
     msg = None
     if primaries == "camera" and RENDERED_CHART_WARNING not in model.identifiability.get("warnings", []):
-        msg = output_space_warning(scene.values)  # rendered output declared sensor RGB (a chart says so itself)
+        # rendered output declared sensor RGB (a chart says so itself), read where the lamp test reads its evidence
+        msg = output_space_warning(scene.values[_evidence_frames(len(scene.frames))])
     elif primaries == "srgb" and not known and unbalanced_probability(model) > 0.5 and "level" in model.noise:
         msg = unbalanced_warning(model.noise["level"])  # lamps throughout, or output that is not balanced srgb
     if msg:

@@ -24,7 +24,8 @@ Patch values are measured with the service's own calibration code (OpenCV's ``cv
 means of the central half of each patch, clipped pixels left out). Errors are angular, in the camera's output RGB,
 between the estimated camera white and the truth.
 
-``python benchmarks/real.py`` prints the table and writes ``benchmarks/results/real.json``.
+``python benchmarks/real.py`` prints the table and writes ``benchmarks/results/real.json``; ``--single`` fits every
+frame on its own (one photograph) and writes ``real_single.json``.
 """
 
 from __future__ import annotations
@@ -206,6 +207,15 @@ def run_illumon(s: RealSet, mode: str, primaries: str | None = None) -> tuple[ND
     return whites, conf, f"{result.cct[0]:.0f}"
 
 
+def run_single(s: RealSet, mode: str, primaries: str | None = None
+               ) -> tuple[NDArray[np.float64], NDArray[np.float64], str]:
+    """:func:`run_illumon` on each frame of ``s`` alone (a history of one photograph; the references, where ``mode``
+    has them, in that frame)."""
+    out = [run_illumon(RealSet(s.name, [s.frames[i]], s.values[i:i + 1], s.primaries, s.note), mode, primaries)
+           for i in range(len(s.frames))]
+    return np.concatenate([o[0] for o in out]), np.concatenate([o[1] for o in out]), out[0][2]
+
+
 def dump_sets(sets: list[RealSet], folder: Path) -> None:
     """Each set as ``illumon estimate`` reads it: ``<set>/OBSERVATIONS-none.csv`` (the 18 scene patches, linear 0…1:
     ``--white-level 1``), ``OBSERVATIONS-grey.csv`` / ``OBSERVATIONS-chart.csv`` with the references (ids ``ref:NN``)
@@ -251,7 +261,12 @@ def main(argv: list[str] | None = None) -> int:
                     help="add sony-isp-ideal: the ISP output with a perfect automatic white balance (each frame "
                          "balanced by its own greys), what illumon without a reference costs on a camera that needs "
                          "no correction")
+    ap.add_argument("--single", action="store_true",
+                    help="fit every frame on its own (one photograph, as an installer's first try) instead of the set "
+                         "as a history; default --out benchmarks/results/real_single.json")
     args = ap.parse_args(argv)
+    if args.single and args.out == ap.get_default("out"):
+        args.out = str(ROOT / "benchmarks" / "results" / "real_single.json")
     data = shared_data()
     if not (data / "real" / "sony-dolp").is_dir():
         print(f"real.py: skipped: {data / 'real' / 'sony-dolp'} is absent (../shared/data or $ILLUMON_SHARED_DATA)")
@@ -272,7 +287,8 @@ def main(argv: list[str] | None = None) -> int:
         for mode in ("none", "grey", "chart"):
             t0 = time.perf_counter()
             try:
-                w, conf, cct0 = run_illumon(s, mode, args.primaries)
+                w, conf, cct0 = (run_single(s, mode, args.primaries) if args.single
+                                 else run_illumon(s, mode, args.primaries))
                 e = angular(w, truth)
                 entry["methods"][f"illumon {mode}"] = {
                     "errors_deg": e.tolist(), "median_deg": float(np.median(e)), "frame0_deg": float(e[0]),

@@ -19,12 +19,12 @@ surfaces) and ``raw+lamps`` (the lamps of ``none+lamps`` seen as raw output), ju
 from ``benchmarks/unmeasured.py``'s renderer (both simulators, ``illumon`` and ``rawsim``), each 30-frame history cut
 into disjoint windows of ``--frames`` consecutive frames (every window judged; the full 30 frames too). The diagnosis
 is given the linear-sRGB colour-matching functions clipped at 0 as sensitivities, as outside checkers pass for a camera
-nobody measured. Nothing was chosen on this benchmark (``SHORT_HISTORY_FRAMES`` = 2 is the fewest frames a common
-level has, not a tuned value); ``--split dev`` (Nikon and Point Grey cameras, dev surfaces and Granada 0–1299) is the
+nobody measured. Nothing was chosen on this benchmark (``SHORT_HISTORY_FRAMES`` = 1: a single frame has a common
+level too, not a tuned value); ``--split dev`` (Nikon and Point Grey cameras, dev surfaces and Granada 0–1299) is the
 development data, ``--split score`` (Canon, Hasselblad, Pentax, Phase One; score surfaces, Granada 1300–2599) is held
 out.
 
-    python benchmarks/short_histories.py [--split dev|score] [--seeds 2] [--frames 2,3,6] [--primaries camera]
+    python benchmarks/short_histories.py [--split dev|score] [--seeds 2] [--frames 1,2,3,6] [--primaries camera]
         [--rendered]
 
 Prints a table and writes ``benchmarks/results/short_histories.json``.
@@ -71,7 +71,7 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--split", choices=["dev", "score"], default="dev")
     ap.add_argument("--seeds", type=int, default=2)
-    ap.add_argument("--frames", default="2,3,6,30", help="window lengths, comma-separated (30: the whole history)")
+    ap.add_argument("--frames", default="1,2,3,6,30", help="window lengths, comma-separated (30: the whole history)")
     ap.add_argument("--primaries", choices=["srgb", "camera"], default="srgb",
                     help="srgb: rendered histories; camera: sensor-RGB ones")
     ap.add_argument("--rendered", action="store_true",

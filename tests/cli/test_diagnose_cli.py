@@ -58,7 +58,6 @@ def test_diagnose_white_level_and_estimate_model_effects(shared_data, tmp_path):
     [
         ("frame,patch,r,g,b\na,p,1,2,3\n", "missing column"),
         ("frame,time,patch,r,g,b\na,,p,1,2,x\n", "row 2"),
-        ("frame,time,patch,r,g,b\n" + "".join(f"f{i},,p{j},1,2,3\n" for i in range(1) for j in range(4)), "at least 6"),
         ("frame,time,patch,r,g,b\n" + "".join(f"f{i},,p{j},1,2,3\n" for i in range(8) for j in range(2)), "at least 3"),
         # every value near black for the white level given (a real 16-bit lamp-lit scene read with the wrong one
         # ended in a ZeroDivisionError traceback)
@@ -139,6 +138,25 @@ def test_estimate_model_effects_reads_the_sensitivities_as_diagnose_does(shared_
     said = capsys.readouterr().err
     assert f"model effects: {rep['effect']}" in said, said
     np.testing.assert_allclose(seen[0], datasets.load_camera(cam) / datasets.load_camera(cam).max(), atol=1e-6)
+
+
+def test_a_single_frame_is_judged_for_its_light(shared_data, tmp_path):
+    """One frame (a single photograph) is judged for its light alone, as a short history is: the first frame of a
+    lamp-lit rendered history is named ``off_locus_illuminant`` (that frame), the first of a daylight one ``none``
+    (``benchmarks/short_histories.py --frames 1``: 783 of 840 lamp-lit single frames named, 0 of 1 680 daylight)."""
+    import unmeasured  # benchmarks/ (pytest's pythonpath)
+    from illumon.camera.primaries import srgb_sensitivities
+
+    obs, css, out = tmp_path / "o.csv", tmp_path / "c.csv", tmp_path / "r.json"
+    _write_css(css, np.clip(srgb_sensitivities(), 0.0, None))
+    for case, effect in (("none+lamps", "off_locus_illuminant"), ("none+rendered", "none")):
+        o, _, _ = unmeasured.render("rawsim", "Nikon_D5100", case, 7)
+        write_observations(obs, o.subset([0]))
+        assert main(["diagnose", str(obs), "--sensitivities", str(css), "--out", str(out), "--primaries", "srgb"]) == 0
+        rep = json.loads(out.read_text())
+        assert rep["effect"] == effect and rep["residual_base"] is None and rep["notes"], (case, rep)
+        if effect != "none":
+            assert rep["parameters"]["frames"] == o.frames[:1]
 
 
 def test_three_frames_of_rendered_output_are_judged_for_their_light(shared_data, tmp_path):

@@ -44,7 +44,6 @@ def test_estimate_contract(shared_data, tmp_path):
     "obs_body, message",
     [
         ("frame,patch,r,g,b\na,p,1,2,3\n", "missing column"),
-        ("frame,time,patch,r,g,b\na,,p,1,2,3\na,,q,3,2,1\n", "only one frame"),
         ("frame,time,patch,r,g,b\na,,p,1,2,x\n", "row 2"),
         ("frame,time,patch,r,g,b\na,,p,1,-2,3\n", "negative"),
     ],
@@ -57,6 +56,72 @@ def test_estimate_bad_input_exits_nonzero_with_one_line(tmp_path, capsys, obs_bo
     err = capsys.readouterr().err.strip()
     assert code != 0
     assert message in err and str(obs) in err and "\n" not in err
+
+
+def test_single_frame_multi_frame_method_exits_2(tmp_path, capsys):
+    """``--method marguier2007`` learns reflectances from several frames: one frame is refused in one line."""
+    obs, css = tmp_path / "o.csv", tmp_path / "c.csv"
+    obs.write_text("frame,time,patch,r,g,b\na,,p,1,2,3\na,,q,3,2,1\n")
+    _write_css(css, np.ones((61, 3)))
+    code = main(["estimate", str(obs), "--sensitivities", str(css), "--method", "marguier2007",
+                 "--out", str(tmp_path / "e.csv")])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "only one frame" in err and "--method joint" in err and "\n" not in err
+
+
+def test_single_frame_is_estimated(shared_data, tmp_path, capsys):
+    """One photograph is estimated, not refused (issue 26: no run ends in an error): a grey card in it gives its
+    white (6e-5° measured) and a confidence of ~1; without it the light is the priors' reading of one view, says so
+    on standard error and states little confidence (0.018 measured, the frame 4.9° off); ``--method gray_world``
+    reads one frame too."""
+    from illumon.observations import read_observations
+
+    obs, known, truth = _grey_card_history(tmp_path)
+    one = tmp_path / "one.csv"
+    write_observations(one, read_observations(obs).subset([0]))
+    out = tmp_path / "e.csv"
+
+    def white_and_confidence() -> tuple[float, float]:
+        (row,) = list(csv.DictReader(out.open()))
+        white = np.array([[float(row[f"white_{c}"]) for c in "rgb"]])
+        return float(angular_error_deg(white, truth[:1])[0]), float(row["confidence"])
+
+    assert main(["estimate", str(one), "--known-reflectances", str(known), "--out", str(out)]) == 0
+    err, conf = white_and_confidence()
+    assert err < 0.05 and conf > 0.99, (err, conf)
+    assert main(["estimate", str(one), "--out", str(out)]) == 0
+    assert "illumon: warning: a single frame" in capsys.readouterr().err
+    err, conf = white_and_confidence()
+    assert conf < 0.1 and err > 1.0, (err, conf)
+    css = tmp_path / "c.csv"
+    _write_css(css, measured_daylight_history("Nikon_D5100", frames=2, patches=2, seed=8).sensitivities)
+    assert main(["estimate", str(one), "--sensitivities", str(css), "--method", "gray_world", "--out", str(out)]) == 0
+
+
+def test_single_frames_beat_gray_world_on_the_development_cameras(shared_data) -> None:
+    """Single frames of the development cameras' daylight histories (``benchmarks/unmeasured.py`` ``none``, the
+    ``illumon`` simulator, frames 0 and 15 of the first seed, the camera measured): the scene model's reading of one
+    view against gray-world over the same patches. Measured 2.19° median where gray-world is 7.13°, confidence stated
+    0.07–0.13 (under what it achieves: 32 % of these frames are within 1°)."""
+    import warnings
+
+    import rawsim
+    import unmeasured
+    from illumon.model import fit_scene_model
+    from illumon.simulation import datasets
+
+    err, gw, conf = [], [], []
+    for i, cam in enumerate(rawsim.DEV_CAMERAS):
+        obs, white, _ = unmeasured.render("illumon", cam, "none", 7000 + 100 * i)
+        for f in (0, 15):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                res, extra = fit_scene_model(obs.subset([f]), datasets.load_camera(cam)).history_estimate
+            err.append(angular_error_deg(res.white, white[f:f + 1])[0])
+            gw.append(angular_error_deg(np.nanmean(obs.values[f], axis=0)[None], white[f:f + 1])[0])
+            conf.append(extra["confidence"][0])
+    assert np.median(err) < 3.0 < 6.0 < np.median(gw), (np.median(err), np.median(gw))
+    assert np.max(conf) < 0.3, conf
 
 
 def test_estimate_rejects_short_sensitivities(tmp_path, capsys):

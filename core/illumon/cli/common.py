@@ -91,9 +91,6 @@ def fit_camera_and_scene(args: argparse.Namespace, obs, known: dict[str, np.ndar
     from ..spectra import read_sensitivities
 
     css = read_sensitivities(args.sensitivities) if args.sensitivities else None
-    if len(obs.frames) < 2:
-        raise UsageError(f"{args.observations}: only one frame; a history needs at least two (add frames of the same "
-                         "view; a single frame is estimated with --model of a scene fitted on earlier frames)")
     try:
         return fit_scene_model(obs, css, known_reflectances=known or None,
                                primaries=getattr(args, "primaries", "camera"), **kwargs)

@@ -42,10 +42,11 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
         from ..model import estimate_with_model
 
         result, extra = estimate_with_model(obs, args.model)
-    elif known or not args.sensitivities:
+    elif known or not args.sensitivities or (len(obs.frames) < 2 and args.method == "joint"):
+        # a single frame of a measured camera: the scene model (the priors hold what a history would tell)
         result, extra = _estimate_calibrated(args, obs, known)
     else:
-        from ..retrieval import retrieve_illuminants
+        from ..retrieval import MULTI_FRAME, retrieve_illuminants
         from ..spectra import read_sensitivities
 
         css = measured = read_sensitivities(args.sensitivities)
@@ -53,10 +54,9 @@ def _cmd_estimate(args: argparse.Namespace) -> int:
             from ..camera.primaries import to_srgb_primaries
 
             css = to_srgb_primaries(css)
-        if len(obs.frames) < 2:
-            raise UsageError(
-                f"{args.observations}: only one frame; multi-frame retrieval needs at least two (or use --model)"
-            )
+        if len(obs.frames) < 2 and args.method in MULTI_FRAME:
+            raise UsageError(f"{args.observations}: only one frame; --method {args.method} needs at least two (the "
+                             "default --method joint estimates a single frame)")
         kwargs = {}
         if args.method == "joint":
             kwargs["daylight"] = args.daylight_model

@@ -27,7 +27,8 @@ def _cmd_fit(args: argparse.Namespace) -> int:
     )
     for msg in ident["warnings"]:
         print(f"illumon: warning: {msg}")
-    if ident.get("determined") is False:  # the identifiability check's own warnings (not a chart's or a lamp's)
+    # the identifiability check's own warnings (not a chart's or a lamp's); a single frame's says what it means itself
+    if ident.get("determined") is False and tr["frames"] > 1:
         print(
             "illumon: what this means: the frames' colour *differences* are still estimated, but the colour common to "
             "the whole history (how warm or cool every frame is) comes from typical daylight and typical surfaces, not "

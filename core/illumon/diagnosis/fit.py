@@ -215,7 +215,7 @@ def diagnose(
         return _diagnose(obs, sensitivities, rank, reestimate, margins, learn_noise, from_images, primaries)
 
 
-SHORT_HISTORY_FRAMES = 2
+SHORT_HISTORY_FRAMES = 1
 """Fewest frames whose light is judged as a whole when the history is too short for the bilinear effects
 (:func:`_short_history`)."""
 
@@ -250,11 +250,12 @@ def _short_history(obs: Observations, css: NDArray[np.float64], rank: int, reest
     found = [lamp] if lamp is not None else []
     base = Diagnosis("none", None, None, {}, [], None, None, 0.0, info={"score": np.nan})
     if found and reestimate:
-        _illuminant_changes(obs, css, found)
+        _illuminant_changes(obs if f > 1 else obs.subset([0, 0]), css, found)  # one frame: given twice (the joint
+        # retrieval's fewest; the same view under the same light), the lamp whites against the first
     out = _ranked(obs, base, found, reestimate)
     out.residual_base = out.residual_extended = None  # the lamp verdict's too, when it is the one reported
-    out.notes.append(f"only {f} frames: the history's light was judged as a whole; the other effects need at least "
-                     f"{rank + 2} frames")
+    out.notes.append(f"only {f} frame{'s' if f > 1 else ''}: the history's light was judged as a whole; the other "
+                     f"effects need at least {rank + 2} frames")
     out.info["censoring_level"] = round(dark_level(), 6)
     return out
 
@@ -326,7 +327,7 @@ def _lamp_lit_history(obs: Observations, css: NDArray[np.float64], found: list[D
     if spectral is not None:
         frames |= set(spectral.parameters.get("frame_indices", []))
     idx = sorted(int(i) for i in frames)
-    if len(idx) < MIN_OFF_LOCUS_FRAMES:
+    if len(idx) < min(MIN_OFF_LOCUS_FRAMES, len(obs.frames)):  # a single frame lit by lamps is the whole history
         return None
     score = -2.0 * float(np.log(min(p, 1 - 1e-12) / max(1.0 - p, 1e-12)))
     params = {"frame_indices": idx, "frames": [obs.frames[i] for i in idx],
@@ -496,7 +497,7 @@ def _illuminant_changes(obs: Observations, sensitivities: NDArray[np.float64], f
             continue  # a part of a split patch: its change is not defined on the original history
         if d.parameters.get("found_by") == "scene_level":  # lamps throughout: the scene model's whites follow them
             after = copy.deepcopy(before)
-            after.white = d.info["lamp_whites"]
+            after.white = np.resize(d.info["lamp_whites"], before.white.shape)  # a single frame's given twice
         else:
             after = estimate_with_effect(obs, sensitivities, d, base_result=before, **fast)
         d.illuminant_change_deg = round(float(np.median(angular_error_deg(before.white, after.white))), 4)

@@ -207,8 +207,9 @@ def fit_scene_model(
     Parameters
     ----------
     obs
-        Observations of static patches (at least two frames, each patch seen in at least one frame), linear, in the
-        camera's output space.
+        Observations of static patches (each patch seen in at least one frame), linear, in the camera's output
+        space. A single frame is fitted too: its patches' reflectances are then the prior's reading of one view (a
+        Bayesian gray-world, Kinoshita & Kiya's single-image estimate), or the references' where it shows them.
     sensitivities
         Measured camera sensitivities on the grid (61 × 3), or ``None`` for a camera nobody measured: then the prior
         from the measured cameras is used and refined from the data (:mod:`illumon.camera.calibration`).
@@ -845,8 +846,8 @@ def _fit_fixed_camera(
     rb = reflectance_basis()
     css = np.asarray(sensitivities, dtype=float)
     y_all = np.asarray(obs.values, dtype=float)
-    if y_all.shape[0] < 2:
-        raise ValueError("fitting a scene model needs at least two frames")
+    if y_all.shape[0] < 1:
+        raise ValueError("fitting a scene model needs at least one frame")
     present_all = observed(y_all)
     if present_all.any(axis=0).sum() < 2:
         raise ValueError("fitting a scene model needs at least two patches")

@@ -182,7 +182,13 @@ def identifiability(
     spread = float(np.std(mired_all)) if mired_all.size else 0.0
     p5, p95 = (np.percentile(mired_all, [5, 95]) if mired_all.size else (np.nan, np.nan))
     warn = []
-    if spread < min_mired_spread:
+    if theta.shape[0] == 1:
+        warn.append(
+            "a single frame: its light and its patches' colours trade off, so the light is the priors' reading of one "
+            "view (a Bayesian gray-world; a reference in it gives its white); post frames of the same view over a day "
+            "for the scene to be learned"
+        )
+    elif spread < min_mired_spread:
         warn.append(
             f"illuminants barely vary in this history (σ = {spread:.1f} MK⁻¹ < {min_mired_spread}): reflectances and "
             "illuminant colour trade off, so illuminants are set by the daylight prior, not by the data"

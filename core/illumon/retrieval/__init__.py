@@ -36,6 +36,7 @@ from .marguier2007 import illuminant_retrieval_Marguier2007
 
 __all__ = [
     "METHODS",
+    "MULTI_FRAME",
     "RetrievalResult",
     "retrieve_illuminants",
     "illuminant_retrieval_illumon",
@@ -76,6 +77,9 @@ METHODS: Registry[Callable[..., RetrievalResult]] = Registry({
 })
 """Retrieval methods by name (``illumon estimate --method``, the service's ``ILLUMON_REFIT_METHOD``)."""
 
+MULTI_FRAME = frozenset({"joint", "marguier2007"})
+"""The methods that learn the patches' reflectances from several frames (gray-world reads each frame alone)."""
+
 
 @single_blas_thread
 def retrieve_illuminants(
@@ -86,7 +90,7 @@ def retrieve_illuminants(
     Parameters
     ----------
     observations
-        Patch means of at least two frames.
+        Patch means: at least two frames for the methods of :data:`MULTI_FRAME`, one for gray-world.
     sensitivities
         Camera sensitivities on the grid (61 × 3).
     method
@@ -101,8 +105,8 @@ def retrieve_illuminants(
     """
     if method not in METHODS:
         raise ValueError(f"unknown method {method!r}; choose from {', '.join(METHODS)}")
-    if len(observations.frames) < 2:
+    if method in MULTI_FRAME and len(observations.frames) < 2:
         raise ValueError("at least two frames are needed to retrieve illuminants from unknown reflectances")
-    if observations.present.sum(axis=0).max() < 2:
+    if method in MULTI_FRAME and observations.present.sum(axis=0).max() < 2:
         raise ValueError("no patch is seen in two frames")
     return METHODS[method](observations, sensitivities, **kwargs)

@@ -168,10 +168,14 @@ def test_corrected_observations_split_and_drop(shared_data):
     assert np.isfinite(c.values[d.frame_index :, -1]).all() and np.isnan(c.values[: d.frame_index, -1]).all()
 
 
-def test_too_short_history_is_rejected(shared_data):
+def test_a_single_daylight_frame_is_judged_for_its_light(shared_data):
+    """One frame of a clean daylight history (sensor RGB, measured camera) is judged for its light alone: ``none``,
+    with the note; no frame at all is refused."""
     h = _hist("none", 0)
+    d = diagnose(h.observations.subset(slice(0, 1)), h.history.sensitivities)
+    assert d.effect == "none" and d.effects == [] and any(n.startswith("only 1 frame:") for n in d.notes)
     with pytest.raises(ValueError, match="at least"):
-        diagnose(h.observations.subset(slice(0, 1)), h.history.sensitivities)
+        diagnose(h.observations.subset(slice(0, 0)), h.history.sensitivities)
 
 
 def test_a_history_too_short_for_the_bilinear_effects_is_judged_for_its_light(shared_data):

@@ -62,12 +62,14 @@ def test_a_short_daylight_history_is_not_off_locus(shared_data, frames):
     assert any("need at least 6 frames" in n for n in d.notes)
 
 
-def test_a_single_frame_is_refused(shared_data):
-    """One frame has no history to judge, whatever its primaries; the message says how many frames would do."""
+def test_a_single_lamp_lit_frame_is_named(shared_data):
+    """One frame of rendered output lit by lamps is judged for its light, as a short history is: named
+    ``off_locus_illuminant`` with that frame, and what modelling it changes measured against the daylight-only joint
+    estimate of the frame (given twice, that method's fewest frames)."""
     obs, css = _rendered("none+lamps", 3001)
-    for primaries in ("camera", "srgb"):
-        with pytest.raises(ValueError, match=r"at least 6 frames, got 1 \(2 to judge its light alone\)"):
-            diagnose(obs.subset(np.arange(1)), css, primaries=primaries)
+    d = diagnose(obs.subset(np.arange(1)), css, primaries="srgb")
+    assert d.effect == "off_locus_illuminant" and d.parameters["frames"] == obs.frames[:1], d
+    assert d.illuminant_change_deg > 1.0, d.illuminant_change_deg
 
 
 def _raw(case: str, seed: int, sim: str = "rawsim"):

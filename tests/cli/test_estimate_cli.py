@@ -124,6 +124,21 @@ def test_single_frames_beat_gray_world_on_the_development_cameras(shared_data) -
     assert np.max(conf) < 0.3, conf
 
 
+def test_an_absurd_value_is_one_line_naming_cause_and_fix(shared_data, tmp_path, capsys):
+    """One value 1e30 where the rest are within the white level (a typo): the fit of a camera nobody measured is
+    singular, and the user gets the degenerate fit's one line (cause, fix, --white-level), not a bare "Singular
+    matrix" (issue 26)."""
+    h = measured_daylight_history("Nikon_D5100", frames=3, patches=18, seed=2)
+    values = h.observations.values / np.nanmax(h.observations.values)
+    values[1, 4, 0] = 1e30
+    obs = tmp_path / "o.csv"
+    write_observations(obs, h.observations.__class__(h.observations.frames, h.observations.patches, values),
+                       white_level=1.0)
+    assert main(["estimate", str(obs), "--white-level", "1", "--out", str(tmp_path / "e.csv")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("illumon: error: the fit is degenerate") and "--white-level" in err and "\n" not in err
+
+
 def test_estimate_rejects_short_sensitivities(tmp_path, capsys):
     obs, css = tmp_path / "o.csv", tmp_path / "c.csv"
     obs.write_text("frame,time,patch,r,g,b\na,,p,1,2,3\nb,,p,2,2,3\n")

@@ -94,7 +94,9 @@ def fit_camera_and_scene(args: argparse.Namespace, obs, known: dict[str, np.ndar
     try:
         return fit_scene_model(obs, css, known_reflectances=known or None,
                                primaries=getattr(args, "primaries", "camera"), **kwargs)
-    except (ValueError, np.linalg.LinAlgError) as exc:
+    except np.linalg.LinAlgError:  # a numerical dead end: main's one line on degenerate fits says cause and fix
+        raise
+    except ValueError as exc:
         raise ValueError(f"{args.observations}: {exc}") from None
 
 

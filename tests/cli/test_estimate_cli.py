@@ -72,8 +72,8 @@ def test_single_frame_multi_frame_method_exits_2(tmp_path, capsys):
 def test_single_frame_is_estimated(shared_data, tmp_path, capsys):
     """One photograph is estimated, not refused (issue 26: no run ends in an error): a grey card in it gives its
     white (6e-5° measured) and a confidence of ~1; without it the light is the priors' reading of one view, says so
-    on standard error and states little confidence (0.018 measured, the frame 4.9° off); ``--method gray_world``
-    reads one frame too."""
+    on standard error and states little confidence (0.11 measured, the single-frame regime; the frame 4.9° off);
+    ``--method gray_world`` reads one frame too."""
     from illumon.observations import read_observations
 
     obs, known, truth = _grey_card_history(tmp_path)
@@ -92,10 +92,40 @@ def test_single_frame_is_estimated(shared_data, tmp_path, capsys):
     assert main(["estimate", str(one), "--out", str(out)]) == 0
     assert "illumon: warning: a single frame" in capsys.readouterr().err
     err, conf = white_and_confidence()
-    assert conf < 0.1 and err > 1.0, (err, conf)
+    assert conf < 0.2 and err > 1.0, (err, conf)
     css = tmp_path / "c.csv"
     _write_css(css, measured_daylight_history("Nikon_D5100", frames=2, patches=2, seed=8).sensitivities)
     assert main(["estimate", str(one), "--sensitivities", str(css), "--method", "gray_world", "--out", str(out)]) == 0
+
+
+def test_single_frame_confidence_is_its_frequency(shared_data) -> None:
+    """A camera nobody measured, one frame without a reference (``benchmarks/unmeasured.py --frames 1``, the
+    ``rawsim`` simulator, development cameras, first seed): the single-frame regimes
+    (``calibration.SINGLE_FRAME_WHITE_SPREAD``) state about the frequency of frames within 1° — sensor RGB measured
+    0.12 where 3 of 14 are, rendered output 0.05 where none is (the 30-frame regimes said 0.03 and 0.18)."""
+    import warnings
+
+    import rawsim
+    import unmeasured
+    from illumon.model import fit_scene_model
+
+    for case, limit in (("none", 0.2), ("none+rendered", 0.1)):
+        err, conf = [], []
+        for i, cam in enumerate(rawsim.DEV_CAMERAS):
+            obs, white, _ = unmeasured.render("rawsim", cam, case, 7000 + 100 * i)
+            one = obs.subset([0])
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                if case == "none":
+                    model = fit_scene_model(one, None, camera_prior=unmeasured.camera_prior_without(cam),
+                                            rendered_camera_prior=unmeasured.camera_prior_without(cam, rendered=True))
+                else:
+                    model = fit_scene_model(one, None, primaries="srgb")
+            res, extra = model.history_estimate
+            err.append(angular_error_deg(res.white, white[:1])[0])
+            conf.append(extra["confidence"][0])
+        stated, within = float(np.mean(conf)), float(np.mean(np.array(err) < 1.0))
+        assert stated < limit and abs(stated - within) < 0.1, (case, stated, within)
 
 
 def test_single_frames_beat_gray_world_on_the_development_cameras(shared_data) -> None:

@@ -46,7 +46,8 @@ from .chart_light import chart_light_illumon
 from .formation import angular_error_deg, flare_scales
 from .references import neutral_references, references_kind
 
-__all__ = ["BENT_PRIOR", "CAMERA_MIRED_SD", "CAMERA_WHITE_SD", "PRESET_MIRED_SD", "STATED_WHITE_SPREAD",
+__all__ = ["BENT_PRIOR", "CAMERA_MIRED_SD", "CAMERA_WHITE_SD", "PRESET_MIRED_SD", "SINGLE_FRAME_WHITE_SPREAD",
+           "STATED_WHITE_SPREAD",
            "CameraCalibration", "prior_sensitivities", "camera_transform_Kinoshita2023", "calibrate_scene_model",
            "held_or_bent"]
 
@@ -117,6 +118,16 @@ stopped chasing ``T`` (:func:`_held_level`): with the former ``(1.30, 0.0187, 0.
 ``rawsim``'s glare-free rendered frames were within 1°. ``("srgb", "grey")`` was chosen again (2026-11-27, the same
 commands, every other regime's triple reproduced) when a grey card's stopped chasing too: ``(2.09, 0.0144, 0.5)`` →
 ``(2.449, 0.0024, 0.8)``."""
+
+
+SINGLE_FRAME_WHITE_SPREAD = {("camera", "none"): (0.5, 0.0289, 0.0), ("srgb", "none"): (1.521, 0.021, 0.0)}
+""":data:`STATED_WHITE_SPREAD` of a scene model fitted on a single frame without a reference (one photograph, and the
+later frames estimated with that model): one view cannot teach the scene, so the regimes chosen on 30-frame histories
+said too much of rendered output (0.18 where 5 % of the development single frames were within 1°) and too little of
+sensor RGB (0.03 where 12 % were). Chosen as they were, on single frames (``python benchmarks/unmeasured.py --split
+dev --seeds 3 --frames 1 --out one.json``, then ``python tools/confidence_calibration.py one.json``: 14 development
+cameras × 3 seeds × both simulators; ``a`` at the tool's least for sensor RGB). A reference frame states its own
+spread (:data:`REFERENCE_WHITE_SD_DEG`), single or not."""
 
 
 BENT_PRIOR = 0.2
@@ -719,8 +730,10 @@ def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bo
     read_as = "chart read as srgb" if model.camera.get("chart_read_as") == "srgb" else "chart read"
     mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)[
         "measured" if measured else (read_as if read else kind)]
+    single = (getattr(model, "training", None) or {}).get("frames") == 1
+    table = SINGLE_FRAME_WHITE_SPREAD if single and (primaries, kind) in SINGLE_FRAME_WHITE_SPREAD else STATED_WHITE_SPREAD
     scale, stated, glare_k = ((1.0, white_sd, 1.0) if measured
-                              else STATED_WHITE_SPREAD.get((primaries, kind), (1.0, white_sd, 1.0)))
+                              else table.get((primaries, kind), (1.0, white_sd, 1.0)))
     if scene_sd is not None:  # the scene average calibrated the channel scales: as well as it read
         scale *= scene_calibrated_scale(scene_sd)
     model.noise["model_error"] = dict(model.noise.get("model_error", {}),

@@ -25,7 +25,8 @@ means of the central half of each patch, clipped pixels left out). Errors are an
 between the estimated camera white and the truth.
 
 ``python benchmarks/real.py`` prints the table and writes ``benchmarks/results/real.json``; ``--single`` fits every
-frame on its own (one photograph) and writes ``real_single.json``.
+frame on its own (one photograph) and writes ``real_single.json``; ``--awb-mix 0.25,0.5,0.75`` adds cameras whose own
+automatic white balance lies between the ideal one and gray-world (``sony-isp-mix<a>``).
 """
 
 from __future__ import annotations
@@ -141,7 +142,9 @@ def _srgb_d65_chart() -> NDArray[np.float64]:
 def isp_sets(raw: RealSet, modes: tuple[str, ...] = ("preset", "auto")) -> list[RealSet]:
     """``raw`` through a simulated camera pipeline: colour matrix to linear sRGB and a preset or automatic white
     balance (module docstring); ``"ideal"`` in ``modes`` adds a camera whose automatic white balance is perfect (each
-    frame divided by its own greys: doing nothing is exact)."""
+    frame divided by its own greys: doing nothing is exact); ``"mix<a>"`` (``--awb-mix``) a camera whose automatic
+    white balance lies between the two, its gains ``ideal^(1 − a) · auto^a`` (log-linear): doing nothing is off by
+    part of the light, as a phone's own balance is."""
     target = _srgb_d65_chart()
     idx = [ALL.index(p) for p in SCENE]
     grey = raw.truth
@@ -160,8 +163,12 @@ def isp_sets(raw: RealSet, modes: tuple[str, ...] = ("preset", "auto")) -> list[
         vals = np.empty_like(raw.values)
         means = np.empty((len(raw.frames), 3))
         for f in range(len(raw.frames)):
-            gains = {"preset": preset, "auto": 1.0 / (raw.image_means[f] / raw.image_means[f, 1]),
-                     "ideal": 1.0 / (grey[f] / grey[f, 1])}[mode]
+            auto, ideal = 1.0 / (raw.image_means[f] / raw.image_means[f, 1]), 1.0 / (grey[f] / grey[f, 1])
+            if mode.startswith("mix"):
+                a = float(mode[3:])
+                gains = np.exp((1.0 - a) * np.log(ideal) + a * np.log(auto))
+            else:
+                gains = {"preset": preset, "auto": auto, "ideal": ideal}[mode]
             vals[f] = np.clip((raw.values[f] * gains) @ m, 0.0, None)  # a pipeline clips out-of-gamut values at 0
             means[f] = (raw.image_means[f] * gains) @ m
         scale = 0.9 / np.nanmax(vals)
@@ -261,6 +268,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="add sony-isp-ideal: the ISP output with a perfect automatic white balance (each frame "
                          "balanced by its own greys), what illumon without a reference costs on a camera that needs "
                          "no correction")
+    ap.add_argument("--awb-mix", default="",
+                    help="add sets whose automatic white balance lies between the ideal one and gray-world over the "
+                         "image: comma-separated shares of gray-world's gains (0…1), e.g. 0.25,0.5,0.75")
     ap.add_argument("--single", action="store_true",
                     help="fit every frame on its own (one photograph, as an installer's first try) instead of the set "
                          "as a history; default --out benchmarks/results/real_single.json")
@@ -272,7 +282,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"real.py: skipped: {data / 'real' / 'sony-dolp'} is absent (../shared/data or $ILLUMON_SHARED_DATA)")
         return 0
     raw = sony_raw(data)
-    sets = [raw, *isp_sets(raw, ("preset", "auto", "ideal") if args.ideal_awb else ("preset", "auto"))]
+    mixes = tuple(f"mix{float(a):g}" for a in args.awb_mix.split(",") if a.strip())
+    sets = [raw, *isp_sets(raw, ("preset", "auto", "ideal") if args.ideal_awb else ("preset", "auto")),
+            *(isp_sets(raw, mixes) if mixes else [])]
     rows, report = [], {"split": "development (../shared/data/real: sony-dolp); scoring photographs are held by outside checks",
                         "sets": {}}
     if args.dump:

@@ -102,7 +102,9 @@ def test_single_frame_confidence_is_its_frequency(shared_data) -> None:
     """A camera nobody measured, one frame without a reference (``benchmarks/unmeasured.py --frames 1``, the
     ``rawsim`` simulator, development cameras, first seed): the single-frame regimes
     (``calibration.SINGLE_FRAME_WHITE_SPREAD``) state about the frequency of frames within 1° — sensor RGB measured
-    0.12 where 3 of 14 are, rendered output 0.05 where none is (the 30-frame regimes said 0.03 and 0.18)."""
+    0.12 where 3 of 14 are, rendered output 0.05 where none is (the 30-frame regimes said 0.03 and 0.18) — and their
+    CCT intervals hold the light's temperature (``calibration.SINGLE_FRAME_MIRED_SD``: 14 and 14 of 14 frames, where
+    the rendered ones held 8 of 14 before)."""
     import warnings
 
     import rawsim
@@ -110,7 +112,7 @@ def test_single_frame_confidence_is_its_frequency(shared_data) -> None:
     from illumon.model import fit_scene_model
 
     for case, limit in (("none", 0.2), ("none+rendered", 0.1)):
-        err, conf = [], []
+        err, conf, held = [], [], []
         for i, cam in enumerate(rawsim.DEV_CAMERAS):
             obs, white, _ = unmeasured.render("rawsim", cam, case, 7000 + 100 * i)
             one = obs.subset([0])
@@ -124,8 +126,11 @@ def test_single_frame_confidence_is_its_frequency(shared_data) -> None:
             res, extra = model.history_estimate
             err.append(angular_error_deg(res.white, white[:1])[0])
             conf.append(extra["confidence"][0])
+            cct = unmeasured.true_ccts(obs, cam, case, 7000 + 100 * i)[0]
+            held.append(extra["cct_lo"][0] <= cct <= extra["cct_hi"][0])
         stated, within = float(np.mean(conf)), float(np.mean(np.array(err) < 1.0))
         assert stated < limit and abs(stated - within) < 0.1, (case, stated, within)
+        assert np.mean(held) >= 0.85, (case, held)  # the single-frame spread in the CCT intervals
 
 
 def test_single_frames_beat_gray_world_on_the_development_cameras(shared_data) -> None:

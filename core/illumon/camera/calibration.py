@@ -46,7 +46,8 @@ from .chart_light import chart_light_illumon
 from .formation import angular_error_deg, flare_scales
 from .references import neutral_references, references_kind
 
-__all__ = ["BENT_PRIOR", "CAMERA_MIRED_SD", "CAMERA_WHITE_SD", "PRESET_MIRED_SD", "SINGLE_FRAME_WHITE_SPREAD",
+__all__ = ["BENT_PRIOR", "CAMERA_MIRED_SD", "CAMERA_WHITE_SD", "PRESET_MIRED_SD", "SINGLE_FRAME_MIRED_SD",
+           "SINGLE_FRAME_WHITE_SPREAD",
            "STATED_WHITE_SPREAD",
            "CameraCalibration", "prior_sensitivities", "camera_transform_Kinoshita2023", "calibrate_scene_model",
            "held_or_bent"]
@@ -128,6 +129,17 @@ sensor RGB (0.03 where 12 % were). Chosen as they were, on single frames (``pyth
 dev --seeds 3 --frames 1 --out one.json``, then ``python tools/confidence_calibration.py one.json``: 14 development
 cameras × 3 seeds × both simulators; ``a`` at the tool's least for sensor RGB). A reference frame states its own
 spread (:data:`REFERENCE_WHITE_SD_DEG`), single or not."""
+
+
+SINGLE_FRAME_MIRED_SD = {("camera", "none"): 33.0, ("srgb", "none"): 29.0}
+"""Reciprocal-temperature spread (MK⁻¹) added to the CCT intervals of a scene model fitted on a single frame without
+a reference, per ``(primaries, calibration)``: the RMS error of the development single frames' temperatures (``python
+benchmarks/unmeasured.py --split dev --seeds 3 --frames 1``: 32–35 and 28–30 MK⁻¹). One view does not show how the
+light moves, which pins a history's temperatures; the intervals held the light's temperature in 90 % (sensor RGB),
+79–86 % (sensor RGB over pale surfaces) and 62–64 % (rendered output) of those frames, and hold it in 95–98 %,
+90–93 % and 95 % with it. Not for a reference's single frame: a grey card on sensor RGB reads its light 68 MK⁻¹ RMS
+off (the card's white is the camera's and the light's at once), and the same spread sends most of its intervals
+past infinite temperature, which holds nothing."""
 
 
 BENT_PRIOR = 0.2
@@ -731,6 +743,8 @@ def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bo
     mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)[
         "measured" if measured else (read_as if read else kind)]
     single = (getattr(model, "training", None) or {}).get("frames") == 1
+    if single and not measured:  # one view: its light's temperature rests on the priors
+        mired_sd = math.hypot(mired_sd, SINGLE_FRAME_MIRED_SD.get((primaries, kind), 0.0))
     table = SINGLE_FRAME_WHITE_SPREAD if single and (primaries, kind) in SINGLE_FRAME_WHITE_SPREAD else STATED_WHITE_SPREAD
     scale, stated, glare_k = ((1.0, white_sd, 1.0) if measured
                               else table.get((primaries, kind), (1.0, white_sd, 1.0)))

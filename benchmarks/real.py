@@ -283,8 +283,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     raw = sony_raw(data)
     mixes = tuple(f"mix{float(a):g}" for a in args.awb_mix.split(",") if a.strip())
-    sets = [raw, *isp_sets(raw, ("preset", "auto", "ideal") if args.ideal_awb else ("preset", "auto")),
-            *(isp_sets(raw, mixes) if mixes else [])]
+    sets = [raw, *isp_sets(raw, ("preset", "auto", *(("ideal",) if args.ideal_awb else ()), *mixes))]
     rows, report = [], {"split": "development (../shared/data/real: sony-dolp); scoring photographs are held by outside checks",
                         "sets": {}}
     if args.dump:

@@ -27,10 +27,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
 import rawsim  # noqa: E402
 import unmeasured  # noqa: E402
 from illumon.camera import angular_error_deg  # noqa: E402
-from illumon.camera.primaries import output_space_warning, weakest_channel  # noqa: E402
+from illumon.camera.primaries import chromaticity_spread, output_space_warning, weakest_channel  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.model.lamps import unbalanced_probability  # noqa: E402
-from illumon.priors.scene_average import scene_average_evidence  # noqa: E402
 from illumon.simulation import datasets  # noqa: E402
 
 CASES = ("none", "grey", "pale", "raw+lamps", "none+matrix", "none+rendered", "none+awb", "grey+rendered",
@@ -88,8 +87,7 @@ def main(argv: list[str] | None = None) -> int:
                         obs, _, _ = unmeasured.render(sim, cam, case, base + 100 * i + s, flare)
                         v = obs.values[:, : unmeasured.PATCHES]
                         warned += output_space_warning(v) is not None
-                        seen = np.all(np.isfinite(v) & (v > 0), axis=-1)
-                        spreads.append(scene_average_evidence(np.where(seen[..., None], v, 0.0), seen).spread)
+                        spreads.append(chromaticity_spread(v))
                         weakest.append(weakest_channel(v))
             print(f"{case:14} {'yes' if flare else 'no':5} {warned:4d}/{len(spreads):<3d} {np.median(spreads):14.2f} "
                   f"{min(spreads):5.2f}–{max(spreads):.2f} {np.median(weakest):23.3f}")

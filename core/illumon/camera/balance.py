@@ -21,6 +21,8 @@ from datetime import datetime
 import numpy as np
 from numpy.typing import NDArray
 
+from .formation import angular_error_deg
+
 __all__ = ["MIN_HOURS", "MAX_SPREAD_MIRED", "self_balance_warning", "unbalanced_warning"]
 
 MIN_HOURS = 6.0
@@ -74,8 +76,7 @@ def unbalanced_warning(level: Sequence[float]) -> str:
     8.8° off, 2.3° declared ``camera``; held out: 20 of 20, 20 of 20); rendered daylight histories never (0 of 56,
     ``none+rendered``, ``none+awb``; held out 0 of 40).
     """
-    w = np.exp(np.array([level[0], 0.0, level[1]], dtype=float))
-    angle = float(np.degrees(np.arccos(np.clip(w.sum() / (np.linalg.norm(w) * np.sqrt(3.0)), -1.0, 1.0))))
+    angle = float(angular_error_deg(np.exp([level[0], 0.0, level[1]]), np.ones(3)))
     return (f"every frame reads as lit by lamps: the history's mean white is {angle:.0f}° from the grey a camera "
             "balanced for daylight shows. If daylight lights the scene, the frames are not balanced rendered output: "
             "raw sensor values need primaries camera, and a camera locked to an indoor white-balance preset should be "

@@ -31,8 +31,8 @@ from ..registry import Registry
 from ..spectra import GRID
 
 __all__ = ["PRIMARIES", "SRGB_BALANCE_SD", "RENDERED_WARNING_PROBABILITY", "WEAKEST_CHANNEL", "srgb_sensitivities",
-           "check_primaries", "to_srgb_primaries", "srgb_matrix_for", "daylight_prior_for", "weakest_channel",
-           "output_space_warning"]
+           "check_primaries", "to_srgb_primaries", "srgb_matrix_for", "daylight_prior_for", "chromaticity_spread",
+           "weakest_channel", "output_space_warning"]
 
 PRIMARIES = Registry.choices({
     "camera": "sensor RGB: raw output, machine-vision cameras without a colour matrix",
@@ -69,6 +69,14 @@ so every lit surface gives all three: the 280 development scenes of measured sur
 below 0.03 (median 0: the matrix takes a saturated surface's weakest channel below zero and the output clips it)."""
 
 
+def chromaticity_spread(values: NDArray[np.float64]) -> float:
+    """The scene's chromaticity spread (:attr:`illumon.priors.scene_average.SceneAverage.spread`) over the patches
+    seen with every channel above 0; ``values`` F × P × 3, NaN where unseen."""
+    y = np.asarray(values, dtype=float)
+    present = np.all(np.isfinite(y) & (y > 0), axis=-1)
+    return scene_average_evidence(np.where(present[..., None], y, 0.0), present).spread
+
+
 def weakest_channel(values: NDArray[np.float64]) -> float:
     """The median over frames of the smallest ratio of a patch's weakest channel to its strongest, among the patches
     whose strongest channel is at least a tenth of the frame's brightest value (dark patches' ratios are noise);
@@ -102,10 +110,8 @@ def output_space_warning(values: NDArray[np.float64]) -> str | None:
     a sensor's overlapping channels give (:func:`illumon.priors.scene_average.rendered_probability` at least
     :data:`RENDERED_WARNING_PROBABILITY`), and it takes a saturated patch's weakest channel to nothing
     (:func:`weakest_channel` below :data:`WEAKEST_CHANNEL`)."""
-    y = np.asarray(values, dtype=float)
-    present = np.all(np.isfinite(y) & (y > 0), axis=-1)
-    spread = scene_average_evidence(np.where(present[..., None], y, 0.0), present).spread
-    weakest = weakest_channel(y)
+    spread = chromaticity_spread(values)
+    weakest = weakest_channel(values)
     if rendered_probability(spread) >= RENDERED_WARNING_PROBABILITY:
         seen = f"the patches' colours spread like rendered output (chromaticity spread {spread:.2f}; {_SENSOR_SPREAD})"
     elif weakest < WEAKEST_CHANNEL:

@@ -24,12 +24,12 @@ from pathlib import Path
 
 import colour
 import numpy as np
-from scipy.optimize import brentq
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "core"), str(ROOT / "benchmarks")]
 
 import rawsim  # noqa: E402
+from confidence_calibration import extra_for_unit_z  # noqa: E402
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
 from illumon.camera.references import colourchecker_references, grey_card_reference  # noqa: E402
 from illumon.model.fit import fit_scene_model  # noqa: E402
@@ -80,13 +80,6 @@ def run(camera: str, case: str, seed: int, primaries: str, matrix: bool = False)
             "cct_hi": extra["cct_hi"]}
 
 
-def _extra_for_unit_z(err: np.ndarray, sd: np.ndarray) -> float:
-    """The standard deviation to add in quadrature to ``sd`` so that the errors' z-scores have RMS 1 (0 if they do)."""
-    if np.mean(err**2 / sd**2) <= 1.0:
-        return 0.0
-    return float(brentq(lambda x: np.mean(err**2 / (sd**2 + x**2)) - 1.0, 0.0, 100.0))
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--split", choices=("dev", "score"), default="dev")
@@ -107,7 +100,7 @@ def main() -> None:
             sd = np.concatenate([r["sd"][sl] for r in rows])
             ok = np.isfinite(err) & np.isfinite(sd)
             z = err[ok] / sd[ok]
-            extra = _extra_for_unit_z(err[ok], sd[ok])
+            extra = extra_for_unit_z(err[ok], sd[ok])
             print(f"{case:6s} {which:6s} {np.sqrt(np.mean(err[ok]**2)):8.2f} {np.median(sd[ok]):9.2f} "
                   f"{np.sqrt(np.mean(z**2)):6.2f} {np.mean(np.abs(z) < Z95):7.2f} {extra:13.1f}")
 

@@ -29,6 +29,13 @@ srgb / none        ``none+rendered``, ``none+awb``
 
 Run on the **development** split only (``python benchmarks/unmeasured.py --split dev --seeds 2 --out dev.json``,
 then ``python tools/confidence_calibration.py dev.json``); the score split checks the result.
+
+Short histories (:data:`illumon.camera.calibration.SHORT_HISTORY_WHITE_SPREAD`: ``unmeasured.py --frames 3`` or
+``--frames 6``) read their noise level from fewer values than parameters, which inflates the Laplace part:
+``--scales-from 0.01`` lets ``a`` go below the 30-frame regimes' 0.5. Rows that carry each frame's stated
+temperature spread (``mired_sd``) also print the RMS reciprocal-temperature error, the RMS stated spread, the
+fraction the 95 % intervals hold (as if symmetric), and the spread to add in quadrature for z-scores of RMS 1
+(``add z``: :data:`~illumon.camera.calibration.SHORT_HISTORY_MIRED_SD`) or for 95 % held (``add95``).
 """
 
 from __future__ import annotations
@@ -48,6 +55,7 @@ sys.path[:0] = [str(ROOT / "core")]
 from illumon.model.intervals import MODEL_ERROR  # noqa: E402
 
 RHO2 = math.radians(1.0) ** 2
+Z95 = 1.959963984540054
 REGIMES = {
     ("camera", "grey"): ("grey",),
     ("camera", "chart"): ("chart+matrix",),
@@ -95,12 +103,61 @@ def mean_confidence(s: float, base: np.ndarray, ref: np.ndarray, ref_conf: float
 SCALES = np.round(np.exp(np.linspace(np.log(0.5), np.log(12.0), 41)), 3)
 """Laplace scales tried (the Laplace posterior understates what the model leaves out by a factor)."""
 
+
+def scales_from(least: float) -> np.ndarray:
+    """:data:`SCALES`, continued below 0.5 at the same ratio down to ``least`` (a short history's noise level is
+    read from fewer values than it has parameters, which inflates the Laplace part: ``--scales-from``)."""
+    ratio = SCALES[1] / SCALES[0]
+    n = max(int(np.floor(np.log(0.5 / least) / np.log(ratio) + 1e-9)), 0)
+    below = np.round(0.5 / ratio ** np.arange(n, 0, -1), 3)
+    return np.concatenate([below, SCALES])
+
+
+def extra_for_unit_z(err: np.ndarray, sd: np.ndarray) -> float:
+    """The standard deviation to add in quadrature to ``sd`` so that the errors' z-scores have RMS 1 (0 if they
+    do)."""
+    if np.mean(err**2 / sd**2) <= 1.0:
+        return 0.0
+    return float(brentq(lambda x: np.mean(err**2 / (sd**2 + x**2)) - 1.0, 0.0, 1000.0))
+
+
+def extra_for_coverage(err: np.ndarray, sd: np.ndarray, coverage: float = 0.95) -> float:
+    """The least standard deviation to add in quadrature to ``sd`` with which ``coverage`` of the errors lie within
+    their 95 % intervals (``Z95`` standard deviations; 0 if they do)."""
+    def held(x: float) -> float:
+        return float(np.mean(np.abs(err) <= Z95 * np.sqrt(sd**2 + x**2)))
+    if held(0.0) >= coverage:
+        return 0.0
+    lo, hi = 0.0, 1000.0
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (lo, mid) if held(mid) >= coverage else (mid, hi)
+    return hi
+
+
+def mired_extra(rows: list[dict], cases: tuple[str, ...]) -> tuple[float, float, float, float, float] | None:
+    """Over ``cases``' frames with a CCT interval: the RMS reciprocal-temperature error, the RMS stated spread
+    (``mired_sd``, from each 95 % interval's width), the fraction the intervals hold, and the spread to add in
+    quadrature for z-scores of RMS 1 and for 95 % held (MK⁻¹); ``None`` for rows written without ``mired_sd``."""
+    err, sd = [], []
+    for r in rows:
+        if r["case"] in cases and "mired_sd" in r:
+            err.append(np.asarray(r["mired_err"], dtype=float))
+            sd.append(np.asarray(r["mired_sd"], dtype=float))
+    if not err:
+        return None
+    e, s = np.concatenate(err), np.concatenate(sd)
+    ok = np.isfinite(e) & np.isfinite(s) & (s > 0)
+    e, s = e[ok], s[ok]
+    return (float(np.sqrt(np.mean(e**2))), float(np.sqrt(np.mean(s**2))), float(np.mean(np.abs(e) <= Z95 * s)),
+            extra_for_unit_z(e, s), extra_for_coverage(e, s))
+
 GLARE_FACTORS = np.round(np.linspace(0.0, 1.5, 16), 2)
 """Factors ``k`` tried on the reference frames' glare spread (``camera_glare_log``: what the reference fit's offset
 prior leaves uncertain in the white; 0 where there is no reference)."""
 
 
-def solve(rows: list[dict], cases: tuple[str, ...]) -> dict:
+def solve(rows: list[dict], cases: tuple[str, ...], scales: np.ndarray = SCALES) -> dict:
     """The Laplace scale ``a``, camera spread ``s`` (log units) and glare factor ``k`` for ``cases``' frames: among the
     triples with which the mean stated confidence equals the fraction within 1° (calibration in the large), the one
     with the largest Bernoulli likelihood of which frames were within (a proper score: it rewards telling good frames
@@ -112,7 +169,7 @@ def solve(rows: list[dict], cases: tuple[str, ...]) -> dict:
     best = None
     factors = GLARE_FACTORS if np.any(glare > 0) else np.zeros(1)
     for k in factors:
-        for a in SCALES:
+        for a in scales:
             f = lambda s, a=a, k=k: mean_confidence(s, base, ref, ref_conf, a, k, glare) - within  # noqa: E731
             if f(0.0) < 0 or f(0.5) > 0:
                 continue  # no spread makes this scale calibrated in the large
@@ -122,7 +179,7 @@ def solve(rows: list[dict], cases: tuple[str, ...]) -> dict:
             if best is None or loglik > best[0]:
                 best = (loglik, float(a), float(s), float(k))
     if best is None:  # stated below the truth even at the smallest scale and no spread
-        best = (float("nan"), float(SCALES[0]), 0.0, 0.0)
+        best = (float("nan"), float(scales[0]), 0.0, 0.0)
     _, a, s, k = best
     return {"a": a, "s": s, "k": k, "within": within, "frames": int(len(err)),
             "stated_at_s": mean_confidence(s, base, ref, ref_conf, a, k, glare), "loglik": best[0]}
@@ -132,7 +189,11 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("rows", nargs="+",
                     help="JSON written by benchmarks/unmeasured.py (--split dev); several: their frames pooled")
+    ap.add_argument("--scales-from", type=float, default=0.5,
+                    help="the least Laplace scale tried (default 0.5, as the 30-frame regimes were chosen; short "
+                         "histories need less)")
     args = ap.parse_args(argv)
+    scales = scales_from(args.scales_from)
     rows = []
     for path in args.rows:
         d = json.loads(Path(path).read_text())
@@ -145,13 +206,15 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         rows += d["rows"]
     print(f"{'regime':16} {'chosen on':28} {'frames':>6} {'within 1°':>9} {'a':>6} {'s (log)':>8} {'k':>5} "
-          f"{'stated':>7}")
+          f"{'stated':>7}  {'MK⁻¹ RMS':>8} {'stated':>6} {'in 95':>5} {'add z':>5} {'add95':>5}")
     for (prim, kind), cases in REGIMES.items():
         if not any(r["case"] in cases for r in rows):
             continue
-        out = solve(rows, cases)
+        out = solve(rows, cases, scales)
+        mired = mired_extra(rows, cases)
+        m = "" if mired is None else "  {:8.1f} {:6.1f} {:5.2f} {:5.1f} {:5.1f}".format(*mired)
         print(f"{prim + ' / ' + kind:16} {', '.join(cases):28} {out['frames']:6d} {out['within']:9.3f} "
-              f"{out['a']:6.3f} {out['s']:8.4f} {out['k']:5.2f} {out['stated_at_s']:7.3f}")
+              f"{out['a']:6.3f} {out['s']:8.4f} {out['k']:5.2f} {out['stated_at_s']:7.3f}{m}")
     return 0
 
 

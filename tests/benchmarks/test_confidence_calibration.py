@@ -79,3 +79,30 @@ def test_refuses_score_split_rows(tmp_path, capsys):
     path.write_text(json.dumps({"split": "score", "rows": _rows(1.0, 0.01, n=2)}))
     assert tool.main([str(path)]) == 2
     assert "development split only" in capsys.readouterr().err
+
+
+def test_mired_spread_to_add_is_the_one_the_errors_were_drawn_with():
+    """Errors drawn with a stated spread of 10–30 MK⁻¹ plus an unstated 25 MK⁻¹: both criteria find the 25, and
+    errors drawn with the stated spread alone need nothing added."""
+    import confidence_calibration as tool
+
+    rng = np.random.default_rng(4)
+    sd = rng.uniform(10.0, 30.0, 20_000)
+    err = rng.standard_normal(sd.size) * np.sqrt(sd**2 + 25.0**2)
+    assert abs(tool.extra_for_unit_z(err, sd) - 25.0) < 1.0
+    assert abs(tool.extra_for_coverage(err, sd) - 25.0) < 2.0
+    calm = rng.standard_normal(sd.size) * sd * 0.95
+    assert tool.extra_for_unit_z(calm, sd) == 0.0 and tool.extra_for_coverage(calm, sd) == 0.0
+    rows = [{"case": "grey", "mired_err": err[:100].tolist(), "mired_sd": sd[:100].tolist()}]
+    rms, stated, held, add_z, add95 = tool.mired_extra(rows, ("grey",))
+    assert stated < rms and held < 0.95 and add_z > 10.0
+    assert tool.mired_extra([{"case": "grey", "mired_err": [1.0]}], ("grey",)) is None  # rows without mired_sd
+
+
+def test_scales_from_continues_the_grid_below():
+    import confidence_calibration as tool
+
+    grid = tool.scales_from(0.1)
+    assert np.all(np.diff(grid) > 0) and 0.1 <= grid[0] < 0.11
+    assert np.array_equal(grid[-len(tool.SCALES):], tool.SCALES)  # the 30-frame regimes' grid kept as it was
+    assert np.array_equal(tool.scales_from(0.5), tool.SCALES)

@@ -196,7 +196,11 @@ def main(argv: list[str] | None = None) -> int:
     scales = scales_from(args.scales_from)
     rows = []
     for path in args.rows:
-        d = json.loads(Path(path).read_text())
+        try:
+            d = json.loads(Path(path).read_text())
+        except (OSError, ValueError) as exc:
+            print(f"{path}: cannot read ({exc.__class__.__name__}: {exc})", file=sys.stderr)
+            return 2
         if d.get("split") != "dev":
             print(f"{path}: split {d.get('split')!r}; choose on the development split only", file=sys.stderr)
             return 2

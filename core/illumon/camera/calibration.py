@@ -131,15 +131,20 @@ cameras × 3 seeds × both simulators; ``a`` at the tool's least for sensor RGB)
 spread (:data:`REFERENCE_WHITE_SD_DEG`), single or not."""
 
 
-SINGLE_FRAME_MIRED_SD = {("camera", "none"): 33.0, ("srgb", "none"): 29.0}
-"""Reciprocal-temperature spread (MK⁻¹) added to the CCT intervals of a scene model fitted on a single frame without
-a reference, per ``(primaries, calibration)``: the RMS error of the development single frames' temperatures (``python
-benchmarks/unmeasured.py --split dev --seeds 3 --frames 1``: 32–35 and 28–30 MK⁻¹). One view does not show how the
-light moves, which pins a history's temperatures; the intervals held the light's temperature in 90 % (sensor RGB),
-79–86 % (sensor RGB over pale surfaces) and 62–64 % (rendered output) of those frames, and hold it in 95–98 %,
-90–93 % and 95 % with it. Not for a reference's single frame: a grey card on sensor RGB reads its light 68 MK⁻¹ RMS
-off (the card's white is the camera's and the light's at once), and the same spread sends most of its intervals
-past infinite temperature, which holds nothing."""
+SINGLE_FRAME_MIRED_SD = {("camera", "none"): 33.0, ("srgb", "none"): 29.0, ("camera", "grey"): 48.5,
+                         ("camera", "chart"): 70.7}
+"""Reciprocal-temperature spread (MK⁻¹) added to the CCT intervals of a scene model fitted on a single frame, per
+``(primaries, calibration)`` as :data:`CAMERA_MIRED_SD` keys them. Without a reference: the RMS error of the
+development single frames' temperatures (``python benchmarks/unmeasured.py --split dev --seeds 3 --frames 1``: 32–35
+and 28–30 MK⁻¹). One view does not show how the light moves, which pins a history's temperatures; the intervals held
+the light's temperature in 90 % (sensor RGB), 79–86 % (sensor RGB over pale surfaces) and 62–64 % (rendered output)
+of those frames, and hold it in 95–98 %, 90–93 % and 95 % with it. A reference's single frame on sensor RGB reads
+its light worst of all (the card's white is the camera's and the light's at once): a grey card 59 MK⁻¹ RMS off, a
+chart whose reading of the light was refused 77 (the ``illumon`` simulator's ``chart+matrix``), one read as rendered
+24 (``rawsim``'s, which its intervals already hold: nothing added); the spreads that bring their z-scores to an RMS
+of 1 (``python benchmarks/unmeasured.py --split dev --seeds 2 --frames 1 --cases grey,chart+matrix``, the same with
+``--flare``, then ``tools/confidence_calibration.py``'s ``add z``) are 48.5 and 70.7. Their intervals often reach past
+infinite temperature — "warmer than this, no more is known" is what one frame of an unmeasured camera tells."""
 
 
 SHORT_HISTORY_WHITE_SPREAD: dict[int, dict[tuple[str, str], tuple[float, float, float]]] = {

@@ -71,6 +71,7 @@ from illumon.camera import (  # noqa: E402
     formation,
     grey_card_reference,
 )
+from illumon.camera.calibration import camera_mired_key  # noqa: E402
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
 from illumon.camera.primaries import to_srgb_primaries  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
@@ -208,6 +209,7 @@ def run_case(sim: str, camera: str, case: str, seed: int, hours: float = 0.0, me
             "confidence": np.asarray(extra["confidence"]).tolist(), "seconds": seconds,
             "non_daylight": np.asarray(extra.get("non_daylight", np.zeros(len(err)))).tolist(),
             "calibration": model.camera["calibration"], "primaries": model.camera.get("primaries", "camera"),
+            "mired_key": camera_mired_key(model, model.camera["calibration"], measured),
             "camera_log_gain": float(model.noise["model_error"].get("camera_log_gain", 0.0)),
             "camera_glare_log": float(model.noise["model_error"].get("camera_glare_log", 0.0)),
             "laplace_scale": float(model.noise["model_error"].get("laplace_scale", 1.0))}

@@ -219,6 +219,14 @@ def main(argv: list[str] | None = None) -> int:
         m = "" if mired is None else "  {:8.1f} {:6.1f} {:5.2f} {:5.1f} {:5.1f}".format(*mired)
         print(f"{prim + ' / ' + kind:16} {', '.join(cases):28} {out['frames']:6d} {out['within']:9.3f} "
               f"{out['a']:6.3f} {out['s']:8.4f} {out['k']:5.2f} {out['stated_at_s']:7.3f}{m}")
+    keys = sorted({(r.get("primaries", "camera"), r["mired_key"]) for r in rows if "mired_key" in r})
+    if keys:  # the temperature's spread as the model keys it (a chart read, read as rendered, or refused)
+        print(f"\n{'temperature':32} {'MK⁻¹ RMS':>8} {'stated':>6} {'in 95':>5} {'add z':>5} {'add95':>5}")
+        for prim, key in keys:
+            sel = [r for r in rows if r.get("primaries", "camera") == prim and r.get("mired_key") == key]
+            mired = mired_extra(sel, tuple({r["case"] for r in sel}))
+            if mired is not None:
+                print(f"{prim + ' / ' + key:32} " + "{:8.1f} {:6.1f} {:5.2f} {:5.1f} {:5.1f}".format(*mired))
     return 0
 
 

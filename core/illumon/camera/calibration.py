@@ -132,7 +132,7 @@ spread (:data:`REFERENCE_WHITE_SD_DEG`), single or not."""
 
 
 SINGLE_FRAME_MIRED_SD = {("camera", "none"): 33.0, ("srgb", "none"): 29.0, ("camera", "grey"): 48.5,
-                         ("camera", "chart"): 70.7}
+                         ("camera", "chart"): 67.4}
 """Reciprocal-temperature spread (MK⁻¹) added to the CCT intervals of a scene model fitted on a single frame, per
 ``(primaries, calibration)`` as :data:`CAMERA_MIRED_SD` keys them. Without a reference: the RMS error of the
 development single frames' temperatures (``python benchmarks/unmeasured.py --split dev --seeds 3 --frames 1``: 32–35
@@ -140,11 +140,12 @@ and 28–30 MK⁻¹). One view does not show how the light moves, which pins a h
 the light's temperature in 90 % (sensor RGB), 79–86 % (sensor RGB over pale surfaces) and 62–64 % (rendered output)
 of those frames, and hold it in 95–98 %, 90–93 % and 95 % with it. A reference's single frame on sensor RGB reads
 its light worst of all (the card's white is the camera's and the light's at once): a grey card 59 MK⁻¹ RMS off, a
-chart whose reading of the light was refused 77 (the ``illumon`` simulator's ``chart+matrix``), one read as rendered
-24 (``rawsim``'s, which its intervals already hold: nothing added); the spreads that bring their z-scores to an RMS
-of 1 (``python benchmarks/unmeasured.py --split dev --seeds 2 --frames 1 --cases grey,chart+matrix``, the same with
-``--flare``, then ``tools/confidence_calibration.py``'s ``add z``) are 48.5 and 70.7. Their intervals often reach past
-infinite temperature — "warmer than this, no more is known" is what one frame of an unmeasured camera tells."""
+chart whose reading of the light was refused 72 (``chart``), one read as rendered 12 (``chart read as srgb``, which
+its intervals already hold: nothing added); the spreads that bring their z-scores to an RMS of 1 (``python
+benchmarks/unmeasured.py --split dev --seeds 2 --frames 1 --cases grey,chart+matrix``, the same with ``--flare``,
+then ``tools/confidence_calibration.py``'s temperature table, by :func:`camera_mired_key`) are 48.5 and 67.4. Their
+intervals often reach past infinite temperature — "warmer than this, no more is known" is what one frame of an
+unmeasured camera tells."""
 
 
 SHORT_HISTORY_WHITE_SPREAD: dict[int, dict[tuple[str, str], tuple[float, float, float]]] = {
@@ -171,22 +172,21 @@ the fit uses is not touched: counting the degrees of freedom the priors leave to
 1.60 to 5.42°, docs/methods.md)."""
 
 SHORT_HISTORY_MIRED_SD: dict[int, dict[tuple[str, str], float]] = {
-    3: {("camera", "grey"): 39.5, ("camera", "chart"): 36.7, ("camera", "chart read as srgb"): 15.5},
-    6: {("camera", "grey"): 38.8, ("camera", "chart"): 40.2, ("camera", "chart read as srgb"): 24.2,
-        ("camera", "none"): 31.2},
+    3: {("camera", "grey"): 39.5, ("camera", "chart"): 38.3},
+    6: {("camera", "grey"): 38.8, ("camera", "chart"): 43.4, ("camera", "none"): 31.2},
 }
 """Reciprocal-temperature spread (MK⁻¹) added to the CCT intervals of a scene model on sensor RGB fitted on a short
-history (:func:`history_length_regime`), per ``(primaries, calibration)`` as :data:`CAMERA_MIRED_SD` keys them: the
-spread that brings the development frames' z-scores to an RMS of 1 (``tools/confidence_calibration.py``'s ``add z``
-column, the runs of :data:`SHORT_HISTORY_WHITE_SPREAD`), where the 30-frame histories need none. A chart whose
-reading of its frame's light was refused (``chart``: the ``illumon`` simulator's ``chart+matrix``, whose charts
-neither prior explains) needs 36.7 / 40.2 on 3 / 6 frames, one read as rendered (``chart read as srgb``: ``rawsim``'s)
-15.5 / 24.2; a chart read as a sensor's (``chart read``) carries its reading's spread already and adds nothing (the
-light booth's six-frame histories, ``benchmarks/lightbox.py``: its D65 frame in its interval on every development
-camera without it). A few frames do not show how the light
+history (:func:`history_length_regime`), per ``(primaries, key)`` with :func:`camera_mired_key`'s keys: the spread
+that brings the development frames' z-scores to an RMS of 1 (``tools/confidence_calibration.py``'s ``add z``, the
+runs of :data:`SHORT_HISTORY_WHITE_SPREAD`), where the 30-frame histories need none. A chart whose reading of its
+frame's light was refused (``chart``: ``chart+matrix`` charts neither prior explains, most of the ``illumon``
+simulator's) needs 38.3 / 43.4 on 3 / 6 frames; one read as rendered (``chart read as srgb``) nothing (z RMS 0.79 /
+0.57 without it), nor one read as a sensor's (``chart read``: the light booth's six-frame histories,
+``benchmarks/lightbox.py``, hold their D65 frame on every development camera without it) — a chart's reading
+carries its spread. A few frames do not show how the light
 moves, which pins a long history's temperatures: a grey card's 95 % intervals held the light's temperature in 73 %
 and 64 % of the development frames of 2- and 3-frame histories (86 % and 89 % with these), a chart's through a colour
-matrix in 73–86 % of 2–10-frame histories' (93–100 %) (``python benchmarks/unmeasured.py --split dev --seeds 1
+matrix in 73–86 % of 2–10-frame histories' (92–100 %) (``python benchmarks/unmeasured.py --split dev --seeds 1
 --frames F``). Rendered output is not widened: its intervals' shortfall on short histories (70–95 % held) is its
 30-frame histories' too (71–85 %), the self-balancing cameras' temperature, not the history's length."""
 
@@ -793,6 +793,18 @@ def _glare_white_sd(base: NDArray[np.float64], spectra: NDArray[np.float64], ill
     return math.sqrt(var / 2)
 
 
+def camera_mired_key(model, kind: str, measured: bool = False) -> str:
+    """The key of :data:`CAMERA_MIRED_SD` (and of the short histories' and single frames' spreads) a calibrated model
+    states its temperature's spread with: ``measured``, ``grey``, ``none``, or a chart's — ``chart`` when its reading
+    of its frame's light was refused, ``chart read`` when read as a sensor's, ``chart read as srgb`` when only the
+    rendered cameras' prior explained it."""
+    if measured:
+        return "measured"
+    if kind == "chart" and "chart_level" in model.noise:  # the frames' light read from the chart too
+        return "chart read as srgb" if model.camera.get("chart_read_as") == "srgb" else "chart read"
+    return kind
+
+
 def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bool,
                                scene_sd: float | None = None, glare_sd: float = 0.0) -> None:
     """The camera's own uncertainty after calibration, in the model: ``camera["white_sd_log"]`` and the model errors
@@ -803,13 +815,11 @@ def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bo
     camera white (:func:`_glare_white_sd`), added in quadrature to the stated spread (``camera_glare_log``)."""
     white_sd = SRGB_CAMERA_WHITE_SD if (kind in ("none", "grey") and primaries == "srgb") else CAMERA_WHITE_SD[kind]
     model.camera["white_sd_log"] = white_sd
-    read = kind == "chart" and "chart_level" in model.noise  # the frames' light read from the chart too
-    read_as = "chart read as srgb" if model.camera.get("chart_read_as") == "srgb" else "chart read"
-    mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)[
-        "measured" if measured else (read_as if read else kind)]
+    key = camera_mired_key(model, kind, measured)
+    mired_sd = (SRGB_CAMERA_MIRED_SD if primaries == "srgb" else CAMERA_MIRED_SD)[key]
     length = history_length_regime((getattr(model, "training", None) or {}).get("frames"))
     if not measured:  # a short history does not show how its light moves, which pins a long one's temperatures
-        mired_sd = math.hypot(mired_sd, _MIRED_SD_BY_LENGTH[length].get((primaries, read_as if read else kind), 0.0))
+        mired_sd = math.hypot(mired_sd, _MIRED_SD_BY_LENGTH[length].get((primaries, key), 0.0))
     table = {**STATED_WHITE_SPREAD, **_WHITE_SPREAD_BY_LENGTH[length]}
     scale, stated, glare_k = ((1.0, white_sd, 1.0) if measured
                               else table.get((primaries, kind), (1.0, white_sd, 1.0)))

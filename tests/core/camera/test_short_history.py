@@ -95,3 +95,17 @@ def test_a_grey_cards_single_frame_holds_its_lights_temperature(shared_data) -> 
 
     assert held(None) >= 0.85
     assert held(0.0) < 0.8  # the test can fail: without the spread the intervals missed
+
+
+def test_camera_mired_key_names_how_a_chart_was_read() -> None:
+    def model(noise: dict, camera: dict) -> types.SimpleNamespace:
+        return types.SimpleNamespace(noise=noise, camera=camera)
+
+    assert calibration.camera_mired_key(model({}, {}), "grey") == "grey"
+    assert calibration.camera_mired_key(model({}, {}), "chart", measured=True) == "measured"
+    assert calibration.camera_mired_key(model({}, {}), "chart") == "chart"  # its reading refused
+    assert calibration.camera_mired_key(model({"chart_level": 1}, {}), "chart") == "chart read"
+    read_as = model({"chart_level": 1}, {"chart_read_as": "srgb"})
+    assert calibration.camera_mired_key(read_as, "chart") == "chart read as srgb"
+    assert all(key in calibration.CAMERA_MIRED_SD for table in calibration.SHORT_HISTORY_MIRED_SD.values()
+               for _, key in table)

@@ -180,8 +180,8 @@ history (:func:`history_length_regime`), per ``(primaries, key)`` with :func:`ca
 that brings the development frames' z-scores to an RMS of 1 (``tools/confidence_calibration.py``'s ``add z``, the
 runs of :data:`SHORT_HISTORY_WHITE_SPREAD`), where the 30-frame histories need none. A chart whose reading of its
 frame's light was refused (``chart``: ``chart+matrix`` charts neither prior explains, most of the ``illumon``
-simulator's) needs 38.3 / 43.4 on 3 / 6 frames; one read as rendered (``chart read as srgb``) nothing (z RMS 0.79 /
-0.57 without it), nor one read as a sensor's (``chart read``: the light booth's six-frame histories,
+simulator's) needs 38.3 / 43.4 on 3 / 6 frames; one read as rendered (``chart read as srgb``) nothing (``add z``
+0.0 / 0.1), nor one read as a sensor's (``chart read``: the light booth's six-frame histories,
 ``benchmarks/lightbox.py``, hold their D65 frame on every development camera without it) — a chart's reading
 carries its spread. A few frames do not show how the light
 moves, which pins a long history's temperatures: a grey card's 95 % intervals held the light's temperature in 73 %

@@ -33,9 +33,12 @@ then ``python tools/confidence_calibration.py dev.json``); the score split check
 Short histories (:data:`illumon.camera.calibration.SHORT_HISTORY_WHITE_SPREAD`: ``unmeasured.py --frames 3`` or
 ``--frames 6``) read their noise level from fewer values than parameters, which inflates the Laplace part:
 ``--scales-from 0.01`` lets ``a`` go below the 30-frame regimes' 0.5. Rows that carry each frame's stated
-temperature spread (``mired_sd``) also print the RMS reciprocal-temperature error, the RMS stated spread, the
-fraction the 95 % intervals hold (as if symmetric), and the spread to add in quadrature for z-scores of RMS 1
-(``add z``: :data:`~illumon.camera.calibration.SHORT_HISTORY_MIRED_SD`) or for 95 % held (``add95``).
+temperature spread (``mired_sd``) and the key it was stated with (``mired_key``,
+:func:`illumon.camera.calibration.camera_mired_key`: a chart read, read as rendered, or refused) also print, per key,
+the RMS reciprocal-temperature error, the RMS stated spread, the fraction the 95 % intervals hold (as if symmetric),
+and the spread to add in quadrature for z-scores of RMS 1 (``add z``:
+:data:`~illumon.camera.calibration.SHORT_HISTORY_MIRED_SD`) or for 95 % held (``add95``). Per key, not per regime: a
+regime's chart cases hold charts read and refused, whose spreads differ.
 """
 
 from __future__ import annotations
@@ -52,10 +55,9 @@ from scipy.optimize import brentq
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "core")]
 
-from illumon.model.intervals import MODEL_ERROR  # noqa: E402
+from illumon.model.intervals import MODEL_ERROR, Z95  # noqa: E402
 
 RHO2 = math.radians(1.0) ** 2
-Z95 = 1.959963984540054
 REGIMES = {
     ("camera", "grey"): ("grey",),
     ("camera", "chart"): ("chart+matrix",),
@@ -135,13 +137,13 @@ def extra_for_coverage(err: np.ndarray, sd: np.ndarray, coverage: float = 0.95) 
     return hi
 
 
-def mired_extra(rows: list[dict], cases: tuple[str, ...]) -> tuple[float, float, float, float, float] | None:
-    """Over ``cases``' frames with a CCT interval: the RMS reciprocal-temperature error, the RMS stated spread
+def mired_extra(rows: list[dict]) -> tuple[float, float, float, float, float] | None:
+    """Over ``rows``' frames with a CCT interval: the RMS reciprocal-temperature error, the RMS stated spread
     (``mired_sd``, from each 95 % interval's width), the fraction the intervals hold, and the spread to add in
     quadrature for z-scores of RMS 1 and for 95 % held (MK⁻¹); ``None`` for rows written without ``mired_sd``."""
     err, sd = [], []
     for r in rows:
-        if r["case"] in cases and "mired_sd" in r:
+        if "mired_sd" in r:
             err.append(np.asarray(r["mired_err"], dtype=float))
             sd.append(np.asarray(r["mired_sd"], dtype=float))
     if not err:
@@ -210,21 +212,19 @@ def main(argv: list[str] | None = None) -> int:
             return 2
         rows += d["rows"]
     print(f"{'regime':16} {'chosen on':28} {'frames':>6} {'within 1°':>9} {'a':>6} {'s (log)':>8} {'k':>5} "
-          f"{'stated':>7}  {'MK⁻¹ RMS':>8} {'stated':>6} {'in 95':>5} {'add z':>5} {'add95':>5}")
+          f"{'stated':>7}")
     for (prim, kind), cases in REGIMES.items():
         if not any(r["case"] in cases for r in rows):
             continue
         out = solve(rows, cases, scales)
-        mired = mired_extra(rows, cases)
-        m = "" if mired is None else "  {:8.1f} {:6.1f} {:5.2f} {:5.1f} {:5.1f}".format(*mired)
         print(f"{prim + ' / ' + kind:16} {', '.join(cases):28} {out['frames']:6d} {out['within']:9.3f} "
-              f"{out['a']:6.3f} {out['s']:8.4f} {out['k']:5.2f} {out['stated_at_s']:7.3f}{m}")
+              f"{out['a']:6.3f} {out['s']:8.4f} {out['k']:5.2f} {out['stated_at_s']:7.3f}")
     keys = sorted({(r.get("primaries", "camera"), r["mired_key"]) for r in rows if "mired_key" in r})
     if keys:  # the temperature's spread as the model keys it (a chart read, read as rendered, or refused)
         print(f"\n{'temperature':32} {'MK⁻¹ RMS':>8} {'stated':>6} {'in 95':>5} {'add z':>5} {'add95':>5}")
         for prim, key in keys:
             sel = [r for r in rows if r.get("primaries", "camera") == prim and r.get("mired_key") == key]
-            mired = mired_extra(sel, tuple({r["case"] for r in sel}))
+            mired = mired_extra(sel)
             if mired is not None:
                 print(f"{prim + ' / ' + key:32} " + "{:8.1f} {:6.1f} {:5.2f} {:5.1f} {:5.1f}".format(*mired))
     return 0

@@ -94,9 +94,9 @@ def test_mired_spread_to_add_is_the_one_the_errors_were_drawn_with():
     calm = rng.standard_normal(sd.size) * sd * 0.95
     assert tool.extra_for_unit_z(calm, sd) == 0.0 and tool.extra_for_coverage(calm, sd) == 0.0
     rows = [{"case": "grey", "mired_err": err[:100].tolist(), "mired_sd": sd[:100].tolist()}]
-    rms, stated, held, add_z, add95 = tool.mired_extra(rows, ("grey",))
+    rms, stated, held, add_z, add95 = tool.mired_extra(rows)
     assert stated < rms and held < 0.95 and add_z > 10.0
-    assert tool.mired_extra([{"case": "grey", "mired_err": [1.0]}], ("grey",)) is None  # rows without mired_sd
+    assert tool.mired_extra([{"case": "grey", "mired_err": [1.0]}]) is None  # rows without mired_sd
 
 
 def test_scales_from_continues_the_grid_below():

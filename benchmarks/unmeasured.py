@@ -75,7 +75,7 @@ from illumon.camera.calibration import camera_mired_key  # noqa: E402
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
 from illumon.camera.primaries import to_srgb_primaries  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
-from illumon.model.intervals import Z95  # noqa: E402
+from illumon.model.intervals import mired_sd_from_interval  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
 from illumon.priors import CameraPrior, build_camera_prior  # noqa: E402
 from illumon.retrieval.common import grey_world  # noqa: E402
@@ -204,7 +204,7 @@ def run_case(sim: str, camera: str, case: str, seed: int, hours: float = 0.0, me
     return {"sim": sim, "camera": camera, "case": case, "seed": seed, "err": err.tolist(), "gray_world": gw.tolist(),
             "nothing": nothing.tolist(), "cct_in_95": cct_in.tolist(),
             "mired_err": (1e6 / np.asarray(res.cct, dtype=float) - 1e6 / true_cct).tolist(),
-            "mired_sd": ((1e6 / lo - 1e6 / hi) / (2 * Z95)).tolist(),  # the 95 % interval's stated spread, MK⁻¹
+            "mired_sd": mired_sd_from_interval(lo, hi).tolist(),  # the 95 % interval's stated spread, MK⁻¹
             "cct_lo": lo.tolist(), "cct_hi": hi.tolist(), "cct_true": true_cct.tolist(),
             "confidence": np.asarray(extra["confidence"]).tolist(), "seconds": seconds,
             "non_daylight": np.asarray(extra.get("non_daylight", np.zeros(len(err)))).tolist(),

@@ -33,7 +33,7 @@ from confidence_calibration import extra_for_unit_z  # noqa: E402
 from illumon.camera.pipeline import srgb_matrix  # noqa: E402
 from illumon.camera.references import colourchecker_references, grey_card_reference  # noqa: E402
 from illumon.model.fit import fit_scene_model  # noqa: E402
-from illumon.model.intervals import Z95  # noqa: E402
+from illumon.model.intervals import Z95, mired_sd_from_interval  # noqa: E402
 from illumon.observations import Observations  # noqa: E402
 from illumon.simulation import datasets  # noqa: E402
 from illumon.spectra import GRID  # noqa: E402
@@ -75,7 +75,7 @@ def run(camera: str, case: str, seed: int, primaries: str, matrix: bool = False)
     true_mired = np.array([1e6 / colour.uv_to_CCT(colour.UCS_to_uv(colour.XYZ_to_UCS(
         colour.sd_to_XYZ(colour.SpectralDistribution(s, GRID.range())))), method="Ohno 2013")[0] for s in e])
     err = 1e6 / res.cct - true_mired
-    sd = (1e6 / extra["cct_lo"] - 1e6 / extra["cct_hi"]) / (2 * Z95)
+    sd = mired_sd_from_interval(extra["cct_lo"], extra["cct_hi"])
     return {"err": err, "sd": sd, "true_mired": true_mired, "cct": res.cct, "cct_lo": extra["cct_lo"],
             "cct_hi": extra["cct_hi"]}
 

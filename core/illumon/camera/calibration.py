@@ -586,12 +586,12 @@ def calibrate_scene_model(
         # The lamp-lit-or-daylight verdict is weighed through the prior camera, before the transform: the transform
         # reads the scene average as daylight's, which makes the two components' levels nearly one in the refit while
         # the light's temperature still hangs on the verdict (illumon.model.level.verdict_shift)
-        verdict = {k: v for k, v in model.noise.get("model_error", {}).items() if k in ("verdict_shift", "verdict_p")}
+        verdict = {k: v for k, v in model.noise.get("model_error", {}).items() if k.startswith("verdict_")}
         t, s_scene = _scene_average_transform(scene, base, model, theta)
         model, theta = fit(scene, base @ t)
         me = model.noise.setdefault("model_error", {})
-        me.pop("verdict_shift", None)
-        me.pop("verdict_p", None)
+        for k in [k for k in me if k.startswith("verdict_")]:  # the refit's own (illumon.model.intervals.VERDICT_KEYS)
+            me.pop(k)
         me.update(verdict)
         it = 1
     model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()

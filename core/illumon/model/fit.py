@@ -51,12 +51,12 @@ from ..priors.scene_average import scene_average_evidence
 from ..retrieval.common import censored, grey_world_mired, imaging_operators, white_level
 from ..spectra import GRID
 from .identifiability import IdentifiabilityWarning, identifiability, spread_subsample
-from .intervals import MODEL_ERROR, widen_cct_intervals, widen_white_intervals
+from .intervals import MODEL_ERROR, VERDICT_KEYS, widen_cct_intervals, widen_white_intervals
 from .lamps import (
     LAMP_PRIOR,
     HistoryJudgement,
-    _evidence_frames,
     apply_lamps,
+    evidence_frames,
     history_lamps,
     lamp_population,
     unbalanced_probability,
@@ -298,7 +298,7 @@ def fit_scene_model(
     msg = None
     if primaries == "camera" and RENDERED_CHART_WARNING not in model.identifiability.get("warnings", []):
         # rendered output declared sensor RGB (a chart says so itself), read where the lamp test reads its evidence
-        msg = output_space_warning(scene.values[_evidence_frames(len(scene.frames))])
+        msg = output_space_warning(scene.values[evidence_frames(len(scene.frames))])
     elif primaries == "srgb" and not known and unbalanced_probability(model) > 0.5 and "level" in model.noise:
         msg = unbalanced_warning(model.noise["level"])  # lamps throughout, or output that is not balanced srgb
     if msg:
@@ -953,7 +953,7 @@ def _fit_fixed_camera(
                "scale": scale, "white_level": white if math.isfinite(white) else None, "flare_sd": flare_sd,
                "model_error": dict(MODEL_ERROR, common_mired=float(math.hypot(common[0], MODEL_ERROR["common_mired"])),
                                    common_duv=float(max(common[1], MODEL_ERROR["common_duv"])),
-                                   **({"verdict_shift": verdict[0], "verdict_p": verdict[1]} if verdict[1] > 0 else {}))},
+                                   **(dict(zip(VERDICT_KEYS, verdict, strict=True)) if verdict[1] > 0 else {}))},
     )
     if common_level is not None:  # the level held is an earlier fit's, as uncertain as that fit stated it
         model.noise["model_error"].update(common_mired=float(common_level[2]), common_duv=float(common_level[3]))

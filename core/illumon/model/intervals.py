@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtr
 
 from ..camera.formation import gains_from_white
@@ -24,9 +24,15 @@ from ..observations import Observations
 from ..retrieval.common import RetrievalResult
 from .solver import FrameSolver
 
-__all__ = ["MODEL_ERROR", "Z95", "assemble_estimates", "interval_columns", "mixture_interval"]
+__all__ = ["MODEL_ERROR", "Z95", "assemble_estimates", "interval_columns", "mired_sd_from_interval", "mixture_interval",
+           "VERDICT_KEYS"]
 
 Z95 = 1.959963984540054
+
+VERDICT_KEYS = ("verdict_shift", "verdict_p")
+"""The model-error keys of the history's lamp-lit-or-balanced verdict's other reading: the reciprocal-temperature
+shift (MK⁻¹) it would move every frame by, and its probability (:func:`illumon.model.level.verdict_shift`, written by
+the fit, read by :func:`assemble_estimates` through :func:`mixture_interval`)."""
 
 MODEL_ERROR = {"mired": 0.8, "duv": 0.001, "log_gain": 0.002, "common_duv": 0.0015, "common_mired": 7.5}
 """Standard deviations of the CIE D-series' mismatch to measured daylight as a camera sees it, added in quadrature to
@@ -86,7 +92,7 @@ def assemble_estimates(
     sm = np.sqrt(np.clip(cov[:, 0, 0], 0, None) + me["mired"] ** 2 + me.get("camera_mired", 0.0) ** 2
                  + me.get("balanced_mired", 0.0) ** 2)
     # … and the history's lamp-lit-or-balanced verdict, whose other reading moves every frame (a two-point mixture)
-    m_lo, m_hi = mixture_interval(shown[:, 0], sm, me.get("verdict_shift", 0.0), me.get("verdict_p", 0.0))
+    m_lo, m_hi = mixture_interval(shown[:, 0], sm, *(me.get(k, 0.0) for k in VERDICT_KEYS))
     cct_lo = 1e6 / np.clip(m_hi, 1e-3, None)
     cct_hi = np.where(m_lo > 0, 1e6 / np.clip(m_lo, 1e-3, None), np.inf)
     dlocus = (solver.table.lookup(shown[:, 0] + 0.5)[:, 4] - solver.table.lookup(shown[:, 0] - 0.5)[:, 4]) / 1.0
@@ -177,6 +183,13 @@ def _within_one_degree(tr: NDArray[np.float64]) -> NDArray[np.float64]:
     """``confidence``: the probability that a white whose angular error has variance ``tr`` (rad², the trace of its
     2-D covariance) is within 1° of the truth — Rayleigh with σ² = tr/2."""
     return 1.0 - np.exp(-_RHO2 / np.clip(tr, 1e-30, None))
+
+
+def mired_sd_from_interval(cct_lo: ArrayLike, cct_hi: ArrayLike) -> NDArray[np.float64]:
+    """The reciprocal-temperature spread (MK⁻¹) a 95 % CCT interval states: its width in MK⁻¹ over ``2·Z95``, as if
+    symmetric (an interval unbounded above, ``cct_hi`` infinite, reaches 0 MK⁻¹). What the benchmarks and the
+    calibration tools compare a temperature's error with."""
+    return (1e6 / np.asarray(cct_lo, dtype=float) - 1e6 / np.asarray(cct_hi, dtype=float)) / (2 * Z95)
 
 
 def widen_cct_intervals(result: RetrievalResult, extra: dict, extra_sd: float) -> None:

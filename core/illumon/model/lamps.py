@@ -74,6 +74,8 @@ __all__ = [
     "log_chroma_confidence",
     "non_daylight_column",
     "frame_verdicts",
+    "EVIDENCE_FRAMES",
+    "evidence_frames",
 ]
 
 MIN_DAYLIGHT_FRAMES = 6
@@ -696,7 +698,7 @@ def expected_scene_offset(model, obs) -> NDArray[np.float64]:  # noqa: ANN001
     values = np.asarray(obs.values, dtype=float)
     # only the frames the evidence reads are taken (the whole history's columns were copied and checked for the
     # 4 096 of a 100k-frame history, ~0.05 s a judgement); the same values
-    v = values[_evidence_frames(len(values))][:, cols]
+    v = values[evidence_frames(len(values))][:, cols]
     return _expected_offset(v, np.all(np.isfinite(v), axis=-1), model.sensitivities, model.daylight_model(),
                             model.reflectance_basis(), model.camera.get("primaries", "camera"))
 
@@ -706,7 +708,7 @@ def _expected_offset(values: NDArray[np.float64], present: NDArray[np.bool_], se
     """:func:`illumon.priors.scene_average.expected_offset` under the daylight prior's mean light, of the scene
     average of ``values`` (F × P × 3, ``present`` F × P, in the output space ``primaries``) read from at most
     :data:`EVIDENCE_FRAMES` of its frames."""
-    rows = _evidence_frames(len(values))
+    rows = evidence_frames(len(values))
     average = scene_average_evidence(values[rows], present[rows], primaries)
     light = dm.spectra(np.array([[dm.mired_mean, 0.0]]))
     return expected_offset(light, np.asarray(sensitivities, dtype=float), rb, average)[0]
@@ -718,9 +720,9 @@ longer history): only the patches' colour spread (a median over frames) moves th
 the evidence took 0.33 s of a refit (issue 29)."""
 
 
-def _evidence_frames(n: int) -> slice | NDArray[np.intp]:
+def evidence_frames(n: int) -> slice | NDArray[np.intp]:
     """The rows :func:`expected_scene_offset` reads of an ``n``-frame history: all, or :data:`EVIDENCE_FRAMES` evenly
-    spaced."""
+    spaced (the same rows serve every scene-wide reading of a long history: the fit's output-space check too)."""
     return slice(None) if n <= EVIDENCE_FRAMES else np.linspace(0, n - 1, EVIDENCE_FRAMES).round().astype(np.intp)
 
 

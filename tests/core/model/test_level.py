@@ -287,6 +287,18 @@ def test_mixture_interval_holds_both_readings():
     assert np.all(lo > m - 100.0) and np.all(np.abs(hi - (m + Z95 * s)) < 0.2 * s)
 
 
+def test_mired_sd_from_interval_inverts_a_symmetric_interval():
+    """:func:`illumon.model.intervals.mired_sd_from_interval` gives back the spread a symmetric 95 % interval in MK⁻¹
+    was built from; an interval unbounded above reaches 0 MK⁻¹, so its stated spread is half of what its lower end
+    lies above zero."""
+    from illumon.model.intervals import Z95, mired_sd_from_interval
+
+    m, s = np.array([150.0, 250.0]), np.array([10.0, 30.0])
+    lo, hi = 1e6 / (m + Z95 * s), 1e6 / (m - Z95 * s)
+    np.testing.assert_allclose(mired_sd_from_interval(lo, hi), s)
+    np.testing.assert_allclose(mired_sd_from_interval([1e6 / 200.0], [np.inf]), [200.0 / (2 * Z95)])
+
+
 def test_sensor_rgb_lamp_history_judged_daylight_states_the_other_reading(shared_data, monkeypatch: pytest.MonkeyPatch):
     """A sensor-RGB history lit only by lamps that the level test judged daylight at ``p`` 0.41 (``rawsim`` Nikon
     D5100 ``raw+lamps``, seed 7 800, a camera nobody measured): its whites are right (0.9°) but every frame read

@@ -130,6 +130,40 @@ def test_real_photographs_reference_never_hurts(shared_data):
             assert err[m].max() <= err["none"].max() + 3.5, (s.name, m, err)
 
 
+def test_real_photographs_through_the_command_line(shared_data, tmp_path):
+    """The outside checks drive the product through its command line, not the library: each development set of real
+    photographs written as they do (``benchmarks/real.py --dump``: the 18 colour patches, linear 0…1, references in
+    frame 0 with their KNOWN.csv) and run as ``illumon estimate OBS [--known-reflectances KNOWN] --white-level 1
+    --primaries P``. Every run ends without an error and writes the library's own whites and confidence (to the CSV's
+    six digits), so the issue-26 figures ``benchmarks/real.py`` prints are what such a check gets."""
+    import csv
+
+    import real
+    from illumon.cli import main
+
+    if not (shared_data / "real" / "sony-dolp").is_dir():
+        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
+    raw = real.sony_raw(shared_data)
+    sets = [raw, *real.isp_sets(raw)]
+    real.dump_sets(sets, tmp_path)
+    for s in sets:
+        d = tmp_path / s.name
+        for mode in ("none", "grey", "chart"):
+            out = d / f"ESTIMATES-{mode}.csv"
+            known = [] if mode == "none" else ["--known-reflectances", str(d / f"KNOWN-{mode}.csv")]
+            assert main(["estimate", str(d / f"OBSERVATIONS-{mode}.csv"), *known, "--white-level", "1",
+                         "--primaries", s.primaries, "--out", str(out)]) == 0, (s.name, mode)
+            rows = list(csv.DictReader(out.open()))
+            assert [r["frame"] for r in rows] == list(s.frames)
+            white = np.array([[float(r[f"white_{c}"]) for c in "rgb"] for r in rows])
+            conf = np.array([float(r["confidence"]) for r in rows])
+            lib_white, lib_conf, _ = real.run_illumon(s, mode)
+            np.testing.assert_allclose(white, lib_white, rtol=1e-5, err_msg=f"{s.name} {mode}")
+            np.testing.assert_allclose(conf, lib_conf, atol=1e-5, err_msg=f"{s.name} {mode}")
+            if mode != "none":  # the reference frame reproduces its own greys
+                assert real.angular(white, s.truth)[0] < 0.5, (s.name, mode)
+
+
 def test_self_balancing_camera_is_named(shared_data):
     """A day (30 frames over 10 hours) from a camera that rebalances every frame: its light looks steady and the fit
     warns; the same day through a fixed daylight preset does not (``benchmarks/unmeasured.py`` cases). The balanced

@@ -24,7 +24,9 @@ Patch values are measured with the service's own calibration code (OpenCV's ``cv
 means of the central half of each patch, clipped pixels left out). Errors are angular, in the camera's output RGB,
 between the estimated camera white and the truth.
 
-``python benchmarks/real.py`` prints the table and writes ``benchmarks/results/real.json``; ``--single`` fits every
+``python benchmarks/real.py`` prints the table and writes ``benchmarks/results/real.json``; ``--subsets`` adds parts of
+the chart's greys as the reference (a white, a mid grey, three, the two darkest, the black: :data:`SUBSETS`) and
+prints each reference frame's error beside the RMS error its confidence states; ``--single`` fits every
 frame on its own (one photograph) and writes ``real_single.json``; ``--awb-mix 0.25,0.5,0.75`` adds cameras whose own
 automatic white balance lies between the ideal one and gray-world (``sony-isp-mix<a>``).
 """
@@ -196,13 +198,20 @@ def _observations(s: RealSet, known: list[str]):
     return Observations(frames=list(s.frames), patches=patches, values=vals, times=[None] * len(s.frames))
 
 
+SUBSETS = {"white 19": ["chart:19"], "grey 20": ["chart:20"], "greys 20-22": ["chart:20", "chart:21", "chart:22"],
+           "dark greys 23-24": ["chart:23", "chart:24"], "black 24": ["chart:24"]}
+"""Parts of the chart's greys known in frame 0 (``--subsets``): a neutral reference as dark, as light or as mid as an
+installer's card may be."""
+
+
 def run_illumon(s: RealSet, mode: str, primaries: str | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], str]:
-    """Camera whites (F × 3), their ``confidence`` and the CCT of frame 0, for ``mode`` none / grey / chart."""
+    """Camera whites (F × 3), their ``confidence`` and the CCT of frame 0, for ``mode`` none / grey / chart or a key
+    of :data:`SUBSETS`."""
     from illumon.camera.references import colourchecker_references
     from illumon.model import fit_scene_model
 
     refs = colourchecker_references()
-    known = {"none": [], "grey": GREYS, "chart": ALL}[mode]
+    known = {"none": [], "grey": GREYS, "chart": ALL, **SUBSETS}[mode]
     obs = _observations(s, known)
     known_refs = {p.replace("chart:", "ref:"): refs[p] for p in known}
     with warnings.catch_warnings():  # identifiability warnings: three frames under one light, as expected
@@ -244,6 +253,14 @@ def dump_sets(sets: list[RealSet], folder: Path) -> None:
         (d / "TRUTH.csv").write_text("\n".join(rows) + "\n")
 
 
+def stated_rms_deg(confidence: float) -> float:
+    """The RMS angular error (degrees) a frame's ``confidence`` states: ``confidence = 1 − exp(−ρ²/tr)`` with ρ = 1°
+    (:mod:`illumon.model.intervals`), so ``√tr``; 0 for a confidence of 1."""
+    if not 0.0 < confidence < 1.0:
+        return 0.0 if confidence >= 1.0 else float("inf")
+    return float(np.degrees(np.sqrt(-np.radians(1.0) ** 2 / np.log1p(-confidence))))
+
+
 def baselines(s: RealSet) -> dict[str, NDArray[np.float64]]:
     """Doing nothing, gray-world and max-RGB over the 18 scene patches, and gray-world over the whole image."""
     idx = [ALL.index(p) for p in SCENE]
@@ -274,6 +291,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--single", action="store_true",
                     help="fit every frame on its own (one photograph, as an installer's first try) instead of the set "
                          "as a history; default --out benchmarks/results/real_single.json")
+    ap.add_argument("--subsets", action="store_true",
+                    help="also run each set with parts of the chart's greys known in frame 0 (a white, a mid grey, "
+                         "three, the two darkest, the black): the reference frame's error beside what it states")
     args = ap.parse_args(argv)
     if args.single and args.out == ap.get_default("out"):
         args.out = str(ROOT / "benchmarks" / "results" / "real_single.json")
@@ -295,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
         for name, w in baselines(s).items():
             e = angular(w, truth)
             entry["methods"][name] = {"errors_deg": e.tolist(), "median_deg": float(np.median(e))}
-        for mode in ("none", "grey", "chart"):
+        for mode in ("none", "grey", "chart", *(SUBSETS if args.subsets else ())):
             t0 = time.perf_counter()
             try:
                 w, conf, cct0 = (run_single(s, mode, args.primaries) if args.single
@@ -304,6 +324,7 @@ def main(argv: list[str] | None = None) -> int:
                 entry["methods"][f"illumon {mode}"] = {
                     "errors_deg": e.tolist(), "median_deg": float(np.median(e)), "frame0_deg": float(e[0]),
                     "confidence": conf.tolist(), "within_1deg": float(np.mean(e < 1.0)), "cct_frame0": cct0,
+                    "frame0_stated_rms_deg": stated_rms_deg(float(conf[0])),
                     "seconds": time.perf_counter() - t0,
                 }
             except Exception as exc:  # noqa: BLE001 - a benchmark row records the failure
@@ -318,9 +339,16 @@ def main(argv: list[str] | None = None) -> int:
                              f"{m.get('frame0_deg', float('nan')):.2f}" if "frame0_deg" in m else "",
                              f"{np.mean(m['confidence']):.2f} / {m['within_1deg']:.2f}" if "confidence" in m else ""))
     print(f"split: {report['split']}")
-    print(f"{'set':<17} {'method':<20} {'median °':>9} {'max °':>7} {'frame 0 °':>9}  conf / within 1°")
+    print(f"{'set':<17} {'method':<25} {'median °':>9} {'max °':>7} {'frame 0 °':>9}  conf / within 1°")
     for r in rows:
-        print(f"{r[0]:<17} {r[1]:<20} {r[2]:>9} {r[3]:>7} {r[4]:>9}  {r[5]}")
+        print(f"{r[0]:<17} {r[1]:<25} {r[2]:>9} {r[3]:>7} {r[4]:>9}  {r[5]}")
+    if args.subsets:
+        print("\nreference frame (frame 0), parts of the chart's greys known: its error beside the RMS error its "
+              "confidence states (°)")
+        for name, entry in report["sets"].items():
+            print(f"{name:<17} " + "  ".join(
+                f"{mode}: {m['frame0_deg']:.2f} / {m['frame0_stated_rms_deg']:.2f}"
+                for mode in SUBSETS if "frame0_deg" in (m := entry["methods"].get(f"illumon {mode}", {}))))
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(report, indent=1, default=float))
     print(f"wrote {args.out}")

@@ -11,7 +11,8 @@ with, and ``g``), backs out each frame's Laplace part and, per regime (calibrati
 among the triples with which the mean stated confidence equals the fraction of frames within 1°, the one with the
 largest Bernoulli likelihood of which frames were (which rewards stating less where the glare moved the white more).
 Reference frames (frame 0 of a reference case: confidence from
-:data:`~illumon.camera.calibration.REFERENCE_WHITE_SD_DEG`) keep theirs.
+:data:`~illumon.camera.calibration.REFERENCE_WHITE_SD_DEG` and the glare a dark or light neutral reads beside a mid
+grey) keep what they stated.
 
 Regimes and the cases they are chosen on (the raw ``none`` case, not ``none+matrix``: a camera with no reference
 cannot tell a fixed matrix from none, and the outside checks' raw sets are the raw case):
@@ -69,10 +70,11 @@ REGIMES = {
 RENDERED = ("rendered", "awb", "lamps")
 
 
-def _frames(rows: list[dict], cases: tuple[str, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(tr without the camera's spread, error, is-a-reference-frame, the history's glare spread ``g``) over the
-    frames of ``cases``."""
-    base, err, ref, glare = [], [], [], []
+def _frames(rows: list[dict], cases: tuple[str, ...]
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(tr without the camera's spread, error, is-a-reference-frame, the history's glare spread ``g``, the
+    confidence each frame stated) over the frames of ``cases``."""
+    base, err, ref, glare, given = [], [], [], [], []
     for r in rows:
         if r["case"] not in cases:
             continue
@@ -85,19 +87,21 @@ def _frames(rows: list[dict], cases: tuple[str, ...]) -> tuple[np.ndarray, np.nd
         err.append(np.asarray(r["err"], dtype=float))
         ref.append(is_ref)
         glare.append(np.full(len(c), float(r.get("camera_glare_log", 0.0))))
-    return np.concatenate(base), np.concatenate(err), np.concatenate(ref), np.concatenate(glare)
+        given.append(c)
+    return (np.concatenate(base), np.concatenate(err), np.concatenate(ref), np.concatenate(glare),
+            np.concatenate(given))
 
 
-def stated(a: float, s: float, base: np.ndarray, ref: np.ndarray, ref_conf: float, k: float = 0.0,
+def stated(a: float, s: float, base: np.ndarray, ref: np.ndarray, ref_conf: np.ndarray | float, k: float = 0.0,
            glare: np.ndarray | float = 0.0) -> np.ndarray:
     """Every frame's stated confidence with the Laplace part scaled by ``a``, the camera spread ``s`` and ``k`` times
-    the history's glare spread ``glare`` (reference frames keep theirs)."""
+    the history's glare spread ``glare`` (reference frames keep theirs, ``ref_conf``)."""
     tr = a**2 * base + 2 * (MODEL_ERROR["log_gain"] ** 2 + s**2 + (k * np.asarray(glare)) ** 2)
     return np.where(ref, ref_conf, 1.0 - np.exp(-RHO2 / np.clip(tr, 1e-30, None)))
 
 
-def mean_confidence(s: float, base: np.ndarray, ref: np.ndarray, ref_conf: float, a: float = 1.0, k: float = 0.0,
-                    glare: np.ndarray | float = 0.0) -> float:
+def mean_confidence(s: float, base: np.ndarray, ref: np.ndarray, ref_conf: np.ndarray | float, a: float = 1.0,
+                    k: float = 0.0, glare: np.ndarray | float = 0.0) -> float:
     """Mean stated confidence over the frames (see :func:`stated`)."""
     return float(np.mean(stated(a, s, base, ref, ref_conf, k, glare)))
 
@@ -164,8 +168,7 @@ def solve(rows: list[dict], cases: tuple[str, ...], scales: np.ndarray = SCALES)
     triples with which the mean stated confidence equals the fraction within 1° (calibration in the large), the one
     with the largest Bernoulli likelihood of which frames were within (a proper score: it rewards telling good frames
     from bad, and so the histories whose reference frame had more glare)."""
-    base, err, ref, glare = _frames(rows, cases)
-    ref_conf = float(1.0 - np.exp(-RHO2 / (2 * math.radians(0.25) ** 2)))
+    base, err, ref, glare, ref_conf = _frames(rows, cases)  # reference frames keep what they stated
     hit = err < 1.0
     within = float(np.mean(hit))
     best = None

@@ -40,7 +40,7 @@ def test_solve_states_the_probabilities_the_errors_were_drawn_with(a_true, s_tru
     rows = _rows(a_true, s_true)
     out = tool.solve(rows, ("none",))
     assert abs(out["stated_at_s"] - out["within"]) < 1e-3  # calibrated in the large
-    base, _, ref, glare = tool._frames(rows, ("none",))
+    base, _, ref, glare, _ = tool._frames(rows, ("none",))
     assert out["k"] == 0.0 and not np.any(glare)  # no reference, no glare term
     got = tool.stated(out["a"], out["s"], base, ref, 1.0)
     truth = np.concatenate([r["truth"] for r in rows])
@@ -58,7 +58,7 @@ def test_solve_finds_the_glare_factor_the_errors_were_drawn_with():
     out = tool.solve(rows, ("grey",))
     assert abs(out["stated_at_s"] - out["within"]) < 1e-3
     assert 0.5 <= out["k"] <= 1.1
-    base, _, ref, glare = tool._frames(rows, ("grey",))
+    base, _, ref, glare, _ = tool._frames(rows, ("grey",))
     truth = np.concatenate([np.asarray(r["truth"])[1:] for r in rows])
     got = tool.stated(out["a"], out["s"], base, ref, 1.0, out["k"], glare)[~ref]
     assert np.mean(np.abs(got - truth)) < 0.04

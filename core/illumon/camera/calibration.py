@@ -610,7 +610,9 @@ def calibrate_scene_model(
             values, _, _, _ = _reference_data(estimate, scene, ids, known)
     model.history_estimate = model.estimate(scene)  # with the camera's uncertainty in its intervals
     if ids:
-        _reference_frames_white(model.history_estimate, values, spectra, neutral, base @ t)
+        seen = estimate if estimate is not None else obs
+        glare = _reference_offset_sd(seen, np.arange(len(seen.frames)), float(model.noise.get("flare_sd", 0.0) or 0.0))
+        _reference_frames_white(model.history_estimate, values, spectra, neutral, base @ t, glare)
     return model
 
 
@@ -835,12 +837,46 @@ REFERENCE_WHITE_SD_DEG = 0.25
 a ColorChecker's greys 20–22 about their mean on the development photographs (``benchmarks/real.py``) is 0.1–0.3°."""
 
 
+MID_GREY = 0.18
+"""Reflectance of the grey a reference frame's white is stated for (:func:`_glare_reference_tr`): the photographic
+mid grey, a grey card's."""
+
+
+def _glare_reference_tr(white: NDArray[np.float64], summed: NDArray[np.float64], n: int,
+                        glare_sd: NDArray[np.float64]) -> float:
+    """What veiling glare leaves uncertain in a reference frame's white read off ``n`` neutrals whose values sum to
+    ``summed`` (3,), taken as the white a grey of :data:`MID_GREY` gives in the same frame: the trace (rad²) of the
+    white direction's covariance, to first order, for a glare offset along the frame's mean colour of one standard
+    deviation (``glare_sd``, 3: the history's learned glare spread times the frame's mean value in each channel,
+    :func:`_reference_offset_sd`). Light scattered in the lens adds a share of the scene's mean radiance to every
+    patch alike, so it moves the white read off a dark neutral most (a black patch's log white by ``n/Σv − 1/v_mid``
+    per unit of offset), a mid grey's not at all, and a light one's a little the other way; a neutral scene's glare
+    moves no white. The truth the outside checks score is the frame's own mid greys (a ColorChecker's 20–22), and a
+    mid grey is what the camera's gains are to make grey.
+
+    On the development photographs with only some of the chart's greys known (``python benchmarks/real.py
+    --subsets``) the reference frame's white was 1.1–3.1° off its greys 20–22 with the black patch as the
+    reference, 0.7–1.8° with the two darkest greys, 0.05–0.7° with the white, 0.2–0.6° with one or three mid greys,
+    where this spread (with :data:`REFERENCE_WHITE_SD_DEG`) states an RMS of 1.8–4.0°, 0.9–2.0°, 0.65–1.2° and
+    0.4–1.0°; the grey-card frames of the simulators (reflectance :data:`MID_GREY`) state as before. Glare taken as
+    independent in each channel (the fit's prior, :func:`~.formation.flare_scales`) stated 4–10 times more."""
+    w = np.asarray(white, dtype=float)
+    mid = MID_GREY * w
+    k = n / np.asarray(summed, dtype=float) - 1.0 / mid  # d log(white)_c / d offset_c, relative to a mid grey
+    u = w / np.linalg.norm(w)
+    jac = (np.eye(3) - np.outer(u, u)) @ np.diag(w * k) / np.linalg.norm(w)  # the direction's move per offset
+    return float(np.sum((jac @ np.asarray(glare_sd, dtype=float)) ** 2))
+
+
 def _reference_frames_white(estimate: tuple, values: NDArray[np.float64], spectra: NDArray[np.float64],
-                            neutral: NDArray[np.bool_], sensitivities: NDArray[np.float64]) -> None:
+                            neutral: NDArray[np.bool_], sensitivities: NDArray[np.float64],
+                            glare: NDArray[np.float64] | None = None) -> None:
     """A frame that shows neutral references gets its white from them (in place): each unclipped neutral's measured
     value divided by its predicted value relative to the white under the frame's estimated light (which corrects a
     chart grey's slight colour), summed over the neutrals; its gains follow, with intervals and ``confidence`` from
-    :data:`REFERENCE_WHITE_SD_DEG`. Other frames are untouched."""
+    :data:`REFERENCE_WHITE_SD_DEG` and, where the history learned a glare spread (``glare``: each frame's offset
+    spread per channel), what the glare leaves in a white read off neutrals darker or lighter than a mid grey
+    (:func:`_glare_reference_tr`). Other frames are untouched."""
     result, extra = estimate
     if not np.any(neutral):
         return
@@ -854,11 +890,13 @@ def _reference_frames_white(estimate: tuple, values: NDArray[np.float64], spectr
         white = v[ok].sum(axis=0) / rel.sum(axis=0)
         if not np.all(white > 0):
             continue
+        tr = 2 * math.radians(REFERENCE_WHITE_SD_DEG) ** 2
+        if glare is not None:
+            tr += _glare_reference_tr(white, v[ok].sum(axis=0), int(ok.sum()), glare[f])
         white = white / white[1]
         result.white[f] = white
         result.gains[f] = 1.0 / white
-        sd = math.radians(REFERENCE_WHITE_SD_DEG)
-        extra["confidence"][f] = 1.0 - math.exp(-(math.radians(1.0) ** 2) / (2 * sd**2))
-        half = 1.959963984540054 * sd * np.sqrt(2.0) * result.gains[f]
+        extra["confidence"][f] = 1.0 - math.exp(-(math.radians(1.0) ** 2) / tr)
+        half = 1.959963984540054 * math.sqrt(tr) * result.gains[f]
         result.info["gain_lo"][f] = result.gains[f] - half
         result.info["gain_hi"][f] = result.gains[f] + half

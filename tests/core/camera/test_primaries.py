@@ -130,6 +130,43 @@ def test_real_photographs_reference_never_hurts(shared_data):
             assert err[m].max() <= err["none"].max() + 3.5, (s.name, m, err)
 
 
+def test_glare_reference_spread_is_relative_to_a_mid_grey():
+    """:func:`illumon.camera.calibration._glare_reference_tr`: glare along a coloured frame mean moves the white read
+    off a black patch most, off a white patch less (the other way), off a mid grey not at all, and no white when the
+    frame's mean is neutral."""
+    from illumon.camera.calibration import MID_GREY, _glare_reference_tr
+
+    white = np.array([0.8, 1.0, 0.9])
+    warm = 0.05 * np.array([1.3, 1.0, 0.6]) * white  # one standard deviation of glare along a warm scene's colour
+
+    def tr(reflectance: float, glare: np.ndarray = warm) -> float:
+        return _glare_reference_tr(white, reflectance * white, 1, glare)
+
+    assert tr(MID_GREY) == pytest.approx(0.0, abs=1e-15)
+    assert tr(0.031) > 10 * tr(0.9) > 0.0
+    assert tr(0.031, 0.05 * white) == pytest.approx(0.0, abs=1e-15)
+    # first order: the angle between the whites a black patch and a mid grey read under a small glare offset
+    small = 0.02 * warm
+    exact = angular_error_deg(0.031 * white + small, MID_GREY * white + small)
+    assert np.degrees(np.sqrt(tr(0.031, small))) == pytest.approx(exact, rel=0.05)
+
+
+def test_dark_reference_states_its_glare(shared_data):
+    """A reference frame read off the chart's black patch alone is 1–3° off its own mid greys on the development
+    photographs (the scene's glare at the black's level) and now says so; one read off its mid greys 20–22 stays
+    confident and right (``python benchmarks/real.py --subsets``)."""
+    import real
+
+    if not (shared_data / "real" / "sony-dolp").is_dir():
+        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
+    raw = real.sony_raw(shared_data)
+    for s in [raw, *real.isp_sets(raw)]:
+        w, conf, _ = real.run_illumon(s, "black 24")
+        assert real.angular(w, s.truth)[0] > 1.0 and conf[0] < 0.5, (s.name, conf[0])
+        w, conf, _ = real.run_illumon(s, "greys 20-22")
+        assert real.angular(w, s.truth)[0] < 0.5 and conf[0] > 0.85, (s.name, conf[0])
+
+
 def test_real_photographs_through_the_command_line(shared_data, tmp_path):
     """The outside checks drive the product through its command line, not the library: each development set of real
     photographs written as they do (``benchmarks/real.py --dump``: the 18 colour patches, linear 0…1, references in

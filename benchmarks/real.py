@@ -199,9 +199,11 @@ def _observations(s: RealSet, known: list[str]):
 
 
 SUBSETS = {"white 19": ["chart:19"], "grey 20": ["chart:20"], "greys 20-22": ["chart:20", "chart:21", "chart:22"],
-           "dark greys 23-24": ["chart:23", "chart:24"], "black 24": ["chart:24"]}
-"""Parts of the chart's greys known in frame 0 (``--subsets``): a neutral reference as dark, as light or as mid as an
-installer's card may be."""
+           "dark greys 23-24": ["chart:23", "chart:24"], "black 24": ["chart:24"], "colour 15": ["chart:15"],
+           "colours 01,13": ["chart:01", "chart:13"], "colours 02,07,14": ["chart:02", "chart:07", "chart:14"]}
+"""Parts of the chart known in frame 0 (``--subsets``): a neutral reference as dark, as light or as mid as an
+installer's card may be, and a few of its colours without a neutral (set aside:
+:func:`illumon.camera.references.coloured_only`)."""
 
 
 def run_illumon(s: RealSet, mode: str, primaries: str | None = None) -> tuple[NDArray[np.float64], NDArray[np.float64], str]:

@@ -26,6 +26,8 @@ __all__ = [
     "read_known_reflectances",
     "check_known_reflectances",
     "references_kind",
+    "coloured_only",
+    "coloured_only_warning",
     "neutral_references",
     "reference_chroma",
 ]
@@ -140,3 +142,22 @@ def references_kind(known: Mapping[str, NDArray[np.float64]]) -> str:
     chroma = reference_chroma(r)
     sv = np.linalg.svd(chroma - chroma.mean(axis=0), compute_uv=False)
     return "chart" if sv.size >= 2 and sv[1] / math.sqrt(r.shape[0]) > CHART_SPREAD else "grey"
+
+
+def coloured_only(known: Mapping[str, NDArray[np.float64]]) -> bool:
+    """References that pin no white for a camera nobody measured: no neutral among them (:func:`neutral_references`)
+    and too few colours to pin a 3 × 3 (:func:`references_kind` ``"grey"``). Their values then set the camera's
+    channel scales only through how it renders colours, which the measured cameras leave uncertain by 0.08–0.10 in
+    log r/g and b/g a ColorChecker colour under CIE D65 and A (RMS over the 24 cameras and 18 colours, up to 0.48;
+    rendered to sRGB primaries a saturated colour's weakest channel is off by far more), no better than the scene's
+    own average. On the development photographs (``python benchmarks/real.py``'s sets with one, two or three of the
+    chart's colours known in frame 0) they left the white 2.9–26.5° off (medians), where no reference left it 0.5–5.0°."""
+    return bool(known) and not neutral_references(known) and references_kind(known) == "grey"
+
+
+def coloured_only_warning(ids: list[str]) -> str:
+    """The warning of references :func:`coloured_only` set aside."""
+    return (f"known patch(es) {', '.join(ids)} set aside: without a neutral among them, so few coloured references pin "
+            "the camera's white only through how it renders colours, which a camera nobody measured does not tell; "
+            "estimated as without a reference — show a grey card or a chart's greys, or register the camera's "
+            "sensitivities")

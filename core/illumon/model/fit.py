@@ -43,7 +43,7 @@ from ..camera.primaries import (
     srgb_sensitivities,
     to_srgb_primaries,
 )
-from ..camera.references import check_known_reflectances
+from ..camera.references import check_known_reflectances, coloured_only, coloured_only_warning
 from ..daylight import CIEDaylight
 from ..observations import Observations, observed, sd_variance
 from ..priors import CameraPrior, ReflectanceBasis, reflectance_basis
@@ -258,6 +258,11 @@ def fit_scene_model(
     missing = [p for p in known if p not in obs.patches]
     if missing:
         raise ValueError(f"known patch(es) never observed: {', '.join(missing)}")
+    aside = sorted(known) if sensitivities is None and coloured_only(known) else []
+    if aside and len(obs.patches) - len(aside) >= 2:  # a few colours without a neutral: estimated without them
+        obs, known = obs.select_patches([p for p in obs.patches if p not in known]), {}
+    else:
+        aside = []
     if primaries == "srgb":
         sensitivities, camera_prior_mean = _in_srgb_primaries(sensitivities, camera_prior_mean)
     elif camera_prior is not None and camera_prior_mean is None:
@@ -301,9 +306,13 @@ def fit_scene_model(
         msg = output_space_warning(scene.values[evidence_frames(len(scene.frames))])
     elif primaries == "srgb" and not known and unbalanced_probability(model) > 0.5 and "level" in model.noise:
         msg = unbalanced_warning(model.noise["level"])  # lamps throughout, or output that is not balanced srgb
-    if msg:
-        model.identifiability.setdefault("warnings", []).append(msg)
-        warnings.warn(msg, IdentifiabilityWarning, stacklevel=2)
+    if aside:
+        msg = (msg, coloured_only_warning(aside)) if msg else (coloured_only_warning(aside),)
+    else:
+        msg = (msg,) if msg else ()
+    for m in msg:
+        model.identifiability.setdefault("warnings", []).append(m)
+        warnings.warn(m, IdentifiabilityWarning, stacklevel=2)
     return model
 
 

@@ -306,13 +306,10 @@ def fit_scene_model(
         msg = output_space_warning(scene.values[evidence_frames(len(scene.frames))])
     elif primaries == "srgb" and not known and unbalanced_probability(model) > 0.5 and "level" in model.noise:
         msg = unbalanced_warning(model.noise["level"])  # lamps throughout, or output that is not balanced srgb
-    if aside:
-        msg = (msg, coloured_only_warning(aside)) if msg else (coloured_only_warning(aside),)
-    else:
-        msg = (msg,) if msg else ()
-    for m in msg:
-        model.identifiability.setdefault("warnings", []).append(m)
-        warnings.warn(m, IdentifiabilityWarning, stacklevel=2)
+    for m in (msg, coloured_only_warning(aside) if aside else None):
+        if m:
+            model.identifiability.setdefault("warnings", []).append(m)
+            warnings.warn(m, IdentifiabilityWarning, stacklevel=2)
     return model
 
 

@@ -141,12 +141,9 @@ def _srgb_d65_chart() -> NDArray[np.float64]:
     return (refl * e) @ c / w
 
 
-def isp_sets(raw: RealSet, modes: tuple[str, ...] = ("preset", "auto")) -> list[RealSet]:
-    """``raw`` through a simulated camera pipeline: colour matrix to linear sRGB and a preset or automatic white
-    balance (module docstring); ``"ideal"`` in ``modes`` adds a camera whose automatic white balance is perfect (each
-    frame divided by its own greys: doing nothing is exact); ``"mix<a>"`` (``--awb-mix``) a camera whose automatic
-    white balance lies between the two, its gains ``ideal^(1 − a) · auto^a`` (log-linear): doing nothing is off by
-    part of the light, as a phone's own balance is."""
+def isp_pipeline(raw: RealSet) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The simulated pipeline's colour matrix (3 × 3, ``out = x @ m``) and daylight-preset gains (3,), fitted on the
+    raw chart shots (module docstring)."""
     target = _srgb_d65_chart()
     idx = [ALL.index(p) for p in SCENE]
     grey = raw.truth
@@ -159,7 +156,17 @@ def isp_sets(raw: RealSet, modes: tuple[str, ...] = ("preset", "auto")) -> list[
     # The daylight preset: the gains that make D65 grey. The frames' own greys are not D65; the preset is the mean of
     # the four frames' balancing gains scaled to the D65 chart's white (a camera tuned in the lab under D65 would
     # know its D65 gains; here they are estimated from the set, which is the only place the sensor is known).
-    preset = 1.0 / np.exp(np.mean(np.log(grey / grey[:, 1:2]), axis=0))
+    return m, 1.0 / np.exp(np.mean(np.log(grey / grey[:, 1:2]), axis=0))
+
+
+def isp_sets(raw: RealSet, modes: tuple[str, ...] = ("preset", "auto")) -> list[RealSet]:
+    """``raw`` through a simulated camera pipeline: colour matrix to linear sRGB and a preset or automatic white
+    balance (module docstring); ``"ideal"`` in ``modes`` adds a camera whose automatic white balance is perfect (each
+    frame divided by its own greys: doing nothing is exact); ``"mix<a>"`` (``--awb-mix``) a camera whose automatic
+    white balance lies between the two, its gains ``ideal^(1 − a) · auto^a`` (log-linear): doing nothing is off by
+    part of the light, as a phone's own balance is."""
+    m, preset = isp_pipeline(raw)
+    grey = raw.truth
     out = []
     for mode in modes:
         vals = np.empty_like(raw.values)

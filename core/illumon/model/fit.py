@@ -32,6 +32,7 @@ from ..camera.calibration import (
     SCENE_AVERAGE_SD,
     calibrate_scene_model,
     held_or_bent,
+    history_length_regime,
     prior_sensitivities,
     prior_white_spread,
 )
@@ -103,6 +104,19 @@ the scene: 0.048 / 0.035 on histories of measured surfaces, 0.050 / 0.037 on the
 (:func:`rawsim.pale`), development cameras × 2 seeds, both simulators (``benchmarks/unmeasured.py``'s ``none`` case
 with the sensitivities given). The scene average's reading was 0.058 / 0.153 off on the first (its stated spread
 0.147) and 0.005 / 0.021 on the second (stated 0.038)."""
+
+FEW_FRAMES_LEVEL = 3
+"""A sensor-RGB camera nobody measured, judged daylight, joins its fit's level with the scene average's reading
+(:func:`~.level.daylight_level`, as a measured sensor always does) when its history is this short or shorter in
+:func:`~illumon.camera.calibration.history_length_regime`'s terms (one to four frames). Over so few frames the fit's
+level is the reflectance prior's mean surface and nothing else, and a scene that averages near grey — walls, a table,
+an indoor room under warm light — reads bluer than its light. On the real chart-free photographs
+(``benchmarks/real_pairs.py``, two frames, raw sensor) the pale wall of ``scene002`` went 4.75 → 2.07° (gray-world
+over the same regions 1.44°). Development histories (``python benchmarks/unmeasured.py --split dev --seeds 1 --frames
+F --cases none,pale,raw+lamps,none+matrix,grey``, ``illumon`` / ``rawsim`` medians): pale daylight scenes 2.26 / 2.10
+→ 1.38 / 1.36° on one frame, 0.98 / 1.07 → 0.77 / 0.79° on three; lamp-lit ones judged daylight 0.90 / 0.82 → 0.80 /
+0.78° on three (on one, max 3.6 / 3.5 → 2.0 / 2.0°); every other case identical. On six frames the pale scenes went
+0.58 / 0.55 → 0.87 / 0.85° and on thirty 0.59 / 0.50 → 0.75 / 0.72°: longer histories keep the fit's level alone."""
 
 MIN_LAMP_SHARE = 0.02
 """A history's frames start being left out of the reflectance fit (:func:`_refit_without_lamp_frames`) only when the
@@ -934,8 +948,10 @@ def _fit_fixed_camera(
             if level.unbalanced <= 0.5:
                 # daylight: an unmeasured camera keeps the prior camera's level (the calibration's scene-average
                 # transform); a measured one the fit's, joined by the scene average where that is the better evidence
+                # a camera nobody measured over a few frames (FEW_FRAMES_LEVEL) too: there the fit's level is the
+                # reflectance prior's guess alone, and a pale scene's reading the better evidence
                 level = (daylight_level(fit_level, FIT_LEVEL_SD, average, reading, level.unbalanced)
-                         if measured else None)
+                         if measured or history_length_regime(len(obs.frames)) <= FEW_FRAMES_LEVEL else None)
             # sensor RGB's verdict (not a balance's: rendered output's was right on every development history, lamp-lit
             # or not) was wrong on 5 of 14 lamp-only ones, so its other reading joins the temperature's interval
             verdict = verdict_shift(dm, css, theta, fit_level if level is None else level.mean, posterior)

@@ -358,10 +358,15 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{name:<17} " + "  ".join(
                 f"{mode}: {m['frame0_deg']:.2f} / {m['frame0_stated_rms_deg']:.2f}"
                 for mode in SUBSETS if "frame0_deg" in (m := entry["methods"].get(f"illumon {mode}", {}))))
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(report, indent=1, default=float))
-    print(f"wrote {args.out}")
+    write_report(args.out, report)
     return 0
+
+
+def write_report(out: str | Path, report: dict) -> None:
+    """Write a benchmark's JSON report (its folder made as needed) and say where."""
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    Path(out).write_text(json.dumps(report, indent=1, default=float))
+    print(f"wrote {out}")
 
 
 if __name__ == "__main__":

@@ -23,7 +23,6 @@ data (the scoring photographs are held by outside checks); nothing was chosen on
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import warnings
 from pathlib import Path
@@ -202,9 +201,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{camera:8} {r['scene']:9} {r['regions']:7d} " + " ".join(f"{c:>18}" for c in cells))
         med = {c: float(np.median([r[c] for r in rows])) for c in cols}
         print(f"{camera:8} {'median':9} {'':7} " + " ".join(f"{med[c]:18.2f}" for c in cols))
-    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.out).write_text(json.dumps(report, indent=1, default=float))
-    print(f"wrote {args.out}")
+    real.write_report(args.out, report)
     return 0
 
 

@@ -887,12 +887,13 @@ def _reference_frames_white(estimate: tuple, values: NDArray[np.float64], spectr
         if not ok.any() or not np.all(np.isfinite(e)):
             continue
         rel = ((spectra[neutral][ok] * e) @ sensitivities) / (e @ sensitivities)  # each neutral relative to white
-        white = v[ok].sum(axis=0) / rel.sum(axis=0)
+        summed = v[ok].sum(axis=0)
+        white = summed / rel.sum(axis=0)
         if not np.all(white > 0):
             continue
         tr = 2 * math.radians(REFERENCE_WHITE_SD_DEG) ** 2
         if glare is not None:
-            tr += _glare_reference_tr(white, v[ok].sum(axis=0), int(ok.sum()), glare[f])
+            tr += _glare_reference_tr(white, summed, int(ok.sum()), glare[f])
         white = white / white[1]
         result.white[f] = white
         result.gains[f] = 1.0 / white

@@ -275,11 +275,11 @@ def fit_scene_model(
     missing = [p for p in known if p not in obs.patches]
     if missing:
         raise ValueError(f"known patch(es) never observed: {', '.join(missing)}")
-    aside = sorted(known) if sensitivities is None and coloured_only(known) else []
-    if aside and len(obs.patches) - len(aside) >= 2:  # a few colours without a neutral: estimated without them
+    # a few colours without a neutral, for a camera nobody measured: estimated without them (where a scene remains)
+    aside = (sorted(known) if sensitivities is None and coloured_only(known) and len(obs.patches) - len(known) >= 2
+             else [])
+    if aside:
         obs, known = obs.select_patches([p for p in obs.patches if p not in known]), {}
-    else:
-        aside = []
     if primaries == "srgb":
         sensitivities, camera_prior_mean = _in_srgb_primaries(sensitivities, camera_prior_mean)
     elif camera_prior is not None and camera_prior_mean is None:

@@ -265,9 +265,11 @@ def dump_sets(sets: list[RealSet], folder: Path) -> None:
 def stated_rms_deg(confidence: float) -> float:
     """The RMS angular error (degrees) a frame's ``confidence`` states: ``confidence = 1 − exp(−ρ²/tr)`` with ρ = 1°
     (:mod:`illumon.model.intervals`), so ``√tr``; 0 for a confidence of 1."""
-    if not 0.0 < confidence < 1.0:
-        return 0.0 if confidence >= 1.0 else float("inf")
-    return float(np.degrees(np.sqrt(-np.radians(1.0) ** 2 / np.log1p(-confidence))))
+    from illumon.model.intervals import confidence_variance
+
+    if not confidence > 0.0:
+        return float("inf")
+    return float(np.degrees(np.sqrt(confidence_variance(min(confidence, 1.0)))))
 
 
 def baselines(s: RealSet) -> dict[str, NDArray[np.float64]]:

@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
 from pathlib import Path
 
@@ -56,9 +55,8 @@ from scipy.optimize import brentq
 ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT / "core")]
 
-from illumon.model.intervals import MODEL_ERROR, Z95  # noqa: E402
+from illumon.model.intervals import MODEL_ERROR, Z95, confidence_variance, within_one_degree  # noqa: E402
 
-RHO2 = math.radians(1.0) ** 2
 REGIMES = {
     ("camera", "grey"): ("grey",),
     ("camera", "chart"): ("chart+matrix",),
@@ -80,7 +78,7 @@ def _frames(rows: list[dict], cases: tuple[str, ...]
             continue
         c = np.clip(np.asarray(r["confidence"], dtype=float), 1e-12, 1 - 1e-12)
         s, a = float(r["camera_log_gain"]), float(r.get("laplace_scale", 1.0))
-        tr = (-RHO2 / np.log1p(-c) - 2 * (MODEL_ERROR["log_gain"] ** 2 + s**2)) / a**2
+        tr = (confidence_variance(c) - 2 * (MODEL_ERROR["log_gain"] ** 2 + s**2)) / a**2
         is_ref = np.zeros(len(c), dtype=bool)
         is_ref[0] = not r["case"].startswith("none")
         base.append(np.clip(tr, 0.0, None))
@@ -97,7 +95,7 @@ def stated(a: float, s: float, base: np.ndarray, ref: np.ndarray, ref_conf: np.n
     """Every frame's stated confidence with the Laplace part scaled by ``a``, the camera spread ``s`` and ``k`` times
     the history's glare spread ``glare`` (reference frames keep theirs, ``ref_conf``)."""
     tr = a**2 * base + 2 * (MODEL_ERROR["log_gain"] ** 2 + s**2 + (k * np.asarray(glare)) ** 2)
-    return np.where(ref, ref_conf, 1.0 - np.exp(-RHO2 / np.clip(tr, 1e-30, None)))
+    return np.where(ref, ref_conf, within_one_degree(tr))
 
 
 def mean_confidence(s: float, base: np.ndarray, ref: np.ndarray, ref_conf: np.ndarray | float, a: float = 1.0,

@@ -25,7 +25,7 @@ from ..retrieval.common import RetrievalResult
 from .solver import FrameSolver
 
 __all__ = ["MODEL_ERROR", "Z95", "assemble_estimates", "interval_columns", "mired_sd_from_interval", "mixture_interval",
-           "VERDICT_KEYS"]
+           "VERDICT_KEYS", "within_one_degree", "confidence_variance"]
 
 Z95 = 1.959963984540054
 
@@ -172,17 +172,25 @@ def _gain_spread(solver: FrameSolver, mired: NDArray[np.float64], delta: NDArray
     unit = [w / np.linalg.norm(w, axis=1, keepdims=True) for w in wh]
     ju = np.stack([(unit[1] - unit[0]) / h[0], (unit[2] - unit[0]) / h[1]], axis=-1)
     tr = np.einsum("fci,fij,fcj->f", ju, white_cov[:, :2, :2], ju) + 2 * log_gain**2  # angular variance (rad²)
-    return gains[0], sg, _within_one_degree(tr)
+    return gains[0], sg, within_one_degree(tr)
 
 
 _RHO2 = math.radians(1.0) ** 2
 """1° in radians, squared: the radius of ``confidence``."""
 
 
-def _within_one_degree(tr: NDArray[np.float64]) -> NDArray[np.float64]:
+def within_one_degree(tr: ArrayLike) -> NDArray[np.float64]:
     """``confidence``: the probability that a white whose angular error has variance ``tr`` (rad², the trace of its
     2-D covariance) is within 1° of the truth — Rayleigh with σ² = tr/2."""
     return 1.0 - np.exp(-_RHO2 / np.clip(tr, 1e-30, None))
+
+
+def confidence_variance(confidence: ArrayLike) -> NDArray[np.float64]:
+    """The angular variance ``tr`` (rad²) a ``confidence`` below 1 was stated with: :func:`within_one_degree`
+    inverted (0 for a confidence of 1)."""
+    c = np.asarray(confidence, dtype=float)
+    with np.errstate(divide="ignore"):
+        return np.where(c < 1.0, -_RHO2 / np.log1p(-c), 0.0)
 
 
 def mired_sd_from_interval(cct_lo: ArrayLike, cct_hi: ArrayLike) -> NDArray[np.float64]:
@@ -213,12 +221,11 @@ def widen_cct_intervals(result: RetrievalResult, extra: dict, extra_sd: float) -
 def widen_white_intervals(result: RetrievalResult, extra: dict, extra_log_sd: float) -> None:
     """Add ``extra_log_sd`` (log r/g and log b/g, each) to every frame's camera-white uncertainty, in place: as
     :func:`_gain_spread` adds the model error ``camera_log_gain`` — ``2·extra_log_sd²`` to the angle's variance behind
-    ``confidence`` (:func:`_within_one_degree`, inverted to find it) and ``(gain · extra_log_sd)²`` to each gain's —
+    ``confidence`` (:func:`within_one_degree`, inverted to find it) and ``(gain · extra_log_sd)²`` to each gain's —
     for an estimate made before the model learned it (:func:`widen_cct_intervals`' counterpart)."""
     c = np.clip(np.asarray(extra["confidence"], dtype=float), 0.0, 1.0)
-    with np.errstate(divide="ignore"):
-        tr = np.where(c < 1.0, -_RHO2 / np.log1p(-c), 0.0)  # the variance :func:`_within_one_degree` was given
-    extra["confidence"] = np.where(np.isfinite(c) & (c > 0), _within_one_degree(tr + 2 * extra_log_sd**2), c)
+    tr = confidence_variance(c)  # the variance :func:`within_one_degree` was given
+    extra["confidence"] = np.where(np.isfinite(c) & (c > 0), within_one_degree(tr + 2 * extra_log_sd**2), c)
     g = np.asarray(result.gains, dtype=float)
     half = (np.asarray(result.info["gain_hi"], dtype=float) - np.asarray(result.info["gain_lo"], dtype=float)) / 2
     half = np.sqrt(half**2 + (Z95 * g * extra_log_sd) ** 2)

@@ -159,6 +159,17 @@ def isp_pipeline(raw: RealSet) -> tuple[NDArray[np.float64], NDArray[np.float64]
     return m, 1.0 / np.exp(np.mean(np.log(grey / grey[:, 1:2]), axis=0))
 
 
+def auto_gains(image_mean: NDArray[np.float64]) -> NDArray[np.float64]:
+    """A gray-world automatic white balance's gains for a frame whose whole image averages ``image_mean`` (3,)."""
+    return 1.0 / (image_mean / image_mean[1])
+
+
+def render_isp(x: NDArray[np.float64], gains: NDArray[np.float64], m: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Raw values (… × 3) through the simulated pipeline: white-balance ``gains``, then the colour matrix ``m``; a
+    pipeline clips out-of-gamut values at 0."""
+    return np.clip((x * gains) @ m, 0.0, None)
+
+
 def isp_sets(raw: RealSet, modes: tuple[str, ...] = ("preset", "auto")) -> list[RealSet]:
     """``raw`` through a simulated camera pipeline: colour matrix to linear sRGB and a preset or automatic white
     balance (module docstring); ``"ideal"`` in ``modes`` adds a camera whose automatic white balance is perfect (each
@@ -172,13 +183,13 @@ def isp_sets(raw: RealSet, modes: tuple[str, ...] = ("preset", "auto")) -> list[
         vals = np.empty_like(raw.values)
         means = np.empty((len(raw.frames), 3))
         for f in range(len(raw.frames)):
-            auto, ideal = 1.0 / (raw.image_means[f] / raw.image_means[f, 1]), 1.0 / (grey[f] / grey[f, 1])
+            auto, ideal = auto_gains(raw.image_means[f]), 1.0 / (grey[f] / grey[f, 1])
             if mode.startswith("mix"):
                 a = float(mode[3:])
                 gains = np.exp((1.0 - a) * np.log(ideal) + a * np.log(auto))
             else:
                 gains = {"preset": preset, "auto": auto, "ideal": ideal}[mode]
-            vals[f] = np.clip((raw.values[f] * gains) @ m, 0.0, None)  # a pipeline clips out-of-gamut values at 0
+            vals[f] = render_isp(raw.values[f], gains, m)
             means[f] = (raw.image_means[f] * gains) @ m
         scale = 0.9 / np.nanmax(vals)
         out.append(RealSet(f"sony-isp-{mode}", raw.frames, vals * scale, "srgb",

@@ -127,6 +127,16 @@ def estimate_free(chart: NDArray[np.float64], scene: NDArray[np.float64], primar
     return np.asarray(result.white[1], dtype=float), float(extra["confidence"][1])
 
 
+def through(x: NDArray[np.float64], camera: str, m: NDArray[np.float64], preset: NDArray[np.float64],
+            image_mean: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Raw values (… × 3) of a frame whose whole image averages ``image_mean`` as ``camera`` delivers them: as they
+    are (``raw``), or through :func:`real.render_isp` with the daylight ``preset`` or the frame's own gray-world gains
+    (``auto``, :func:`real.auto_gains`) and the colour matrix ``m`` (:func:`real.isp_pipeline`)."""
+    if camera == "raw":
+        return x
+    return real.render_isp(x, preset if camera == "preset" else real.auto_gains(image_mean), m)
+
+
 def pairs(data: Path) -> list[dict]:
     """Each readable scene's chart shot and chart-free shot: raw chart values, regions, image means."""
     import cv2
@@ -162,28 +172,23 @@ def main(argv: list[str] | None = None) -> int:
     m, preset = real.isp_pipeline(raw)
     report = {"split": "development (../shared/data/real: sony-dolp chart / chart-free pairs); scoring photographs "
                        "are held by outside checks", "cameras": {}}
+    found = pairs(data)
     for camera in ("raw", "preset", "auto"):
         rows = []
-        for p in pairs(data):
+        for p in found:
             truth_raw = np.nanmean(p["chart"][[real.ALL.index(t) for t in real.TRUTH]], axis=0)
-
-            def through(x: NDArray[np.float64], f: int, p: dict = p, camera: str = camera) -> NDArray[np.float64]:
-                """Frame ``f``'s pipeline: none for the raw sensor; gains then the matrix, negatives clipped."""
-                if camera == "raw":
-                    return x
-                gains = preset if camera == "preset" else p["image_means"][f, 1] / p["image_means"][f]
-                return np.clip((x * gains) @ m, 0.0, None)
-
-            scene = np.stack([through(p["values"][f], f) for f in range(2)])
-            chart = through(p["chart"], 0)
+            scene = np.stack([through(p["values"][f], camera, m, preset, p["image_means"][f]) for f in range(2)])
+            chart = through(p["chart"], camera, m, preset, p["image_means"][0])
             scale = 0.9 / np.nanmax(np.concatenate([scene.reshape(-1, 3), chart]))
             scene, chart = scene * scale, chart * scale
-            truth = through(truth_raw, 1)  # the greys as the chart-free frame's pipeline renders them
+            # the greys as the chart-free frame's pipeline renders them
+            truth = through(truth_raw, camera, m, preset, p["image_means"][1])
             primaries = "camera" if camera == "raw" else "srgb"
             row = {"scene": p["scene"], "regions": len(p["regions"]),
                    "nothing": float(real.angular(np.ones(3), truth)[0]),
                    "gray-world": float(real.angular(np.nanmean(scene[1], axis=0), truth)[0]),
-                   "gray-world (image)": float(real.angular(through(p["image_means"][1], 1), truth)[0])}
+                   "gray-world (image)": float(real.angular(
+                       through(p["image_means"][1], camera, m, preset, p["image_means"][1]), truth)[0])}
             for mode in ("none", "grey", "chart"):
                 white, conf = estimate_free(chart, scene, primaries, mode)
                 row[f"illumon {mode}"] = float(real.angular(white, truth)[0])

@@ -369,13 +369,13 @@ def test_chart_then_chart_free_frame(shared_data):
     for p in found:
         truth_raw = np.nanmean(p["chart"][[real.ALL.index(t) for t in real.TRUTH]], axis=0)
         for camera, bound in (("raw", 0.6), ("preset", 1.2)):
-            def through(x, camera=camera):
-                return x if camera == "raw" else np.clip((x * preset) @ m, 0.0, None)
-            scene = np.stack([through(p["values"][f]) for f in range(2)])
-            chart = through(p["chart"])
+            def through(x, f, camera=camera, p=p):
+                return real_pairs.through(x, camera, m, preset, p["image_means"][f])
+            scene = np.stack([through(p["values"][f], f) for f in range(2)])
+            chart = through(p["chart"], 0)
             scale = 0.9 / np.nanmax(np.concatenate([scene.reshape(-1, 3), chart]))
             primaries = "camera" if camera == "raw" else "srgb"
             err = {mode: real.angular(real_pairs.estimate_free(chart * scale, scene * scale, primaries, mode)[0],
-                                      through(truth_raw))[0] for mode in ("none", "grey", "chart")}
+                                      through(truth_raw, 1))[0] for mode in ("none", "grey", "chart")}
             assert err["grey"] <= bound and err["chart"] <= bound, (p["scene"], camera, err)
             assert err["grey"] <= err["none"] + 0.5 and err["chart"] <= err["none"] + 0.6, (p["scene"], camera, err)

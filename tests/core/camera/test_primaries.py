@@ -16,6 +16,17 @@ from illumon.simulation import datasets
 from illumon.spectra import GRID
 
 
+@pytest.fixture(scope="module")
+def sony_raw(shared_data):
+    """The real chart photographs' sensor-RGB set (``benchmarks/real.py``, development data), measured once for this
+    module's tests; they skip where ``../shared/data/real/sony-dolp`` is absent."""
+    import real
+
+    if not (shared_data / "real" / "sony-dolp").is_dir():
+        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
+    return real.sony_raw(shared_data)
+
+
 def test_srgb_sensitivities_are_the_srgb_of_colour_science():
     """Independent truth: colour-science's own spectral → XYZ → linear sRGB of ColorChecker patches under D65."""
     c = srgb_sensitivities()
@@ -92,15 +103,13 @@ def test_reference_frame_reproduces_its_own_greys(shared_data):
         assert np.median(angular_error_deg(white[1:], truth[1:])) <= np.median(angular_error_deg(none[1:], truth[1:]))
 
 
-def test_real_photographs_development_set(shared_data):
+def test_real_photographs_development_set(sony_raw):
     """The real chart photographs of ``../shared/data/real/sony-dolp`` (development data), the outside checks'
     protocol (``python benchmarks/real.py``): no reference beats doing nothing and gray-world on sensor RGB and on
     its automatically white-balanced rendering; a chart or its greys in frame 0 reproduce that frame within 0.5°."""
     import real
 
-    if not (shared_data / "real" / "sony-dolp").is_dir():
-        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
-    raw = real.sony_raw(shared_data)
+    raw = sony_raw
     sets = {s.name: s for s in [raw, *real.isp_sets(raw)]}
     for name in ("sony-raw", "sony-isp-auto"):
         s = sets[name]
@@ -111,7 +120,7 @@ def test_real_photographs_development_set(shared_data):
             assert real.angular(real.run_illumon(s, mode)[0], s.truth)[0] < 0.5, (name, mode)
 
 
-def test_real_photographs_reference_never_hurts(shared_data):
+def test_real_photographs_reference_never_hurts(sony_raw):
     """Issue 26's targets on every development set of real photographs: the greys known in one frame are never worse
     than no reference (median), the whole chart no worse than its greys, and no frame is made much worse by a
     reference (a reference in one frame must not throw another frame's light off: max within 3.5° of no reference's;
@@ -119,9 +128,7 @@ def test_real_photographs_reference_never_hurts(shared_data):
     left open, not a margin to grow — and a lamp-lit judgement on two daylight frames once made it 21°)."""
     import real
 
-    if not (shared_data / "real" / "sony-dolp").is_dir():
-        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
-    raw = real.sony_raw(shared_data)
+    raw = sony_raw
     for s in [raw, *real.isp_sets(raw)]:
         err = {m: real.angular(real.run_illumon(s, m)[0], s.truth) for m in ("none", "grey", "chart")}
         med = {m: float(np.median(e)) for m, e in err.items()}
@@ -151,15 +158,13 @@ def test_glare_reference_spread_is_relative_to_a_mid_grey():
     assert np.degrees(np.sqrt(tr(0.031, small))) == pytest.approx(exact, rel=0.05)
 
 
-def test_dark_reference_states_its_glare(shared_data):
+def test_dark_reference_states_its_glare(sony_raw):
     """A reference frame read off the chart's black patch alone is 1–3° off its own mid greys on the development
     photographs (the scene's glare at the black's level) and now says so; one read off its mid greys 20–22 stays
     confident and right (``python benchmarks/real.py --subsets``)."""
     import real
 
-    if not (shared_data / "real" / "sony-dolp").is_dir():
-        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
-    raw = real.sony_raw(shared_data)
+    raw = sony_raw
     for s in [raw, *real.isp_sets(raw)]:
         w, conf, _ = real.run_illumon(s, "black 24")
         assert real.angular(w, s.truth)[0] > 1.0 and conf[0] < 0.5, (s.name, conf[0])
@@ -167,21 +172,26 @@ def test_dark_reference_states_its_glare(shared_data):
         assert real.angular(w, s.truth)[0] < 0.5 and conf[0] > 0.85, (s.name, conf[0])
 
 
-def test_a_few_colours_without_a_neutral_are_set_aside(shared_data):
-    """One or two of the chart's colours known without a neutral pinned a camera nobody measured through how it
-    renders colours: on the development photographs the white went 5–27° off, where no reference is 0.5–5°. They are
-    now set aside, named in a warning, and the history is estimated as without them; a neutral among them, or a
-    camera with measured sensitivities, keeps them."""
-    import real
+def test_coloured_only_references():
+    """:func:`illumon.camera.references.coloured_only`: a few colours with no neutral among them; not with a neutral,
+    nor four colours spanning both chromatic directions (a chart's kind)."""
     from illumon.camera.references import coloured_only
 
     refs = colourchecker_references()
     assert coloured_only({p: refs[p] for p in ("chart:01", "chart:13")})
     assert not coloured_only({p: refs[p] for p in ("chart:01", "chart:21")})  # a neutral among them
     assert not coloured_only({p: refs[p] for p in ("chart:02", "chart:07", "chart:13", "chart:14")})  # a chart's kind
-    if not (shared_data / "real" / "sony-dolp").is_dir():
-        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
-    raw = real.sony_raw(shared_data)
+
+
+def test_a_few_colours_without_a_neutral_are_set_aside(sony_raw):
+    """One or two of the chart's colours known without a neutral pinned a camera nobody measured through how it
+    renders colours: on the development photographs the white went 5–27° off, where no reference is 0.5–5°. They are
+    now set aside, named in a warning, and the history is estimated as without them; a neutral among them, or a
+    camera with measured sensitivities, keeps them."""
+    import real
+
+    refs = colourchecker_references()
+    raw = sony_raw
     for s in [raw, *real.isp_sets(raw)]:
         none = real.run_illumon(s, "none")[0]
         for mode in ("colour 15", "colours 01,13"):
@@ -197,7 +207,7 @@ def test_a_few_colours_without_a_neutral_are_set_aside(shared_data):
             assert model.camera["calibration"] == "none"
 
 
-def test_real_photographs_through_the_command_line(shared_data, tmp_path):
+def test_real_photographs_through_the_command_line(sony_raw, tmp_path):
     """The outside checks drive the product through its command line, not the library: each development set of real
     photographs written as they do (``benchmarks/real.py --dump``: the 18 colour patches, linear 0…1, references in
     frame 0 with their KNOWN.csv) and run as ``illumon estimate OBS [--known-reflectances KNOWN] --white-level 1
@@ -208,9 +218,7 @@ def test_real_photographs_through_the_command_line(shared_data, tmp_path):
     import real
     from illumon.cli import main
 
-    if not (shared_data / "real" / "sony-dolp").is_dir():
-        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
-    raw = real.sony_raw(shared_data)
+    raw = sony_raw
     sets = [raw, *real.isp_sets(raw)]
     real.dump_sets(sets, tmp_path)
     for s in sets:
@@ -350,7 +358,7 @@ def test_rendered_grey_card_holds_the_level(shared_data, monkeypatch: pytest.Mon
     assert medians[0] > 4.0 and medians[1] > 1.5 and max(spread) > 0.4, (medians, spread)
 
 
-def test_chart_then_chart_free_frame(shared_data):
+def test_chart_then_chart_free_frame(sony_raw, shared_data):
     """The installer's path on real photographs (``python benchmarks/real_pairs.py``): a chart held up once, then a
     frame without it under the same light. With the chart or its greys known in the chart shot, the chart-free frame's
     white is within 0.6° of the chart's greys on the raw sensor and within 1.2° through the fixed daylight preset
@@ -360,9 +368,7 @@ def test_chart_then_chart_free_frame(shared_data):
     import real
     import real_pairs
 
-    if not (shared_data / "real" / "sony-dolp").is_dir():
-        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
-    raw = real.sony_raw(shared_data)
+    raw = sony_raw
     m, preset = real.isp_pipeline(raw)
     found = real_pairs.pairs(shared_data)
     assert len(found) == 3

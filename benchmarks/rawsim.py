@@ -192,6 +192,18 @@ def pale(reflectances: ArrayLike, chroma: float = 0.15) -> NDArray[np.float64]:
     return np.clip(m + chroma * (r - m), 0.0, 1.0)
 
 
+def grey_average(reflectances: ArrayLike, chroma: float = 0.5) -> NDArray[np.float64]:
+    """Surfaces of a colourful man-made room that averages grey: the measured ``reflectances`` made half as saturated
+    (:func:`pale` at ``chroma``), then each divided by the scene's mean spectrum (times its mean level), so the
+    scene's average reflectance is flat while its surfaces keep their colours. What the real chart-free photographs
+    showed (``benchmarks/real_pairs.py``: regions spreading 0.03–0.25 in log chromaticity, averaging within 0.05 of
+    grey) and the measured sets never draw: a scene of measured surfaces averages like their mean surface (warm,
+    0.2 / −0.2 in log r/g, b/g through the mean camera), the reflectance prior's own mean."""
+    r = pale(reflectances, chroma)
+    mean = r.mean(axis=0, keepdims=True)
+    return np.clip(r * mean.mean() / np.clip(mean, 1e-3, None), 0.0, 1.0)
+
+
 def camera_profile(camera: str, *, iso: float | None = None, rng: np.random.Generator | None = None) -> dict:
     """Sensor constants of a simulated body for ``camera`` (stable per name): full well, read noise, black level and
     ADC depth typical of its class, and the conversion gain at an ISO setting (base ISO 100 maps the full well to the

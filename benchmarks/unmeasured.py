@@ -24,7 +24,9 @@ sensitivities are never given to illumon: its prior is the mean of the measured 
   the daylight whites of the measured cameras, the assumption that sent the real lamp-lit scenes read as sensor RGB
   6–16° off (``python benchmarks/lamps.py --primaries camera``). Same goal;
 * ``pale``         — raw output of a daylight history over pale surfaces (:func:`rawsim.pale`: walls, roads, table
-  tops), no reference (reported, no goal).
+  tops), no reference (reported, no goal);
+* ``room``         — raw output of a daylight history over a colourful room whose surfaces average grey
+  (:func:`rawsim.grey_average`, what the real chart-free photographs showed), no reference (reported, no goal).
 
 ``--measured`` gives the camera's own sensitivities to every case without a reference and without rendering (``none``,
 ``none+matrix``, ``raw+lamps``, ``pale``; the others are skipped): the measured sensor's figures beside the unmeasured
@@ -85,7 +87,7 @@ from illumon.simulation import (
 )
 
 CASES = ("grey", "chart+matrix", "none", "none+matrix", "none+rendered", "grey+rendered", "chart+rendered", "none+awb",
-         "grey+awb", "chart+awb", "none+lamps", "raw+lamps", "pale")
+         "grey+awb", "chart+awb", "none+lamps", "raw+lamps", "pale", "room")
 GOALS = {"grey": (1.0, 3.0), "chart+matrix": (1.0, 3.0), "none": (2.5, None)}
 RENDERED = ("rendered", "awb", "none+lamps")
 FRAMES, PATCHES = 30, 10
@@ -127,6 +129,8 @@ def render(sim: str, camera: str, case: str, seed: int, flare: bool = False) -> 
     scene = rawsim.draw_reflectances(split, PATCHES, rng)
     if case.endswith("lamps") or case == "pale":
         scene = rawsim.pale(scene)
+    elif case == "room":
+        scene = rawsim.grey_average(scene)
     known = grey_card_reference() if case.startswith("grey") else colourchecker_references() if case.startswith("chart") else {}
     refl = np.concatenate([scene, np.stack(list(known.values()))]) if known else scene
     matrix = srgb_matrix(css) if case.endswith("matrix") else None
@@ -169,7 +173,7 @@ def true_ccts(obs: Observations, camera: str, case: str, seed: int) -> np.ndarra
     return np.asarray(cct_duv_from_xy(xy_from_spectrum(e))[0], dtype=float)
 
 
-MEASURED_CASES = ("none", "none+matrix", "raw+lamps", "pale")
+MEASURED_CASES = ("none", "none+matrix", "raw+lamps", "pale", "room")
 """Cases ``--measured`` runs with the camera's own sensitivities."""
 
 

@@ -121,6 +121,22 @@ The joined level pins such a camera's white, not its light's temperature (its ch
 temperature keeps the fit's own uncertainty: narrowed to the level's, the pale three-frame histories' 95 % CCT
 intervals held 0.86 / 0.81 of the lights (0.95 / 0.86 before the change), kept, 1.00 / 0.93."""
 
+FEW_FRAMES_FIT_LEVEL_SD = {1: 0.110, 3: 0.082}
+"""Error (log r/g, b/g, RMS) of the fit's level of a sensor-RGB camera nobody measured over a few frames, by
+:func:`~illumon.camera.calibration.history_length_regime` (one frame; two to four): what :func:`~.level.daylight_level`
+weighs that level with for :data:`FEW_FRAMES_LEVEL`, in place of :data:`FIT_LEVEL_SD` (a measured camera's, on
+histories whose light varies). Measured by ``python tools/fit_level_spread.py --frames 1,3 --seeds 4 --unmeasured``
+(development cameras, the prior without the camera's maker, both simulators, daylight histories of measured surfaces
+and of pale ones, pooled): 0.110 on one frame (measured surfaces 0.121, pale 0.096), 0.082 on three (0.092, 0.070).
+Held at 0.043 the fit's level outweighed a scene average read to 0.04–0.08: the scene's reading joined with a
+quarter of its weight or less, and the real chart-free rooms (``benchmarks/real_pairs.py``, raw, two frames) kept
+the reflectance prior's warm mean surface, 0.17–0.22 off their light. Development (``python benchmarks/unmeasured.py
+--split dev --seeds 1 --frames F --cases none,pale,raw+lamps``, ``illumon`` / ``rawsim`` medians): pale 1.38 / 1.36
+→ 0.57 / 0.52° (one frame), 0.77 / 0.79 → 0.64 / 0.60° (three); lamp-lit judged daylight 0.68 / 0.63 → 0.72 / 0.74°
+(one frame; maxima 2.0 / 2.0 → 0.97 / 1.15°), 0.80 / 0.78 → 0.71 / 0.65° (three; p95 4.5 / 4.2 → 2.4 / 1.8°);
+``none`` identical. Real: ``real_pairs.py`` raw without a reference 7.44 / 5.66 / 2.07 → 6.10 / 4.48 / 2.07°;
+``real.py`` identical."""
+
 MIN_LAMP_SHARE = 0.02
 """A history's frames start being left out of the reflectance fit (:func:`_refit_without_lamp_frames`) only when the
 frames judged lamp-lit (``non_daylight`` > 0.5) make up at least this share of the frames the reflectances were fitted
@@ -953,9 +969,11 @@ def _fit_fixed_camera(
                 # daylight: an unmeasured camera keeps the prior camera's level (the calibration's scene-average
                 # transform); a measured one the fit's, joined by the scene average where that is the better evidence
                 # a camera nobody measured over a few frames (FEW_FRAMES_LEVEL) too: there the fit's level is the
-                # reflectance prior's guess alone, and a pale scene's reading the better evidence
-                level = (daylight_level(fit_level, FIT_LEVEL_SD, average, reading, level.unbalanced)
-                         if measured or history_length_regime(len(obs.frames)) <= FEW_FRAMES_LEVEL else None)
+                # reflectance prior's guess alone (FEW_FRAMES_FIT_LEVEL_SD), and a pale scene's reading the better evidence
+                regime = history_length_regime(len(obs.frames))
+                level = (daylight_level(fit_level, FIT_LEVEL_SD if measured else FEW_FRAMES_FIT_LEVEL_SD[regime],
+                                        average, reading, level.unbalanced)
+                         if measured or regime <= FEW_FRAMES_LEVEL else None)
                 pins_mired = measured  # a camera nobody measured: the scene pins its white, not the temperature
             # sensor RGB's verdict (not a balance's: rendered output's was right on every development history, lamp-lit
             # or not) was wrong on 5 of 14 lamp-only ones, so its other reading joins the temperature's interval

@@ -27,6 +27,14 @@ def sony_raw(shared_data):
     return real.sony_raw(shared_data)
 
 
+@pytest.fixture(scope="module")
+def chart_free_pairs(sony_raw, shared_data):
+    """The real chart / chart-free pairs (``benchmarks/real_pairs.py``), read and measured once for this module."""
+    import real_pairs
+
+    return real_pairs.pairs(shared_data)
+
+
 def test_srgb_sensitivities_are_the_srgb_of_colour_science():
     """Independent truth: colour-science's own spectral → XYZ → linear sRGB of ColorChecker patches under D65."""
     c = srgb_sensitivities()
@@ -358,7 +366,7 @@ def test_rendered_grey_card_holds_the_level(shared_data, monkeypatch: pytest.Mon
     assert medians[0] > 4.0 and medians[1] > 1.5 and max(spread) > 0.4, (medians, spread)
 
 
-def test_chart_then_chart_free_frame(sony_raw, shared_data):
+def test_chart_then_chart_free_frame(sony_raw, chart_free_pairs):
     """The installer's path on real photographs (``python benchmarks/real_pairs.py``): a chart held up once, then a
     frame without it under the same light. With the chart or its greys known in the chart shot, the chart-free frame's
     white is within 0.6° of the chart's greys on the raw sensor and within 1.2° through the fixed daylight preset
@@ -370,7 +378,7 @@ def test_chart_then_chart_free_frame(sony_raw, shared_data):
 
     raw = sony_raw
     m, preset = real.isp_pipeline(raw)
-    found = real_pairs.pairs(shared_data)
+    found = chart_free_pairs
     assert len(found) == 3
     for p in found:
         truth_raw = np.nanmean(p["chart"][[real.ALL.index(t) for t in real.TRUTH]], axis=0)
@@ -385,3 +393,30 @@ def test_chart_then_chart_free_frame(sony_raw, shared_data):
                                       through(truth_raw, 1))[0] for mode in ("none", "grey", "chart")}
             assert err["grey"] <= bound and err["chart"] <= bound, (p["scene"], camera, err)
             assert err["grey"] <= err["none"] + 0.5 and err["chart"] <= err["none"] + 0.6, (p["scene"], camera, err)
+
+
+def test_chart_free_rooms_without_a_reference(chart_free_pairs, monkeypatch: pytest.MonkeyPatch):
+    """The real chart-free rooms on the raw sensor, two frames, no reference (``python benchmarks/real_pairs.py``):
+    their regions average near grey under a warm light and the fit's level — the reflectance prior's warm mean
+    surface — reads the light bluer. Weighed with its measured few-frame spread
+    (:data:`illumon.model.fit.FEW_FRAMES_FIT_LEVEL_SD`) the scene's reading joins it: median 4.48° (6.10, 4.48,
+    2.07); held at a measured camera's multi-frame 0.043, 5.66° (7.44, 5.66, 2.07). Gray-world over the same regions
+    is 1.42°: the colourful rooms are still open (a scene-average prior with rooms that average grey)."""
+    import illumon.model.fit as fit_module
+    import real
+    import real_pairs
+
+    def median_error() -> float:
+        errs = []
+        for p in chart_free_pairs:
+            truth = np.nanmean(p["chart"][[real.ALL.index(t) for t in real.TRUTH]], axis=0)
+            scale = 0.9 / np.nanmax(np.concatenate([p["values"].reshape(-1, 3), p["chart"]]))
+            white, _ = real_pairs.estimate_free(p["chart"] * scale, p["values"] * scale, "camera", "none")
+            errs.append(float(real.angular(white, truth)[0]))
+        return float(np.median(errs))
+
+    now = median_error()
+    assert now < 4.8, now
+    monkeypatch.setattr(fit_module, "FEW_FRAMES_FIT_LEVEL_SD", {1: fit_module.FIT_LEVEL_SD, 3: fit_module.FIT_LEVEL_SD})
+    before = median_error()
+    assert before > now + 0.8, (before, now)

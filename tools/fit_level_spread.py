@@ -1,4 +1,5 @@
-"""How far a daylight history's fit level sits from its light, by history length (:data:`illumon.model.fit.FIT_LEVEL_SD`).
+"""How far a daylight history's fit level sits from its light, by history length (:data:`illumon.model.fit.FIT_LEVEL_SD`,
+:data:`illumon.model.fit.FEW_FRAMES_FIT_LEVEL_SD`).
 
 The scene fit's common level (:func:`illumon.model.level.mean_log_chroma`: the mean log r/g, b/g of every frame's
 daylight white through the fit's sensitivities) is what the reflectance prior makes of the scene where the frames'
@@ -6,10 +7,12 @@ light varies; over a few frames of one light it is the prior's mean surface and 
 ``benchmarks/unmeasured.py``'s histories with the camera's own sensitivities (its ``--measured`` runs: the fit's
 sensitivities are the camera's, so the level and the truth share one space), records the fit's level where
 :func:`illumon.model.level.daylight_level` weighs it, and prints its RMS error (log r/g, b/g) against the true lights'
-mean white per history length and case, beside the scene average's reading and the spread it states. Development
-cameras only.
+mean white per history length and case, beside the scene average's reading and the spread it states, and the RMS
+pooled over cases and simulators per length. ``--unmeasured`` fits without the sensitivities (the prior without the
+camera's maker, as ``benchmarks/unmeasured.py`` does): the level then sits in the fitted camera's space, and is
+weighed only over one to four frames (:data:`illumon.model.fit.FEW_FRAMES_LEVEL`). Development cameras only.
 
-    python tools/fit_level_spread.py [--frames 1,3,6,30] [--cases none,pale] [--seeds 2]
+    python tools/fit_level_spread.py [--frames 1,3,6,30] [--cases none,pale] [--seeds 2] [--unmeasured]
 """
 
 from __future__ import annotations
@@ -52,7 +55,8 @@ def main() -> int:
         return original(fit_level, fit_sd, scene, reading, unbalanced)
 
     fit_module.daylight_level = record
-    print(f"development cameras ({len(rawsim.DEV_CAMERAS)}), sensitivities given, {args.seeds} seeds; RMS over log "
+    given = "not given (the prior without the camera's maker)" if args.unmeasured else "given"
+    print(f"development cameras ({len(rawsim.DEV_CAMERAS)}), sensitivities {given}, {args.seeds} seeds; RMS over log "
           "r/g and b/g of the fit's level and of the scene average's reading against the true lights' mean white")
     print(f"{'frames':>6} {'case':6} {'sim':8} {'n':>4} {'fit level':>10} {'reading':>9} {'stated':>7}")
 

@@ -127,7 +127,9 @@ FEW_FRAMES_FIT_LEVEL_SD = {1: 0.110, 3: 0.082}
 weighs that level with for :data:`FEW_FRAMES_LEVEL`, in place of :data:`FIT_LEVEL_SD` (a measured camera's, on
 histories whose light varies). Measured by ``python tools/fit_level_spread.py --frames 1,3 --seeds 4 --unmeasured``
 (development cameras, the prior without the camera's maker, both simulators, daylight histories of measured surfaces
-and of pale ones, pooled): 0.110 on one frame (measured surfaces 0.121, pale 0.096), 0.082 on three (0.092, 0.070).
+and of pale ones, pooled): 0.110 on one frame (measured surfaces 0.121, pale 0.096), 0.082 on three (0.092, 0.070);
+re-measured with these values in place (the first fit's level moves the camera's channel scales the refit's level
+is read through), 0.115 and 0.085.
 Held at 0.043 the fit's level outweighed a scene average read to 0.04–0.08: the scene's reading joined with a
 quarter of its weight or less, and the real chart-free rooms (``benchmarks/real_pairs.py``, raw, two frames) kept
 the reflectance prior's warm mean surface, 0.17–0.22 off their light. Development (``python benchmarks/unmeasured.py

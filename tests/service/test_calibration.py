@@ -250,3 +250,61 @@ def test_calibration_survives_restart_and_pins_an_unmeasured_camera(tmp_path, cs
     assert job["summary"]["camera"]["calibration"] == ("chart" if kind == "colorchecker" else "grey")
     assert np.median(err_ref) < 1.0 and err_ref.max() < 3.0
     assert np.median(err_ref) < np.median(err_none)
+
+
+def test_chart_shot_then_one_frame_on_real_photographs(tmp_path):
+    """The installer's path through the service on real photographs (``../shared/data/real/sony-dolp``, development
+    data, ``benchmarks/real_pairs.py``'s rooms): a raw camera registered without sensitivities (16-bit linear PNGs),
+    the chart shot posted as a calibration (the chart found by ``cv2.mcc``), one chart-free frame, a refit. The
+    calibration image shows the rooms' regions too, so with one frame it makes the two views a refit needs (it used
+    to refuse: "1 stored"). The chart-free frame's white is within 0.6° of the chart shot's greys 20–22 (measured
+    0.43, 0.16, 0.54°; the library's two-frame history ``real_pairs.py`` 0.41, 0.17, 0.49°)."""
+    import real
+    import real_pairs
+
+    data = real.shared_data()
+    if data is None or not (data / "real" / "sony-dolp").is_dir():
+        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
+    folder = data / "real" / "sony-dolp"
+    found = real_pairs.pairs(data)
+    assert len(found) == 3
+    for p in found:
+        regions = [{"id": f"r{i:02d}", "x": x, "y": y, "width": real_pairs.WINDOW, "height": real_pairs.WINDOW}
+                   for i, (x, y) in enumerate(p["regions"])]
+        body = {"name": p["scene"], "regions": regions,
+                "response": {"encoding": "linear", "black_level": 0, "white_level": 65535, "primaries": "camera"}}
+        with TestClient(create_app(make_settings(tmp_path / p["scene"]))) as c:
+            r = c.post("/v1/cameras", json=body, headers=admin_headers())
+            assert r.status_code == 201, r.text
+            cid, auth = r.json()["id"], bearer(r.json()["token"])
+            r = _post(c, cid, auth, (folder / f"{p['scene']}_macbeth.png").read_bytes(), kind="colorchecker")
+            assert r.status_code == 201 and r.json()["scene_regions"] >= 2, r.text
+            r = c.post(f"/v1/cameras/{cid}/frames", data={"taken_at": "2026-01-01T12:00:00Z"}, headers=auth,
+                       files={"image": ("f.png", (folder / f"{p['scene']}_imean.png").read_bytes(), "image/png")})
+            assert r.status_code == 201, r.text
+            job = c.get(f"/v1/jobs/{c.post(f'/v1/cameras/{cid}/refit', headers=auth).json()['job_id']}",
+                        headers=auth).json()
+            assert job["state"] == "done", job
+            (est,) = c.get(f"/v1/cameras/{cid}/estimates", headers=auth).json()
+        truth = np.nanmean(p["chart"][[real.ALL.index(t) for t in real.TRUTH]], axis=0)
+        err = float(real.angular(np.asarray(est["white_rgb"]), truth)[0])
+        assert err <= 0.6, (p["scene"], err)
+
+
+def test_a_calibration_image_counts_as_a_view_only_with_two_regions():
+    """One frame and a calibration image showing two or more of the scene's regions are two views (the real
+    photographs' test above refits them); a calibration image showing the chart alone is not, nor are calibration
+    images without a frame, and the refit's message says what it counted."""
+    from illumon_service.estimation.fit import RefitInputError, refit_estimates
+
+    rng = np.random.default_rng(0)
+    frame = [("f1", "2026-01-01T12:00:00+00:00", {f"s{i}": rng.uniform(0.1, 0.8, 3).tolist() for i in range(4)})]
+    refs = {p: rng.uniform(0.05, 0.9, 3).tolist() for p in list(colourchecker_references())}
+    chart_only = [("calibration-1", "2026-01-01T11:00:00+00:00", refs)]
+    with pytest.raises(RefitInputError, match="1 stored: post"):
+        refit_estimates(frame, [f"s{i}" for i in range(4)], None, calibrations=chart_only,
+                        known_reflectances=colourchecker_references())
+    with_regions = [("calibration-1", "2026-01-01T11:00:00+00:00", {**refs, "s0": [0.3, 0.4, 0.2], "s1": [0.5, 0.5, 0.4]})]
+    with pytest.raises(RefitInputError, match="0 stored and 2 calibration images showing the regions"):
+        refit_estimates([], [f"s{i}" for i in range(4)], None, calibrations=with_regions + with_regions,
+                        known_reflectances=colourchecker_references())

@@ -137,14 +137,18 @@ def refit_estimates(
         raise RefitInputError(f"refit method {method!r} needs measured sensitivities; this camera has none (use the "
                               "default method 'model', which calibrates from the prior and calibration images)")
     n = len(frames.frames) if isinstance(frames, Observations) else len(frames)
-    if n < 2:
-        raise RefitInputError(f"refit needs at least two frames with two regions seen; {n} stored: post "
+    # a calibration image that shows two or more of the scene's regions is a view of the scene too (the installer's
+    # chart shot, then one frame, is a two-frame history): the model counts it
+    views = _calibration_views(calibrations, region_ids) if method == "model" else 0
+    also = f" and {views} calibration image{'s' if views > 1 else ''} showing the regions" if views else ""
+    if n < 1 or n + views < 2:
+        raise RefitInputError(f"refit needs at least two frames with two regions seen; {n} stored{also}: post "
                               "frames (POST /v1/cameras/{id}/frames), then refit")
     obs = frames if isinstance(frames, Observations) else build_observations(frames, region_ids)
     usable = np.flatnonzero(obs.present.sum(axis=1) >= 2)
-    if usable.size < 2:
+    if usable.size < 1 or usable.size + views < 2:
         raise RefitInputError(f"refit needs at least two frames with two regions seen; {usable.size} available "
-                              f"(of {n} stored): post more frames, then refit")
+                              f"(of {n} stored){also}: post more frames, then refit")
     if usable.size < n:
         obs = obs.subset(usable)
     skipped = n - int(usable.size)
@@ -170,6 +174,12 @@ def refit_estimates(
         summary["model"] = fit_model(obs, sensitivities, model_file, max_fit_frames, primaries=primaries)
     return out, summary
 
+
+
+def _calibration_views(calibrations: Sequence[tuple[str, str, dict[str, Any]]], region_ids: Sequence[str]) -> int:
+    """How many calibration images show two or more of the scene's regions (``region_ids``)."""
+    regions = set(region_ids)
+    return sum(1 for _, _, patches in calibrations if sum(1 for k in patches if k in regions) >= 2)
 
 
 def _with_calibrations(obs: Observations, calibrations: Sequence[tuple[str, str, dict[str, Any]]]) -> Observations:

@@ -252,15 +252,19 @@ def test_calibration_survives_restart_and_pins_an_unmeasured_camera(tmp_path, cs
     assert np.median(err_ref) < np.median(err_none)
 
 
-def test_chart_shot_then_one_frame_on_real_photographs(tmp_path):
+@pytest.mark.parametrize("kind", ["colorchecker", "grey"])
+def test_chart_shot_then_one_frame_on_real_photographs(tmp_path, kind):
     """The installer's path through the service on real photographs (``../shared/data/real/sony-dolp``, development
     data, ``benchmarks/real_pairs.py``'s rooms): a raw camera registered without sensitivities (16-bit linear PNGs),
-    the chart shot posted as a calibration (the chart found by ``cv2.mcc``), one chart-free frame, a refit. The
-    calibration image shows the rooms' regions too, so with one frame it makes the two views a refit needs (it used
-    to refuse: "1 stored"). The chart-free frame's white is within 0.6° of the chart shot's greys 20–22 (measured
-    0.43, 0.16, 0.54°; the library's two-frame history ``real_pairs.py`` 0.41, 0.17, 0.49°)."""
+    the chart shot posted as a calibration — the chart found by ``cv2.mcc``, or its mid grey (patch 22) marked as a
+    grey card — one chart-free frame, a refit. The calibration image shows the rooms' regions too, so with one frame
+    it makes the two views a refit needs (it used to refuse: "1 stored"). The chart-free frame's white is within 0.6°
+    of the chart shot's greys 20–22 (measured: chart 0.43, 0.16, 0.54°, the library's two-frame history
+    ``real_pairs.py`` 0.41, 0.17, 0.49°; grey card 0.40, 0.29, 0.30°)."""
+    import cv2
     import real
     import real_pairs
+    from illumon_service.calibration import detect_colourchecker
 
     data = real.shared_data()
     if data is None or not (data / "real" / "sony-dolp").is_dir():
@@ -277,7 +281,16 @@ def test_chart_shot_then_one_frame_on_real_photographs(tmp_path):
             r = c.post("/v1/cameras", json=body, headers=admin_headers())
             assert r.status_code == 201, r.text
             cid, auth = r.json()["id"], bearer(r.json()["token"])
-            r = _post(c, cid, auth, (folder / f"{p['scene']}_macbeth.png").read_bytes(), kind="colorchecker")
+            shot = (folder / f"{p['scene']}_macbeth.png").read_bytes()
+            if kind == "colorchecker":
+                r = _post(c, cid, auth, shot, kind="colorchecker")
+            else:  # the chart's mid grey as a grey card, located on a brightened copy
+                a16 = cv2.imdecode(np.frombuffer(shot, np.uint8), cv2.IMREAD_UNCHANGED)[:, :, ::-1]
+                bright = np.clip(a16.astype(float) / np.percentile(a16, 99.5), 0, 1) ** (1 / 2.2)
+                centres, pitch = detect_colourchecker((bright * 65535).astype(np.uint16), 65535)
+                (x, y), h = centres[21], int(0.35 * pitch)
+                r = _post(c, cid, auth, shot, kind="grey",
+                          region={"x": int(x) - h, "y": int(y) - h, "width": 2 * h, "height": 2 * h})
             assert r.status_code == 201 and r.json()["scene_regions"] >= 2, r.text
             r = c.post(f"/v1/cameras/{cid}/frames", data={"taken_at": "2026-01-01T12:00:00Z"}, headers=auth,
                        files={"image": ("f.png", (folder / f"{p['scene']}_imean.png").read_bytes(), "image/png")})

@@ -130,8 +130,9 @@ def refit_estimates(
     ``sensitivities=None`` is a camera nobody measured (the model's prior from measured cameras). ``calibrations``
     are extra frames (ids ``calibration-<id>``) holding only reference patches whose spectra ``known_reflectances``
     gives (a ColorChecker, a grey card): they join the fit's history, pin the camera, and get no estimate of their
-    own. Frames with fewer than two regions seen are left out. Raises :class:`RefitInputError` when fewer than two
-    frames remain, or for a retrieval method on an unmeasured camera.
+    own; one that shows two or more of the scene's regions beside its reference counts as a view of the scene. Frames
+    with fewer than two regions seen are left out. Raises :class:`RefitInputError` when fewer than two views remain
+    (at least one of them a frame), or for a retrieval method on an unmeasured camera.
     """
     if sensitivities is None and method != "model":
         raise RefitInputError(f"refit method {method!r} needs measured sensitivities; this camera has none (use the "

@@ -137,6 +137,22 @@ def through(x: NDArray[np.float64], camera: str, m: NDArray[np.float64], preset:
     return real.render_isp(x, preset if camera == "preset" else real.auto_gains(image_mean), m)
 
 
+PRIMARIES = {"raw": "camera", "preset": "srgb", "auto": "srgb"}
+"""The output space each camera of :func:`through` delivers (``--primaries``)."""
+
+
+def prepared(p: dict, camera: str, m: NDArray[np.float64], preset: NDArray[np.float64]
+             ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """A pair of :func:`pairs` as ``camera`` delivers it: the regions of both shots (2 × R × 3) and the chart (24 × 3)
+    scaled together so the brightest value is 0.9, and the truth — the chart shot's greys 20–22 (the same light) as
+    the chart-free frame's pipeline renders them (3,)."""
+    scene = np.stack([through(p["values"][f], camera, m, preset, p["image_means"][f]) for f in range(2)])
+    chart = through(p["chart"], camera, m, preset, p["image_means"][0])
+    scale = 0.9 / np.nanmax(np.concatenate([scene.reshape(-1, 3), chart]))
+    truth_raw = np.nanmean(p["chart"][[real.ALL.index(t) for t in real.TRUTH]], axis=0)
+    return scene * scale, chart * scale, through(truth_raw, camera, m, preset, p["image_means"][1])
+
+
 def pairs(data: Path) -> list[dict]:
     """Each readable scene's chart shot and chart-free shot: raw chart values, regions, image means."""
     import cv2
@@ -176,21 +192,14 @@ def main(argv: list[str] | None = None) -> int:
     for camera in ("raw", "preset", "auto"):
         rows = []
         for p in found:
-            truth_raw = np.nanmean(p["chart"][[real.ALL.index(t) for t in real.TRUTH]], axis=0)
-            scene = np.stack([through(p["values"][f], camera, m, preset, p["image_means"][f]) for f in range(2)])
-            chart = through(p["chart"], camera, m, preset, p["image_means"][0])
-            scale = 0.9 / np.nanmax(np.concatenate([scene.reshape(-1, 3), chart]))
-            scene, chart = scene * scale, chart * scale
-            # the greys as the chart-free frame's pipeline renders them
-            truth = through(truth_raw, camera, m, preset, p["image_means"][1])
-            primaries = "camera" if camera == "raw" else "srgb"
+            scene, chart, truth = prepared(p, camera, m, preset)
             row = {"scene": p["scene"], "regions": len(p["regions"]),
                    "nothing": float(real.angular(np.ones(3), truth)[0]),
                    "gray-world": float(real.angular(np.nanmean(scene[1], axis=0), truth)[0]),
                    "gray-world (image)": float(real.angular(
                        through(p["image_means"][1], camera, m, preset, p["image_means"][1]), truth)[0])}
             for mode in ("none", "grey", "chart"):
-                white, conf = estimate_free(chart, scene, primaries, mode)
+                white, conf = estimate_free(chart, scene, PRIMARIES[camera], mode)
                 row[f"illumon {mode}"] = float(real.angular(white, truth)[0])
                 row[f"confidence {mode}"] = conf
             rows.append(row)

@@ -312,8 +312,7 @@ def test_chart_shot_then_one_frame_on_real_photographs(tmp_path, camera, kind, b
                         headers=auth).json()
             assert job["state"] == "done", job
             (est,) = c.get(f"/v1/cameras/{cid}/estimates", headers=auth).json()
-        truth = np.nanmean(p["chart"][[real.ALL.index(t) for t in real.TRUTH]], axis=0)
-        truth = real_pairs.through(truth, camera, m, preset, p["image_means"][1])
+        truth = real_pairs.prepared(p, camera, m, preset)[2]
         err = float(real.angular(np.asarray(est["white_rgb"]), truth)[0])
         assert err <= bound, (p["scene"], camera, kind, err)
 

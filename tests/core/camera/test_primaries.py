@@ -381,21 +381,15 @@ def test_chart_then_chart_free_frame(sony_raw, chart_free_pairs):
     found = chart_free_pairs
     assert len(found) == 3
     for p in found:
-        truth_raw = np.nanmean(p["chart"][[real.ALL.index(t) for t in real.TRUTH]], axis=0)
         for camera, bound in (("raw", 0.6), ("preset", 1.2)):
-            def through(x, f, camera=camera, p=p):
-                return real_pairs.through(x, camera, m, preset, p["image_means"][f])
-            scene = np.stack([through(p["values"][f], f) for f in range(2)])
-            chart = through(p["chart"], 0)
-            scale = 0.9 / np.nanmax(np.concatenate([scene.reshape(-1, 3), chart]))
-            primaries = "camera" if camera == "raw" else "srgb"
-            err = {mode: real.angular(real_pairs.estimate_free(chart * scale, scene * scale, primaries, mode)[0],
-                                      through(truth_raw, 1))[0] for mode in ("none", "grey", "chart")}
+            scene, chart, truth = real_pairs.prepared(p, camera, m, preset)
+            err = {mode: real.angular(real_pairs.estimate_free(chart, scene, real_pairs.PRIMARIES[camera], mode)[0],
+                                      truth)[0] for mode in ("none", "grey", "chart")}
             assert err["grey"] <= bound and err["chart"] <= bound, (p["scene"], camera, err)
             assert err["grey"] <= err["none"] + 0.5 and err["chart"] <= err["none"] + 0.6, (p["scene"], camera, err)
 
 
-def test_chart_free_rooms_without_a_reference(chart_free_pairs, monkeypatch: pytest.MonkeyPatch):
+def test_chart_free_rooms_without_a_reference(sony_raw, chart_free_pairs, monkeypatch: pytest.MonkeyPatch):
     """The real chart-free rooms on the raw sensor, two frames, no reference (``python benchmarks/real_pairs.py``):
     their regions average near grey under a warm light and the fit's level — the reflectance prior's warm mean
     surface — reads the light bluer. Weighed with its measured few-frame spread
@@ -406,12 +400,13 @@ def test_chart_free_rooms_without_a_reference(chart_free_pairs, monkeypatch: pyt
     import real
     import real_pairs
 
+    m, preset = real.isp_pipeline(sony_raw)
+
     def median_error() -> float:
         errs = []
         for p in chart_free_pairs:
-            truth = np.nanmean(p["chart"][[real.ALL.index(t) for t in real.TRUTH]], axis=0)
-            scale = 0.9 / np.nanmax(np.concatenate([p["values"].reshape(-1, 3), p["chart"]]))
-            white, _ = real_pairs.estimate_free(p["chart"] * scale, p["values"] * scale, "camera", "none")
+            scene, chart, truth = real_pairs.prepared(p, "raw", m, preset)
+            white, _ = real_pairs.estimate_free(chart, scene, "camera", "none")
             errs.append(float(real.angular(white, truth)[0]))
         return float(np.median(errs))
 

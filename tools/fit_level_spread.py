@@ -31,11 +31,8 @@ import rawsim  # noqa: E402
 import unmeasured  # noqa: E402
 from illumon.model import fit as fit_module  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
+from illumon.priors.scene_average import log_chroma  # noqa: E402
 from illumon.simulation import datasets  # noqa: E402
-
-
-def _log_chroma(rgb: np.ndarray) -> np.ndarray:
-    return np.log(rgb[..., [0, 2]] / rgb[..., 1:2])
 
 
 def main() -> int:
@@ -82,7 +79,7 @@ def main() -> int:
                                 fit_scene_model(obs, datasets.load_camera(camera))
                         if not seen:  # judged lamp-lit: no daylight level weighed
                             continue
-                        truth = np.mean(_log_chroma(np.asarray(white, dtype=float)), axis=0)
+                        truth = np.mean(log_chroma(white), axis=0)
                         fit_level, reading, sd = seen[-1]
                         fit_err.append(fit_level - truth)
                         read_err.append(reading - truth)

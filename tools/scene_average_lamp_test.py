@@ -49,6 +49,7 @@ from illumon.diagnosis.fit import diagnose  # noqa: E402
 from illumon.model import fit as model_fit  # noqa: E402
 from illumon.model import fit_scene_model  # noqa: E402
 from illumon.model import lamps as L  # noqa: E402
+from illumon.priors.scene_average import log_chroma  # noqa: E402
 from illumon.simulation.effects import DEV_CAMERAS, hide_effect  # noqa: E402
 
 
@@ -94,10 +95,10 @@ def _departure(obs, css, lights, refl, lit) -> str:  # noqa: ANN001
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             model = fit_scene_model(obs, camera)
-        g = L._log_chroma(L._frame_means(model, obs, np.asarray(model.history_estimate[0].info["theta"], dtype=float)))
+        g = log_chroma(L._frame_means(model, obs, np.asarray(model.history_estimate[0].info["theta"], dtype=float)))
         for form, cam in (("white+a", model.sensitivities), ("learned", _scene_camera(model, obs)),
                           ("true", np.asarray(model.sensitivities, dtype=float) * refl.mean(axis=0)[:, None])):
-            r = g - L._log_chroma(lights @ cam)
+            r = g - log_chroma(lights @ cam)
             dev = np.abs(r[lit] - np.median(r[~lit], axis=0))
             out.append(f"    {name:10s} {form:8s} departure median ({np.median(dev[:, 0]):.3f}, {np.median(dev[:, 1]):.3f})"
                        f" max ({dev[:, 0].max():.3f}, {dev[:, 1].max():.3f}); daylight frames' spread "
@@ -181,12 +182,12 @@ def judge(spec: str) -> None:
         warnings.simplefilter("ignore")
         model = fit_scene_model(obs, css)
     means = L._frame_means(model, obs, np.asarray(model.history_estimate[0].info["theta"], dtype=float))
-    g = L._log_chroma(means)
+    g = log_chroma(means)
     lit = np.zeros(len(g), dtype=bool)
     lit[np.asarray(lamp_frames, dtype=int)] = True
     dm = model.daylight_model()
-    true_white = L._log_chroma(lights @ css)
-    true_scene = L._log_chroma(lights @ (css * refl.mean(axis=0)[:, None]))
+    true_white = log_chroma(lights @ css)
+    true_scene = log_chroma(lights @ (css * refl.mean(axis=0)[:, None]))
     print(f"{spec}: {len(g)} frames, {int(lit.sum())} lamp-lit; true offset of white+a over the daylight frames "
           f"{_range(g[~lit] - true_white[~lit])}")
     forms = (("white+a", model.sensitivities, L.expected_scene_offset(model, obs), g - true_white),

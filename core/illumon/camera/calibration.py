@@ -41,7 +41,7 @@ from ..bayes import GaussianPrior, gaussian_posterior
 from ..daylight import CIEDaylight
 from ..observations import Observations
 from ..priors import CameraPrior, default_camera_prior, rendered_camera_prior
-from ..priors.scene_average import expected_offset, scene_average_evidence
+from ..priors.scene_average import expected_offset, log_chroma, scene_average_evidence
 from .chart_light import chart_light_illumon
 from .formation import angular_error_deg, flare_scales
 from .references import neutral_references, references_kind
@@ -423,10 +423,6 @@ def _neutral_scales(values: NDArray[np.float64], pred: NDArray[np.float64], mask
     return scale / scale[1]
 
 
-def _log_chroma(white: NDArray[np.float64]) -> NDArray[np.float64]:
-    return np.log(np.clip(white[..., [0, 2]], 1e-12, None) / np.clip(white[..., 1:2], 1e-12, None))
-
-
 @lru_cache(maxsize=1)
 def prior_white_spread() -> float:
     """Standard deviation (log r/g and b/g, pooled) of the measured cameras' D65 whites around the mean camera's,
@@ -436,7 +432,7 @@ def prior_white_spread() -> float:
     jac = []
     for j in range(prior.size):
         d = prior.components[:, j].reshape(3, -1).T
-        jac.append((_log_chroma(_d65_white(prior.mean + 1e-3 * d)) - _log_chroma(w0)) / 1e-3)
+        jac.append((log_chroma(_d65_white(prior.mean + 1e-3 * d)) - log_chroma(w0)) / 1e-3)
     cov = np.einsum("ji,j,jk->ik", np.array(jac), prior.variances, np.array(jac))
     return float(np.sqrt(np.trace(cov) / 2))
 
@@ -463,10 +459,10 @@ def _scene_average_transform(scene: Observations, base: NDArray[np.float64], mod
     ok = present.sum(axis=1) >= 2
     if not ok.any():
         return np.eye(3), SCENE_AVERAGE_SD
-    observed = _log_chroma(np.nanmean(np.where(np.isfinite(v[ok]), v[ok], np.nan), axis=1))
+    observed = log_chroma(np.nanmean(np.where(np.isfinite(v[ok]), v[ok], np.nan), axis=1))
     light = model.daylight_model().spectra(theta[ok, :2])
     average = scene_average_evidence(v, present)
-    expected = _log_chroma(light @ base) + expected_offset(light, base, rb, average)
+    expected = log_chroma(light @ base) + expected_offset(light, base, rb, average)
     shift = np.mean(observed - expected, axis=0)
     s_scene = min(SCENE_AVERAGE_SD, average.sd)
     gain = _camera_white_gain(s_scene)
@@ -784,7 +780,7 @@ def _glare_white_sd(base: NDArray[np.float64], spectra: NDArray[np.float64], ill
 
     def white(v: NDArray[np.float64]) -> NDArray[np.float64]:
         t, _ = camera_transform_Kinoshita2023(base, spectra, illuminants, v, diagonal=diagonal, neutral=neutral)
-        return _log_chroma(_d65_white(base @ t))
+        return log_chroma(_d65_white(base @ t))
 
     used = _fitted_values(values)
     var = 0.0

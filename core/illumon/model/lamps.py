@@ -54,7 +54,7 @@ from .._tables import cached_arrays
 from ..daylight import CIEDaylight
 from ..observations import observed
 from ..priors import ReflectanceBasis, reflectance_basis
-from ..priors.scene_average import expected_offset, scene_average_evidence
+from ..priors.scene_average import expected_offset, log_chroma, scene_average_evidence
 from .general import cie_lamp_spectra, general_whites
 
 __all__ = [
@@ -143,11 +143,6 @@ def _recall(cache: OrderedDict, key: tuple) -> object | None:
         return value
 
 
-def _log_chroma(white: NDArray[np.float64]) -> NDArray[np.float64]:
-    w = np.clip(np.asarray(white, dtype=float), 1e-12, None)
-    return np.log(w[..., [0, 2]] / w[..., 1:2])
-
-
 def _daylight_grid(dm: CIEDaylight) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(mired, δ) grid over the model's bounds and its normalised log prior weights."""
     lo, hi = dm.bounds()
@@ -184,7 +179,7 @@ def _population(sensitivities: NDArray[np.float64], dm: CIEDaylight,
             return hit
     theta, logw_d = _daylight_grid(dm)
     day = dm.spectra(theta)
-    u_d = _log_chroma(day @ css)
+    u_d = log_chroma(day @ css)
     lamps = cie_lamp_spectra()
     rows, logw = [], []
     for share in _MIX:
@@ -196,7 +191,7 @@ def _population(sensitivities: NDArray[np.float64], dm: CIEDaylight,
             # equal luminance-like weight at 560 nm: both spectra are 100 there
             rows.append(share * lamps + (1.0 - share) * d[None, :] * 100.0 / d[32])
             logw.append(np.full(len(lamps), -math.log(len(_MIX) * len(mired) * len(lamps))))
-    u_l = _log_chroma(np.concatenate(rows) @ css)
+    u_l = log_chroma(np.concatenate(rows) @ css)
     logw_l = np.concatenate(logw)
     out = (u_d, logw_d, u_l, logw_l)
     for v in out:
@@ -534,7 +529,7 @@ def lamp_posterior(
     f = len(means)
     ok = np.all(np.isfinite(means), axis=1) & np.all(means > 0, axis=1)
     g = np.full((f, 2), np.nan)
-    g[ok] = _log_chroma(means[ok])
+    g[ok] = log_chroma(means[ok])
     if offset_prior is None:
         s = math.hypot(SCENE_OFFSET_SD, camera_sd)
         mu, sd = np.zeros(2), np.array([s, s])
@@ -609,7 +604,7 @@ def frame_lamp_posterior(
     if ok.any():
         u_d, logw_d, u_l, logw_l = _population(sensitivities, dm)
         var_a = float(np.mean(offset_sd**2))
-        u = _log_chroma(means[ok]) - offset
+        u = log_chroma(means[ok]) - offset
         ld = _mixture_loglik(u, u_d, logw_d, math.sqrt(FRAME_SD**2 + var_a)) + math.log(1 - prior)
         ll = _mixture_loglik(u, u_l, logw_l, math.sqrt(FRAME_SD**2 + _LAMP_SD**2 + var_a)) + math.log(prior)
         nd[ok] = np.exp(ll - np.logaddexp(ld, ll))
@@ -754,7 +749,7 @@ def _unbalanced_offset(model, means: NDArray[np.float64]) -> tuple[NDArray[np.fl
         ok &= np.isin(np.arange(len(means)), fitted)
     if not ok.any():
         return None
-    a = _log_chroma(means[ok]).mean(axis=0) - np.asarray(model.noise["level"], dtype=float)
+    a = log_chroma(means[ok]).mean(axis=0) - np.asarray(model.noise["level"], dtype=float)
     sd = math.hypot(float(model.noise["level_sd"]), FRAME_SD / math.sqrt(int(ok.sum())))
     return a, np.array([sd, sd])
 

@@ -18,10 +18,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 __all__ = ["SCENE_GREY_SD", "MEASURED_SURFACE_SPREAD", "SURFACE_SPREAD", "SCENE_SPREAD", "SceneAverage",
-           "scene_average_evidence", "grey_share", "expected_offset", "rendered_probability"]
+           "scene_average_evidence", "grey_share", "expected_offset", "rendered_probability", "log_chroma"]
 
 SCENE_GREY_SD = 0.033
 """Spread (log r/g, b/g) of a nearly achromatic scene's average colour around grey: the RMS of the gray-world errors
@@ -152,10 +152,12 @@ def expected_offset(light: NDArray[np.float64], sensitivities: NDArray[np.float6
     the reflectance prior), times ``1 − grey_share(average)`` — all of it for a scene as varied as the measured
     surfaces, none for one whose patches do not differ in colour."""
     mean_surface = np.clip(rb.functions @ rb.prior_mean, 0.0, 1.0)
-    white = _log_chroma(light @ sensitivities)
-    surface = _log_chroma((light * mean_surface) @ sensitivities)
+    white = log_chroma(light @ sensitivities)
+    surface = log_chroma((light * mean_surface) @ sensitivities)
     return (1.0 - grey_share(average)) * (surface - white)
 
 
-def _log_chroma(rgb: NDArray[np.float64]) -> NDArray[np.float64]:
+def log_chroma(rgb: ArrayLike) -> NDArray[np.float64]:
+    """Log chromaticity (… × 2: log r/g, log b/g) of camera values or whites (… × 3), each channel clipped at 1e-12."""
+    rgb = np.asarray(rgb, dtype=float)
     return np.log(np.clip(rgb[..., [0, 2]], 1e-12, None) / np.clip(rgb[..., 1:2], 1e-12, None))

@@ -9,7 +9,6 @@ from illumon.camera import colourchecker_references, grey_card_reference
 from illumon.camera.calibration import (
     _d65_white,
     _glare_white_sd,
-    _log_chroma,
     _reference_offset_sd,
     camera_transform_Kinoshita2023,
     prior_sensitivities,
@@ -17,6 +16,7 @@ from illumon.camera.calibration import (
 from illumon.camera.references import neutral_references
 from illumon.daylight import CIEDaylight
 from illumon.observations import Observations
+from illumon.priors.scene_average import log_chroma
 from illumon.simulation import datasets
 
 
@@ -52,7 +52,7 @@ def test_glare_spread_is_the_white_shift_an_offset_of_that_size_makes(shared_dat
 
     def white(v):
         t, _ = camera_transform_Kinoshita2023(base, spectra, e, v, diagonal=kind == "grey", neutral=neutral)
-        return _log_chroma(_d65_white(base @ t))
+        return log_chroma(_d65_white(base @ t))
 
     shift = (white(values + osd[0]) - white(values - osd[0])) / 2  # the central difference over ± one spread
     assert sd == pytest.approx(float(np.sqrt(np.sum(shift**2) / 2)), rel=0.06)

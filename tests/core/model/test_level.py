@@ -162,13 +162,14 @@ def test_lamp_only_history_offset_is_that_of_the_fitted_frames(shared_data, came
     frames left out — the history's extreme lamps, its log b/g spread over frames 1.0 — moved it by (+0.19, −0.38)
     and the whites were 11.4° and 8.6° off (median) where gray-world was 2.7° and 0.7°; now 1.0° and 2.1°."""
     import unmeasured
-    from illumon.model.lamps import _frame_means, _log_chroma
+    from illumon.model.lamps import _frame_means
+    from illumon.priors.scene_average import log_chroma
 
     err, grey_world, nd, model = _fit_case("rawsim", camera, "none+lamps", seed, primaries="srgb")
     assert model.fit_frames is not None and len(model.fit_frames) < len(nd)  # the case: frames were left out
     obs, _, _ = unmeasured.render("rawsim", camera, "none+lamps", seed)
     means = _frame_means(model, obs, np.asarray(model.history_estimate[0].info["theta"], dtype=float))
-    expected = _log_chroma(means[model.fit_frames]).mean(axis=0) - np.asarray(model.noise["level"])
+    expected = log_chroma(means[model.fit_frames]).mean(axis=0) - np.asarray(model.noise["level"])
     np.testing.assert_allclose(model.lamps["offset"], expected, atol=1e-9)
     assert err <= max(1.5 * grey_world, 2.5), (err, grey_world)
 

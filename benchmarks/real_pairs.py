@@ -42,13 +42,18 @@ REGIONS = 12
 """Regions kept per scene (the most distinct colours among the static, uniform ones)."""
 
 
-def chart_box(rgb16: NDArray) -> tuple[int, int, int, int]:
-    """The chart's box ``x, y, w, h`` (pixels) from the patch centres ``cv2.mcc`` finds (as ``real._measure_chart``
-    reads the chart), one patch pitch around them."""
+def chart_centres(rgb16: NDArray) -> tuple[NDArray[np.float64], float]:
+    """The chart's patch centres (24 × 2, chart order) and pitch that ``cv2.mcc`` finds in a brightened copy of the
+    16-bit linear shot (as ``real._measure_chart`` reads the chart)."""
     from illumon_service.calibration import detect_colourchecker
 
     bright = np.clip(rgb16.astype(float) / np.percentile(rgb16, 99.5), 0, 1) ** (1 / 2.2)
-    centres, pitch = detect_colourchecker((bright * 65535).astype(np.uint16), 65535)
+    return detect_colourchecker((bright * 65535).astype(np.uint16), 65535)
+
+
+def chart_box(rgb16: NDArray) -> tuple[int, int, int, int]:
+    """The chart's box ``x, y, w, h`` (pixels): one patch pitch around its patch centres (:func:`chart_centres`)."""
+    centres, pitch = chart_centres(rgb16)
     c = np.asarray(centres, dtype=float)
     x0, y0 = c.min(axis=0) - pitch
     x1, y1 = c.max(axis=0) + pitch

@@ -269,7 +269,6 @@ def test_chart_shot_then_one_frame_on_real_photographs(tmp_path, camera, kind, b
     import cv2
     import real
     import real_pairs
-    from illumon_service.calibration import detect_colourchecker
 
     data = real.shared_data()
     if data is None or not (data / "real" / "sony-dolp").is_dir():
@@ -298,9 +297,8 @@ def test_chart_shot_then_one_frame_on_real_photographs(tmp_path, camera, kind, b
             cid, auth = r.json()["id"], bearer(r.json()["token"])
             if kind == "colorchecker":
                 r = _post(c, cid, auth, pngs[0], kind="colorchecker")
-            else:  # the chart's mid grey as a grey card, located on a brightened copy
-                bright = np.clip(shots[0][:, :, ::-1].astype(float) / np.percentile(shots[0], 99.5), 0, 1) ** (1 / 2.2)
-                centres, pitch = detect_colourchecker((bright * 65535).astype(np.uint16), 65535)
+            else:  # the chart's mid grey as a grey card
+                centres, pitch = real_pairs.chart_centres(shots[0][:, :, ::-1])
                 (x, y), h = centres[21], int(0.35 * pitch)
                 r = _post(c, cid, auth, pngs[0], kind="grey",
                           region={"x": int(x) - h, "y": int(y) - h, "width": 2 * h, "height": 2 * h})

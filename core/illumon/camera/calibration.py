@@ -606,9 +606,9 @@ def calibrate_scene_model(
             values, _, _, _ = _reference_data(estimate, scene, ids, known)
     model.history_estimate = model.estimate(scene)  # with the camera's uncertainty in its intervals
     if ids:
-        seen = estimate if estimate is not None else obs
-        glare = _reference_offset_sd(seen, np.arange(len(seen.frames)), float(model.noise.get("flare_sd", 0.0) or 0.0))
-        _reference_frames_white(model.history_estimate, values, spectra, neutral, base @ t, glare)
+        _reference_frames_white(model.history_estimate, values, spectra, neutral, base @ t,
+                                estimate if estimate is not None else obs,
+                                float(model.noise.get("flare_sd", 0.0) or 0.0))
     return model
 
 
@@ -866,17 +866,20 @@ def _glare_reference_tr(white: NDArray[np.float64], summed: NDArray[np.float64],
 
 def _reference_frames_white(estimate: tuple, values: NDArray[np.float64], spectra: NDArray[np.float64],
                             neutral: NDArray[np.bool_], sensitivities: NDArray[np.float64],
-                            glare: NDArray[np.float64] | None = None) -> None:
+                            seen: Observations | None = None, flare_sd: float = 0.0) -> None:
     """A frame that shows neutral references gets its white from them (in place): each unclipped neutral's measured
     value divided by its predicted value relative to the white under the frame's estimated light (which corrects a
     chart grey's slight colour), summed over the neutrals; its gains follow, with intervals and ``confidence`` from
-    :data:`REFERENCE_WHITE_SD_DEG` and, where the history learned a glare spread (``glare``: each frame's offset
-    spread per channel), what the glare leaves in a white read off neutrals darker or lighter than a mid grey
-    (:func:`_glare_reference_tr`). Other frames are untouched."""
+    :data:`REFERENCE_WHITE_SD_DEG` and, where the history learned a glare spread (``flare_sd``; ``seen``: the
+    history ``values`` are the references of, for each frame's offset spread, :func:`_reference_offset_sd`), what the
+    glare leaves in a white read off neutrals darker or lighter than a mid grey (:func:`_glare_reference_tr`). Other
+    frames are untouched, and only the frames that show a neutral are visited (a long history's others are most)."""
     result, extra = estimate
     if not np.any(neutral):
         return
-    for f in range(values.shape[0]):
+    rows = np.flatnonzero(np.any(np.all(np.isfinite(values[:, neutral]), axis=-1), axis=1))
+    glare = None if seen is None else _reference_offset_sd(seen, rows, flare_sd)
+    for i, f in enumerate(rows.tolist()):
         v = values[f][neutral]
         ok = np.all(np.isfinite(v), axis=-1) & np.all(v < CLIPPED, axis=-1) & np.all(v > 0, axis=-1)
         e = np.asarray(result.spectra[f], dtype=float)
@@ -889,7 +892,7 @@ def _reference_frames_white(estimate: tuple, values: NDArray[np.float64], spectr
             continue
         tr = 2 * math.radians(REFERENCE_WHITE_SD_DEG) ** 2
         if glare is not None:
-            tr += _glare_reference_tr(white, summed, int(ok.sum()), glare[f])
+            tr += _glare_reference_tr(white, summed, int(ok.sum()), glare[i])
         white = white / white[1]
         result.white[f] = white
         result.gains[f] = 1.0 / white

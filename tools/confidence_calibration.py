@@ -28,6 +28,11 @@ srgb / chart       ``chart+rendered``, ``chart+awb``
 srgb / none        ``none+rendered``, ``none+awb``
 =================  ==========================  ==============================
 
+After the regimes it prints what the rows' own statements say against what happened, per source file (glared
+histories marked) and case (:func:`as_stated`): a regime is calibrated over its pooled cases and sources, and this
+table shows where the pooled choice parts — histories with and without veiling glare, or scenes of one kind against
+another (``pale``, ``room``, the lamp-lit cases), which no regime is chosen on.
+
 Run on the **development** split only (``python benchmarks/unmeasured.py --split dev --seeds 2 --out dev.json``,
 then ``python tools/confidence_calibration.py dev.json``); the score split checks the result.
 
@@ -188,6 +193,20 @@ def solve(rows: list[dict], cases: tuple[str, ...], scales: np.ndarray = SCALES)
             "stated_at_s": mean_confidence(s, base, ref, ref_conf, a, k, glare), "loglik": best[0]}
 
 
+def as_stated(rows: list[dict]) -> list[dict]:
+    """What the rows' statements say against what happened, per source and case: each row's ``source`` (the file it
+    came from and whether its histories had veiling glare) and ``case``, with the frames, the mean ``confidence`` the
+    model stated and the fraction of frames within 1°. A regime is chosen so that the two agree over its pooled cases
+    and sources; this table shows where they part (glared against glare-free histories, one case against another)."""
+    groups: dict[tuple[str, str], tuple[list[float], list[bool]]] = {}
+    for r in rows:
+        conf, hit = groups.setdefault((r.get("source", ""), r["case"]), ([], []))
+        conf += [float(c) for c in r["confidence"]]
+        hit += [float(e) < 1.0 for e in r["err"]]
+    return [{"source": src, "case": case, "frames": len(conf), "stated": float(np.mean(conf)),
+             "within": float(np.mean(hit))} for (src, case), (conf, hit) in groups.items()]
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("rows", nargs="+",
@@ -211,7 +230,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"{path}: rows without camera_log_gain (written before this tool); re-run the benchmark",
                   file=sys.stderr)
             return 2
-        rows += d["rows"]
+        source = f"{Path(path).name}{' (glare)' if d.get('flare') else ''}"
+        rows += [dict(r, source=source) for r in d["rows"]]
     print(f"{'regime':16} {'chosen on':28} {'frames':>6} {'within 1°':>9} {'a':>6} {'s (log)':>8} {'k':>5} "
           f"{'stated':>7}")
     for (prim, kind), cases in REGIMES.items():
@@ -220,6 +240,10 @@ def main(argv: list[str] | None = None) -> int:
         out = solve(rows, cases, scales)
         print(f"{prim + ' / ' + kind:16} {', '.join(cases):28} {out['frames']:6d} {out['within']:9.3f} "
               f"{out['a']:6.3f} {out['s']:8.4f} {out['k']:5.2f} {out['stated_at_s']:7.3f}")
+    print(f"\n{'as stated now':32} {'frames':>6} {'stated':>7} {'within 1°':>9} {'gap':>7}")
+    for g in as_stated(rows):  # where the pooled choice parts: glare against none, one case against another
+        print(f"{g['source'] + ' ' + g['case']:32} {g['frames']:6d} {g['stated']:7.3f} {g['within']:9.3f} "
+              f"{g['stated'] - g['within']:+7.3f}")
     keys = sorted({(r.get("primaries", "camera"), r["mired_key"]) for r in rows if "mired_key" in r})
     if keys:  # the temperature's spread as the model keys it (a chart read, read as rendered, or refused)
         print(f"\n{'temperature':32} {'MK⁻¹ RMS':>8} {'stated':>6} {'in 95':>5} {'add z':>5} {'add95':>5}")

@@ -106,3 +106,19 @@ def test_scales_from_continues_the_grid_below():
     assert np.all(np.diff(grid) > 0) and 0.1 <= grid[0] < 0.11
     assert np.array_equal(grid[-len(tool.SCALES):], tool.SCALES)  # the 30-frame regimes' grid kept as it was
     assert np.array_equal(tool.scales_from(0.5), tool.SCALES)
+
+
+def test_as_stated_shows_where_a_pooled_choice_parts():
+    """Two sources whose statements agree with what happened only when pooled (glare-free frames all within 1°,
+    glared ones none, both stating 0.5): the table shows each source's gap, not the pooled one."""
+    import confidence_calibration as tool
+
+    rows = [{"case": "grey", "source": "c3.json", "confidence": [0.5] * 4, "err": [0.2] * 4},
+            {"case": "grey", "source": "c3f.json (glare)", "confidence": [0.5] * 4, "err": [2.0] * 4},
+            {"case": "none", "source": "c3.json", "confidence": [0.1, 0.3], "err": [0.5, 3.0]}]
+    got = {(g["source"], g["case"]): g for g in tool.as_stated(rows)}
+    assert set(got) == {("c3.json", "grey"), ("c3f.json (glare)", "grey"), ("c3.json", "none")}
+    assert got[("c3.json", "grey")]["within"] == 1.0 and got[("c3f.json (glare)", "grey")]["within"] == 0.0
+    assert all(got[(s, "grey")]["stated"] == 0.5 and got[(s, "grey")]["frames"] == 4
+               for s in ("c3.json", "c3f.json (glare)"))
+    assert abs(got[("c3.json", "none")]["stated"] - 0.2) < 1e-12 and got[("c3.json", "none")]["within"] == 0.5

@@ -28,6 +28,25 @@ def shared_data():
 
 
 @pytest.fixture(scope="session")
+def sony_raw(shared_data):
+    """The real chart photographs' sensor-RGB set (``benchmarks/real.py``, development data), measured once for the
+    run; the tests that use it skip where ``../shared/data/real/sony-dolp`` is absent."""
+    import real
+
+    if not (shared_data / "real" / "sony-dolp").is_dir():
+        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
+    return real.sony_raw(shared_data)
+
+
+@pytest.fixture(scope="session")
+def chart_free_pairs(sony_raw, shared_data):
+    """The real chart / chart-free pairs (``benchmarks/real_pairs.py``), read and measured once for the run."""
+    import real_pairs
+
+    return real_pairs.pairs(shared_data)
+
+
+@pytest.fixture(scope="session")
 def camera_300d(shared_data):
     """Measured Canon 300D sensitivities on the grid."""
     return datasets.load_camera("Canon_300D")

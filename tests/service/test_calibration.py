@@ -254,7 +254,8 @@ def test_calibration_survives_restart_and_pins_an_unmeasured_camera(tmp_path, cs
 
 @pytest.mark.parametrize(("camera", "kind", "bound"),
                          [("raw", "colorchecker", 0.6), ("raw", "grey", 0.6), ("preset", "colorchecker", 1.2)])
-def test_chart_shot_then_one_frame_on_real_photographs(tmp_path, camera, kind, bound):
+def test_chart_shot_then_one_frame_on_real_photographs(tmp_path, shared_data, sony_raw, chart_free_pairs, camera, kind,
+                                                       bound):
     """The installer's path through the service on real photographs (``../shared/data/real/sony-dolp``, development
     data, ``benchmarks/real_pairs.py``'s rooms): a camera registered without sensitivities, the chart shot posted as a
     calibration — the chart found by ``cv2.mcc``, or its mid grey (patch 22) marked as a grey card — one chart-free
@@ -270,13 +271,10 @@ def test_chart_shot_then_one_frame_on_real_photographs(tmp_path, camera, kind, b
     import real
     import real_pairs
 
-    data = real.shared_data()
-    if data is None or not (data / "real" / "sony-dolp").is_dir():
-        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
-    folder = data / "real" / "sony-dolp"
-    found = real_pairs.pairs(data)
+    folder = shared_data / "real" / "sony-dolp"
+    found = chart_free_pairs
     assert len(found) == 3
-    m, preset = real.isp_pipeline(real.sony_raw(data))
+    m, preset = real.isp_pipeline(sony_raw)
     srgb8 = ResponseCurve("srgb", white_level=255)
     response = ({"encoding": "linear", "black_level": 0, "white_level": 65535, "primaries": "camera"} if camera == "raw"
                 else {"encoding": "srgb", "black_level": 0, "white_level": 255})

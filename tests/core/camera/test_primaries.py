@@ -16,25 +16,6 @@ from illumon.simulation import datasets
 from illumon.spectra import GRID
 
 
-@pytest.fixture(scope="module")
-def sony_raw(shared_data):
-    """The real chart photographs' sensor-RGB set (``benchmarks/real.py``, development data), measured once for this
-    module's tests; they skip where ``../shared/data/real/sony-dolp`` is absent."""
-    import real
-
-    if not (shared_data / "real" / "sony-dolp").is_dir():
-        pytest.skip("real photographs (../shared/data/real/sony-dolp) not available")
-    return real.sony_raw(shared_data)
-
-
-@pytest.fixture(scope="module")
-def chart_free_pairs(sony_raw, shared_data):
-    """The real chart / chart-free pairs (``benchmarks/real_pairs.py``), read and measured once for this module."""
-    import real_pairs
-
-    return real_pairs.pairs(shared_data)
-
-
 def test_srgb_sensitivities_are_the_srgb_of_colour_science():
     """Independent truth: colour-science's own spectral → XYZ → linear sRGB of ColorChecker patches under D65."""
     c = srgb_sensitivities()

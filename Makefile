@@ -5,6 +5,8 @@ HOST ?= 127.0.0.1
 PORT ?= 8000
 DATA_DIR ?= ./var
 CHROMIUM ?= /usr/bin/chromium
+# test processes (pytest-xdist; a file's tests stay in one process, which its module fixtures assume)
+TEST_WORKERS ?= 2
 
 .PHONY: run test lint venv bench clean browser
 
@@ -36,7 +38,8 @@ browser:
 
 test: venv browser
 	$(BIN)/ruff check core service tests benchmarks
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial"
+	$(BIN)/python -m pytest -q -m serial
 
 bench: venv
 	$(BIN)/python benchmarks/retrieval.py

@@ -18,9 +18,6 @@ import pytest
 
 schemathesis = pytest.importorskip("schemathesis")
 pytestmark = pytest.mark.serial
-if os.environ.get("PYTEST_XDIST_WORKER"):  # a pytest-xdist worker would run one operation and call it passed
-    pytest.skip("schemathesis's operations do not distribute under pytest-xdist: run this file in one process "
-                "(make test does)", allow_module_level=True)
 
 from fastapi.testclient import TestClient  # noqa: E402
 from hypothesis import HealthCheck, settings  # noqa: E402
@@ -48,6 +45,14 @@ def _app():
 
 APP = _app()
 schema = schemathesis.openapi.from_asgi("/openapi.json", APP).include(path_regex=r"^/(v1/|healthz|metrics)")
+
+
+@pytest.fixture(autouse=True)
+def _one_process():
+    """A pytest-xdist worker would run one operation and call it passed."""
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        pytest.skip("schemathesis's operations do not distribute under pytest-xdist: run this file in one process "
+                    "(make test does)")
 
 
 @schema.parametrize()

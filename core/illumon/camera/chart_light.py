@@ -49,7 +49,10 @@ end, 505 MK⁻¹, ± 6–14; with 0.1 it is flat (± 50–170). On development c
 without their maker) the readings' RMS error is 14.2 MK⁻¹ without and 15.5 with it; under six development Granada
 spectra (112–192 MK⁻¹, ``rawsim`` 12-bit charts, 84 readings) 16.8 without (6 refused) and 18.1 with it (1 refused).
 Over :data:`CHART_LIGHT_NOISE` 0.005–0.02 and this spread 0–0.2 the RMS stayed within 16.0–22.4: the pair was not
-tuned further."""
+tuned further. On the development light booth (``python benchmarks/lightbox.py``, 2026-11-28) 0.3 brought the D65
+frame's median to 6 596 K (6 357 K with 0.1; the lamp 6 504 K) but spread the cameras wider: 9–12 of 14 inside
+5 900–7 200 K over the four booth histories, where 0.1 keeps 11–12 (the Point Grey Grasshopper2, whose channels are
+2.4 × the prior's, 5 354 K and 5 726 K): kept."""
 
 NEAR_CLIP = 0.95
 """Values at or above this fraction of the chart's brightest are left out (possibly clipped; as

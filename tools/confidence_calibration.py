@@ -70,7 +70,6 @@ REGIMES = {
     ("srgb", "chart"): ("chart+rendered", "chart+awb"),
     ("srgb", "none"): ("none+rendered", "none+awb"),
 }
-RENDERED = ("rendered", "awb", "lamps")
 
 
 def _frames(rows: list[dict], cases: tuple[str, ...]

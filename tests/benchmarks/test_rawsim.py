@@ -120,3 +120,26 @@ def test_splits_keep_manufacturers_and_collections_apart():
     d = np.abs(dev[:, None, :] - score[None, :, :]).max(-1)
     assert d.min() > 1e-3  # no score surface is a development surface
     assert rawsim.daylight_pool("dev").shape[0] + rawsim.daylight_pool("score").shape[0] == 2600
+
+
+@needs_data
+def test_a_room_lit_by_lamps_is_the_daylit_rooms_surfaces_under_the_lamps(monkeypatch: pytest.MonkeyPatch):
+    """``benchmarks/unmeasured.py``'s ``room+lamps``: the surfaces of ``room`` (averaging grey) under a lamp run drawn
+    from the same generator, as the real chart-free rooms are lit indoors."""
+    import unmeasured
+    from illumon.camera.formation import angular_error_deg
+
+    monkeypatch.setattr(unmeasured, "FRAMES", 4)
+    cam, seed = "Nikon_D3", 7100
+    _, _, lamps = unmeasured._light(cam, "room+lamps", seed)
+    np.testing.assert_array_equal(lamps, rawsim.lamp_run(4, np.random.default_rng(seed)))
+    obs, white, known = unmeasured.render("rawsim", cam, "room+lamps", seed)
+    assert not known
+    # the room still averages grey under the lamps: gray-world over its patches is the light's white
+    gw = angular_error_deg(np.nanmean(obs.values, axis=1), white)
+    assert np.all(gw < 0.5), gw
+    # and it is the daylit room's scene, not the pale one the other lamp-lit cases draw
+    daylit, white_day, _ = unmeasured.render("rawsim", cam, "room", seed)
+    assert np.all(angular_error_deg(np.nanmean(daylit.values, axis=1), white_day) < 0.5)
+    pale, white_pale, _ = unmeasured.render("rawsim", cam, "raw+lamps", seed)
+    assert np.median(angular_error_deg(np.nanmean(pale.values, axis=1), white_pale)) > 2 * np.median(gw)

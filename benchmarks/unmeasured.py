@@ -28,9 +28,10 @@ sensitivities are never given to illumon: its prior is the mean of the measured 
 * ``room``         — raw output of a daylight history over a colourful room whose surfaces average grey
   (:func:`rawsim.grey_average`, what the real chart-free photographs showed), no reference (reported, no goal);
 * ``room+lamps``   — that room lit only by lamps (:func:`rawsim.lamp_run`), raw output, no reference: what the real
-  chart-free rooms are (indoor lamp light, ``benchmarks/real_pairs.py``). Every simulated room had been daylit,
-  every lamp-lit history a pale scene: the assumption that hid why the real rooms read their fit's level 0.24 (log
-  r/g, b/g) from their scene average and were judged daylight (the level's lamp-lit probability 0.31–0.49).
+  chart-free rooms are (indoor light, ceiling lamps and windows: ``benchmarks/real_pairs.py``). Every simulated room
+  had been daylit, every lamp-lit history a pale scene: the assumption that hid why the real rooms read their fit's
+  level 0.24 (log r/g, b/g) from their scene average and were judged daylight (the level's lamp-lit probability
+  0.31–0.49).
   Reported, no goal: the room averages grey by construction, so gray-world's error is no yardstick.
 
 ``--measured`` gives the camera's own sensitivities to every case without a reference and without rendering (``none``,

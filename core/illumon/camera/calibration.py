@@ -43,7 +43,7 @@ from ..observations import Observations
 from ..priors import CameraPrior, default_camera_prior, rendered_camera_prior
 from ..priors.scene_average import expected_offset, log_chroma, scene_average_evidence
 from .chart_light import chart_light_illumon
-from .formation import angular_error_deg, flare_scales
+from .formation import Z95, angular_error_deg, flare_scales, within_one_degree
 from .references import neutral_references, references_kind
 
 __all__ = ["BENT_PRIOR", "CAMERA_MIRED_SD", "CAMERA_WHITE_SD", "PRESET_MIRED_SD", "SINGLE_FRAME_MIRED_SD",
@@ -896,7 +896,7 @@ def _reference_frames_white(estimate: tuple, values: NDArray[np.float64], spectr
         white = white / white[1]
         result.white[f] = white
         result.gains[f] = 1.0 / white
-        extra["confidence"][f] = 1.0 - math.exp(-(math.radians(1.0) ** 2) / tr)
-        half = 1.959963984540054 * math.sqrt(tr) * result.gains[f]
+        extra["confidence"][f] = within_one_degree(tr)
+        half = Z95 * math.sqrt(tr) * result.gains[f]
         result.info["gain_lo"][f] = result.gains[f] - half
         result.info["gain_hi"][f] = result.gains[f] + half

@@ -12,6 +12,8 @@ References
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -24,6 +26,9 @@ __all__ = [
     "camera_white",
     "gains_from_white",
     "angular_error_deg",
+    "Z95",
+    "within_one_degree",
+    "confidence_variance",
 ]
 
 
@@ -97,3 +102,24 @@ def angular_error_deg(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
     b = np.asarray(b, dtype=float)
     cos = (a * b).sum(-1) / (np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1))
     return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+Z95 = 1.959963984540054
+"""The standard normal's 97.5 % point: a 95 % interval is ``± Z95`` standard deviations."""
+
+_RHO2 = math.radians(1.0) ** 2
+"""1° in radians, squared: the radius of ``confidence``."""
+
+
+def within_one_degree(tr: ArrayLike) -> NDArray[np.float64]:
+    """``confidence``: the probability that a white whose angular error has variance ``tr`` (rad², the trace of its
+    2-D covariance) is within 1° of the truth — Rayleigh with σ² = tr/2."""
+    return 1.0 - np.exp(-_RHO2 / np.clip(tr, 1e-30, None))
+
+
+def confidence_variance(confidence: ArrayLike) -> NDArray[np.float64]:
+    """The angular variance ``tr`` (rad²) a ``confidence`` below 1 was stated with: :func:`within_one_degree`
+    inverted (0 for a confidence of 1)."""
+    c = np.asarray(confidence, dtype=float)
+    with np.errstate(divide="ignore"):
+        return np.where(c < 1.0, -_RHO2 / np.log1p(-c), 0.0)

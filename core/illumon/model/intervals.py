@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import ndtr
 
-from ..camera.formation import gains_from_white
+from ..camera.formation import Z95, confidence_variance, gains_from_white, within_one_degree
 from ..daylight import xy_from_cct_duv
 from ..observations import Observations
 from ..retrieval.common import RetrievalResult
@@ -26,8 +26,6 @@ from .solver import FrameSolver
 
 __all__ = ["MODEL_ERROR", "Z95", "assemble_estimates", "interval_columns", "mired_sd_from_interval", "mixture_interval",
            "VERDICT_KEYS", "within_one_degree", "confidence_variance"]
-
-Z95 = 1.959963984540054
 
 VERDICT_KEYS = ("verdict_shift", "verdict_p")
 """The model-error keys of the history's lamp-lit-or-balanced verdict's other reading: the reciprocal-temperature
@@ -173,24 +171,6 @@ def _gain_spread(solver: FrameSolver, mired: NDArray[np.float64], delta: NDArray
     ju = np.stack([(unit[1] - unit[0]) / h[0], (unit[2] - unit[0]) / h[1]], axis=-1)
     tr = np.einsum("fci,fij,fcj->f", ju, white_cov[:, :2, :2], ju) + 2 * log_gain**2  # angular variance (rad²)
     return gains[0], sg, within_one_degree(tr)
-
-
-_RHO2 = math.radians(1.0) ** 2
-"""1° in radians, squared: the radius of ``confidence``."""
-
-
-def within_one_degree(tr: ArrayLike) -> NDArray[np.float64]:
-    """``confidence``: the probability that a white whose angular error has variance ``tr`` (rad², the trace of its
-    2-D covariance) is within 1° of the truth — Rayleigh with σ² = tr/2."""
-    return 1.0 - np.exp(-_RHO2 / np.clip(tr, 1e-30, None))
-
-
-def confidence_variance(confidence: ArrayLike) -> NDArray[np.float64]:
-    """The angular variance ``tr`` (rad²) a ``confidence`` below 1 was stated with: :func:`within_one_degree`
-    inverted (0 for a confidence of 1)."""
-    c = np.asarray(confidence, dtype=float)
-    with np.errstate(divide="ignore"):
-        return np.where(c < 1.0, -_RHO2 / np.log1p(-c), 0.0)
 
 
 def mired_sd_from_interval(cct_lo: ArrayLike, cct_hi: ArrayLike) -> NDArray[np.float64]:

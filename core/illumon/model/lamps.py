@@ -51,6 +51,7 @@ from scipy.special import ndtri
 
 from .._blas import single_blas_thread
 from .._tables import cached_arrays
+from ..camera.formation import Z95
 from ..daylight import CIEDaylight
 from ..observations import observed
 from ..priors import ReflectanceBasis, reflectance_basis
@@ -815,7 +816,7 @@ def _set_lamp_whites(result, extra: dict, mask: NDArray[np.bool_], white: NDArra
     result.gains[mask] = 1.0 / white[mask]
     var = np.asarray(offset_sd, dtype=float) ** 2 + FRAME_SD**2  # log r/g, log b/g
     extra["confidence"][mask] = log_chroma_confidence(result.white[mask], var)
-    half = 1.959963984540054 * math.sqrt(float(np.mean(var))) * result.gains[mask]
+    half = Z95 * math.sqrt(float(np.mean(var))) * result.gains[mask]
     result.info["gain_lo"][mask] = result.gains[mask] - half
     result.info["gain_hi"][mask] = result.gains[mask] + half
 

@@ -23,7 +23,7 @@ run: venv
 	$(BIN)/illumon serve --host $(HOST) --port $(PORT) --data-dir $(DATA_DIR)
 
 lint: venv
-	$(BIN)/ruff check core service tests benchmarks
+	$(BIN)/ruff check core service tests benchmarks tools
 
 # Debian's chromium for the status-page browser test (tests/browser); that test skips with the reason when it is absent.
 browser:
@@ -37,7 +37,7 @@ browser:
 	else echo "browser: no $(CHROMIUM), and not root with apt-get: the browser test will skip"; fi
 
 test: venv browser
-	$(BIN)/ruff check core service tests benchmarks
+	$(BIN)/ruff check core service tests benchmarks tools
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial"
 	$(BIN)/python -m pytest -q -m serial
 

@@ -96,7 +96,7 @@ def test_lamp_lit_history_leaves_the_balance_a_chart_does_not():
     assert level(np.array([0.03, -0.04]), 0.04, 0.07, 16).unbalanced < 0.5
 
 
-def test_real_lamp_lit_scenes_follow_the_lamps(shared_data):
+def test_real_lamp_lit_scenes_follow_the_lamps(shared_data, sony_raw):
     """Issue 28 on the development lamp-lit scenes (MIMO ``bmug``, ``diff``; ``lion`` and ``spdif`` are held out):
     without sensitivities or a reference, rendered output, the camera white within 1.5 × gray-world's median error
     (before the level told lamp-only histories apart: 10.0° and 15.8° against 0.96° and 1.64°) and every frame
@@ -113,8 +113,7 @@ def test_real_lamp_lit_scenes_follow_the_lamps(shared_data):
         stated += conf.tolist()
         within += (errors < 1.0).tolist()
     assert abs(np.mean(stated) - np.mean(within)) <= 0.2, (np.mean(stated), np.mean(within))  # 12 frames: ±0.14
-    raw = real.sony_raw(shared_data)
-    for s in [raw, *real.isp_sets(raw)]:
+    for s in [sony_raw, *real.isp_sets(sony_raw)]:
         _, nd, _ = lamps.run(real._observations(s, []), s.primaries)
         assert np.all(nd < 0.5), (s.name, nd)
 
@@ -174,7 +173,7 @@ def test_lamp_only_history_offset_is_that_of_the_fitted_frames(shared_data, came
     assert err <= max(1.5 * grey_world, 2.5), (err, grey_world)
 
 
-def test_real_lamp_lit_scenes_read_as_sensor_rgb_follow_the_lamps(shared_data):
+def test_real_lamp_lit_scenes_read_as_sensor_rgb_follow_the_lamps(shared_data, sony_raw):
     """The same development lamp-lit scenes read as sensor RGB of a camera nobody measured (``--primaries camera``,
     the CLI's default): the scene average places the history among the lamps' whites through the prior camera rather
     than its daylights', so the level follows it (before: 11.0° and 16.4° against gray-world's 0.96° and 1.64°, every
@@ -185,9 +184,8 @@ def test_real_lamp_lit_scenes_read_as_sensor_rgb_follow_the_lamps(shared_data):
     for scene, err, grey_world, nd, _, _ in _mimo_development(shared_data, "camera"):
         assert err <= 1.5 * grey_world, (scene, err, grey_world)
         assert np.all(nd >= 0.5), (scene, nd)
-    raw = real.sony_raw(shared_data)
-    assert raw.primaries == "camera"
-    _, nd, _ = lamps.run(real._observations(raw, []), "camera")
+    assert sony_raw.primaries == "camera"
+    _, nd, _ = lamps.run(real._observations(sony_raw, []), "camera")
     assert np.all(nd < 0.5), nd
 
 

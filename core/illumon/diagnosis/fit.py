@@ -40,7 +40,8 @@ noise, sets the scale of their gains, so each is measured against the history it
   from an emission of free colour driven by a generic short-wave band, divided by the largest gain of any other patch
   (at least the median of χ²₃); score minus that ratio. The gains are externally studentised
   (:func:`.spectral.studentised_fluorescence_ratio`: each patch against the lights, reflectances and noise scale
-  re-fitted without it, the other patches also without the best one) and the reflectances' prior is a Student t
+  re-fitted without it, the best of the three largest in-sample gains so measured, the other patches also without
+  it) and the reflectances' prior is a Student t
   (:data:`.spectral.REFLECTANCE_PRIOR_DOF`, fitted to the measured reflectances), so neither a surface the lights
   fitted with it misfit nor one the Gaussian prior shrinks reads as fluorescent, and a fluorescent patch no longer
   raises the other patches' gains through the lights it bent. Margin 2.3 when set on the project's simulator alone

@@ -480,8 +480,8 @@ def spectral_stage(obs: Observations, sensitivities: NDArray[np.float64],
     # generic short-wave absorption band beats reflectance alone the most. One patch fluoresces: its gain must stand
     # out from the runner-up's, which measures how much an ordinary patch gains from the spectral model's own misfit
     # (at least the median of χ²₃, the gain of 3 non-negative parameters on noise alone)
-    # (:func:`.spectral.studentised_fluorescence_ratio`: each patch's gain against the lights and noise re-fitted
-    # without it, the others' also without the best patch)
+    # (:func:`.spectral.studentised_fluorescence_ratio`: the three best in-sample patches' gains against the lights and
+    # noise re-fitted without each, the others' also without the best of them)
     fg, fband, share = generic_fluorescence_gains(base)
     floor = float(chi2.median(3))
     if fg.size > 1:

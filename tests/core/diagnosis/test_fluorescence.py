@@ -92,3 +92,22 @@ def test_fluorescent_patch_that_bends_the_lights_is_named_clearly(shared_data):
     assert new > 5 * margin
     d = diagnose(obs, css, reestimate=False)
     assert d.effect == "fluorescence" and d.patch_index == patch
+
+
+def test_fluorescent_patch_second_in_sample_is_found_against_the_fit_without_it(shared_data):
+    """A fluorescent patch need not have the largest in-sample gain (``rawsim`` 10005: a dim green patch whose
+    emission the lights fitted with it took up, ranked second): picked by its in-sample gain the test measured the
+    wrong patch, whose studentised ratio is far below the margin, and the history was called lamp-lit. The three
+    largest in-sample gains are each measured against the fit without their patch
+    (:data:`illumon.diagnosis.spectral.FLUORESCENCE_CANDIDATES`), and the fluorescent one stands out."""
+    obs, css, patch = _dev("rawsim", "fluorescence", 5)
+    margin = NONE_MARGIN["fluorescence"]
+    with dark_level_set(history_dark_level(obs.values, None)):
+        base = refined_spectral_base(obs, css)
+        gains = spectral.generic_fluorescence_gains(base)[0]
+        first, p1, _, _ = spectral.studentised_fluorescence_ratio(base, gains, FLOOR, REFINE_ITERS, candidates=1)
+        ratio, p, _, _ = spectral.studentised_fluorescence_ratio(base, gains, FLOOR, REFINE_ITERS)
+    assert int(np.argmax(gains)) != patch and p1 != patch and first < 0.5
+    assert p == patch and ratio > margin + 0.5
+    d = diagnose(obs, css, reestimate=False)
+    assert d.effect == "fluorescence" and d.patch_index == patch

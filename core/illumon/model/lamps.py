@@ -88,9 +88,7 @@ greys known, the whole set's median stays 3.0° either way."""
 
 LAMP_PRIOR = 0.25
 """Prior probability that a frame's light is not daylight: the largest (on a 0.05 grid) that flags no frame of the
-development chart photographs on its own (the ``sony-dolp`` chart sets of ``benchmarks/real.py``, then taken for
-daylight; indoor, ceiling lamps and windows, and since :data:`illumon.model.level.UNBALANCED_PRIOR` 0.25 the sensor-RGB
-set's whole history is judged lamp-lit at even odds, which sets its frames' ``non_daylight``; at 0.3 one frame of each
+development daylight photographs (the ``sony-dolp`` chart sets of ``benchmarks/real.py``; at 0.3 one frame of each
 rendered set reached 0.54–0.56), ``python benchmarks/lamps.py``. Kept when the offset's prior moved to where measured
 surfaces average (:func:`expected_scene_offset`), though those photographs then read 0.02–0.19 and 0.35 would leave
 them 0.30: at 0.35 the test of a camera nobody measured judged 12–30 of 30 frames of rendered daylight read as sensor

@@ -42,21 +42,8 @@ LAMP_LEVEL_SD = 0.15
 with daylight, :func:`illumon.model.lamps.lamp_population`): lamps of one type differ, a history's frames mix lamps,
 and the tables are a sample of the lamps in use."""
 
-UNBALANCED_PRIOR = 0.25
-"""Prior probability that a history is lit by light its camera was not balanced for (lamps only). 0.2, a guess, until
-2026-11-28; 0.25 chosen on development data (grid 0.2, 0.25, 0.3, 0.35, 0.4, 0.5). The real development photographs
-on sensor RGB were all taken indoors (``sony-dolp``: ceiling lamps and windows) and at 0.2 were judged daylight at a
-lamp-lit probability of 0.17–0.49; at 0.25 the chart set and the third room turn lamp-lit (``non_daylight`` 0.51)
-and their whites without a reference go 1.60 → 1.14° (``python benchmarks/real.py``, ``sony-raw``; gray-world 6.76°)
-and 2.07 → 1.01° (``python benchmarks/real_pairs.py``, raw ``scene002``; gray-world 1.44°); the other two rooms move
-from 0.35 (4.48 → 2.63°) and 0.4 (6.10 → 3.52°). Simulated daylight of measured surfaces (``python
-benchmarks/unmeasured.py --split dev --seeds 3 --cases none``, 42 histories per simulator) is judged lamp-lit in 8 %
-of the frames of three-frame histories at 0.2 and 0.25, 10 % at 0.3 and 0.35, 13 % at 0.4; of thirty-frame ones in
-1 %, 3 %, 3 %, 5 %, 5 % (medians and p95 unchanged throughout; from 0.35 the largest error 11.9 → 16.6°). Lamp-lit
-histories gain (``--seeds 1``, ``illumon`` / ``rawsim``): ``raw+lamps`` 0.71 / 0.65 → 0.70 / 0.55° on three frames,
-0.96 / 0.92 → 0.88 / 0.86° on thirty; ``room+lamps`` 3.77 / 3.71 → 3.39 / 3.41° on one frame, p95 5.81 / 6.16 →
-4.69 / 4.73° on thirty. Rendered output (its balance decides) and ``pale``, ``room`` are unchanged; a colour matrix
-declared as sensor RGB (``none+matrix``, which the output-space check warns of) loses: 7.9 → 9.7° on three frames."""
+UNBALANCED_PRIOR = 0.2
+"""Prior probability that a history is lit by light its camera was not balanced for (lamps only)."""
 
 
 @dataclass(frozen=True)

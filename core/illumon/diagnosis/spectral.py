@@ -526,8 +526,8 @@ FLUORESCENCE_CANDIDATES = 3
 one: the three largest in-sample gains. A fluorescent patch bends the lights fitted with it, which lowers its own
 in-sample gain and raises the others', so it need not rank first in sample: on the development histories
 (``python benchmarks/diagnose.py --split dev --seeds 20``) two of the 20 fluorescent ``rawsim`` patches ranked second
-(in-sample gains 139.5 against 149.8, 148.2 against 149.0) and stood out only against the fit without them (2 097 and
-1 134 against 293 and 213 for the in-sample best). Measuring every patch so picks the same patch in all 60
+(in-sample gains 139.5 against 149.8, 148.2 against 149.0) and stood out only against the fit without them (1 676 and
+1 052 against 293 and 213 for the in-sample best). Measuring every patch so picks the same patch in all 60
 development fluorescent histories of the three simulators (the four whose patch ranked lower in sample, fourth to
 ninth, do not stand out against the fit without it either) and, in 7 of 67 clean ones, a patch whose only effect is
 a larger clean statistic; the three best cost two re-fits more per history."""

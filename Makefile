@@ -36,8 +36,7 @@ browser:
 	  || { tail -n 5 $$log; echo "browser: apt-get could not install chromium; the browser test will skip"; }; rm -f $$log; \
 	else echo "browser: no $(CHROMIUM), and not root with apt-get: the browser test will skip"; fi
 
-test: venv browser
-	$(BIN)/ruff check core service tests benchmarks tools
+test: venv browser lint
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not serial"
 	$(BIN)/python -m pytest -q -m serial
 

@@ -570,12 +570,17 @@ def studentised_fluorescence_ratio(base: SpectralBase, gains: NDArray[np.float64
     """
     k = FLUORESCENCE_CANDIDATES if candidates is None else candidates
     best = [int(c) for c in np.argsort(-gains, kind="stable")[:max(1, k)] if gains[c] > 0] or [int(np.argmax(gains))]
-    held = {c: float(generic_fluorescence_gains(without_patches(base, [c], iters), patches=[c])[0][c]) for c in best}
+    held = {c: _held_out_gain(base, c, (), iters) for c in best}
     p = max(best, key=held.__getitem__)
     gain_p = held[p]
     scale = floor
     for q in range(gains.size):
         if q != p and base.prob.present[:, q].any():
-            g = generic_fluorescence_gains(without_patches(base, [p, q], iters), patches=[q])[0][q]
-            scale = max(scale, float(g))
+            scale = max(scale, _held_out_gain(base, q, (p,), iters))
     return gain_p / scale, p, gain_p, scale
+
+
+def _held_out_gain(base: SpectralBase, patch: int, also: tuple[int, ...], iters: int) -> float:
+    """``patch``'s fluorescence gain against the lights, reflectances and noise scale re-fitted without it and the
+    patches ``also`` (:func:`without_patches`)."""
+    return float(generic_fluorescence_gains(without_patches(base, [*also, patch], iters), patches=[patch])[0][patch])

@@ -11,15 +11,18 @@ reference (``--primaries srgb`` by default: raw-converted linear output; ``--pri
 every frame's camera white compared with gray-world over the same regions (angular error, degrees).
 
 Split, fixed before any parameter was chosen: **development** ``bmug``, ``diff`` (looked at while developing),
-**score** ``lion``, ``spdif`` (held out). The daylight side: the ``sony-dolp`` chart sets of ``benchmarks/real.py``
-(development; :data:`illumon.model.lamps.LAMP_PRIOR` is the largest prior that flags none of their frames).
+**score** ``lion``, ``spdif`` (held out). The other side: the ``sony-dolp`` chart sets of ``benchmarks/real.py``
+(development; :data:`illumon.model.lamps.LAMP_PRIOR` is the largest prior that flags none of their frames) — indoor
+rooms lit through windows and by ceiling lamps, their light not measured (``../shared/data/real/README.md``). They
+were once counted as daylight controls; they are not: what they check is that light the camera reads as near daylight
+is not called lamp-lit, and no off-locus claim either way rests on them (printed as ``indoor, light unknown``).
 ``--sim N`` adds N simulated lamp-lit histories on the score cameras (:func:`simulated`).
 
 ``--diagnose`` adds the product's diagnosis as an outside user runs it (``illumon diagnose``: sensitivities the
 linear-sRGB colour-matching functions clipped at 0, :func:`illumon.camera.primaries.srgb_sensitivities`, what outside
 checkers pass for a camera nobody measured; values as loaded, white level 65535) on every scene, both with
 ``--primaries camera`` (the CLI's default) and ``srgb`` (raw-converted linear output, as the estimator's table above
-reads it): the effects named, the lamp-lit frames, and whether ``off_locus_illuminant`` was named. The daylight side:
+reads it): the effects named, the lamp-lit frames, and whether ``off_locus_illuminant`` was named. The indoor side:
 the ``sony-dolp`` chart sets — ``sony-raw`` with the mean measured camera's sensitivities (sensor RGB) and again with
 the clipped sRGB functions (what an outside checker passes), the ISP sets with the clipped sRGB functions and
 ``--primaries srgb``. They have 3 frames, fewer than the bilinear effects need (6): the diagnosis judges them for their
@@ -143,9 +146,10 @@ def _diagnosis_text(r: dict) -> str:
     return ", ".join(e["effect"] + (frames(e) if e.get("frames") else "") for e in r["effects"])
 
 
-def daylight_diagnosis(s) -> dict:
-    """A ``sony-dolp`` daylight set through the diagnosis (module docstring): sony-raw with the mean measured camera's
-    sensitivities, the ISP sets with the clipped sRGB functions; and the whole-history lamp check alone."""
+def indoor_diagnosis(s) -> dict:
+    """A ``sony-dolp`` indoor set (light unknown) through the diagnosis (module docstring): sony-raw with the mean
+    measured camera's sensitivities, the ISP sets with the clipped sRGB functions; and the whole-history lamp check
+    alone."""
     from illumon.camera.calibration import prior_sensitivities
     from illumon.camera.primaries import srgb_sensitivities
     from illumon.diagnosis.fit import _lamp_lit_history
@@ -159,7 +163,7 @@ def daylight_diagnosis(s) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         lamp = _lamp_lit_history(obs, css, [], s.primaries)
-    out["lamp_check"] = "off-locus" + str(lamp.parameters["frames"]) if lamp is not None else "daylight (no off-locus)"
+    out["lamp_check"] = "off-locus" + str(lamp.parameters["frames"]) if lamp is not None else "near daylight (no off-locus)"
     out["off_locus"] = lamp is not None or out["diagnose"]["off_locus"]
     if s.primaries == "camera":  # sensor RGB as an outside checker passes it: the clipped sRGB functions
         out["diagnose_srgb_functions"] = diagnosis_row(obs, clipped, s.primaries)
@@ -217,9 +221,9 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", default=str(ROOT / "benchmarks" / "results" / "lamps.json"))
     ap.add_argument("--primaries", default="srgb", choices=["srgb", "camera"])
-    ap.add_argument("--no-daylight", action="store_true", help="skip the daylight chart sets")
+    ap.add_argument("--no-daylight", action="store_true", help="skip the sony-dolp indoor chart sets (light unknown)")
     ap.add_argument("--split", default="all", choices=["development", "score", "all"],
-                    help="scenes to run: development (bmug, diff; and the daylight sets), score (lion, spdif), all")
+                    help="scenes to run: development (bmug, diff; and the sony-dolp indoor sets), score (lion, spdif), all")
     ap.add_argument("--diagnose", action="store_true",
                     help="add the product's diagnosis (clipped sRGB functions as sensitivities, white level 65535)")
     ap.add_argument("--sim", type=int, default=0,
@@ -231,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"lamps.py: skipped: {folder} is absent (../shared/data or $ILLUMON_SHARED_DATA)")
         return 0
     report = {"development": list(DEVELOPMENT), "score": list(SCORE), "primaries": args.primaries, "scenes": {},
-              "daylight_sets": {}}
+              "indoor_sets": {}}
     print(f"development scenes: {', '.join(DEVELOPMENT)}; score (held out): {', '.join(SCORE)}; primaries {args.primaries}")
     print(f"{'scene':<8} {'split':<12} {'illumon °':>9} {'gray-world °':>12} {'ratio':>6}  conf / <1°  "
           "non_daylight per frame")
@@ -276,12 +280,12 @@ def main(argv: list[str] | None = None) -> int:
 
             white, nd, _ = run(_observations(s, []), s.primaries)
             e = angular(white, s.truth)
-            report["daylight_sets"][s.name] = {"non_daylight": nd.tolist(), "median_deg": float(np.median(e)),
+            report["indoor_sets"][s.name] = {"non_daylight": nd.tolist(), "median_deg": float(np.median(e)),
                                                "flagged_fraction": float(np.mean(nd >= 0.5))}
-            print(f"{s.name:<16} daylight (development) illumon {np.median(e):.2f}°  non_daylight "
+            print(f"{s.name:<16} indoor, light unknown (development) illumon {np.median(e):.2f}°  non_daylight "
                   + " ".join(f"{v:.2f}" for v in nd))
             if args.diagnose:
-                report["daylight_sets"][s.name]["diagnosis"] = dr = daylight_diagnosis(s)
+                report["indoor_sets"][s.name]["diagnosis"] = dr = indoor_diagnosis(s)
                 print(f"    diagnosis ({dr['sensitivities']}, --primaries {s.primaries}): "
                       + _diagnosis_text(dr["diagnose"]) + f"; whole-history lamp check: {dr['lamp_check']}"
                       + ("; with the clipped sRGB functions: " + _diagnosis_text(dr["diagnose_srgb_functions"])

@@ -374,7 +374,8 @@ def _sensor_rgb_verdict(given: Verdict | None, unmeasured: Verdict | None, obs: 
     sensitivities from stand-ins (the sRGB functions outside checkers pass for a camera nobody measured), and each
     test fails where the other holds:
 
-    * given stand-ins, the measured camera's test calls real daylight lamp-lit (``sony-raw`` with the mean measured
+    * given stand-ins, the measured camera's test calls real photographs lamp-lit that both tests otherwise read as near
+      daylight (``sony-raw``, indoor, light unknown, with the mean measured
       camera 0.99; ``benchmarks/unmeasured.py``'s raw daylight histories given the clipped sRGB functions, development
       seeds 3 000–3 013, both simulators: ``pale`` 26 of 28 above 0.5, every frame judged lamp-lit, ``none`` 20 of
       28), where the unmeasured camera's says 0.00 on all but the Point Grey camera's ``pale`` ones (below);

@@ -88,12 +88,13 @@ greys known, the whole set's median stays 3.0° either way."""
 
 LAMP_PRIOR = 0.25
 """Prior probability that a frame's light is not daylight: the largest (on a 0.05 grid) that flags no frame of the
-development daylight photographs (the ``sony-dolp`` chart sets of ``benchmarks/real.py``; at 0.3 one frame of each
-rendered set reached 0.54–0.56), ``python benchmarks/lamps.py``. Kept when the offset's prior moved to where measured
-surfaces average (:func:`expected_scene_offset`), though those photographs then read 0.02–0.19 and 0.35 would leave
-them 0.30: at 0.35 the test of a camera nobody measured judged 12–30 of 30 frames of rendered daylight read as sensor
-RGB lamp-lit on their own (0–2 at 0.25; ``tests/core/diagnosis/test_lamp_history.py``, development
-``benchmarks/unmeasured.py`` histories)."""
+development indoor photographs (the ``sony-dolp`` chart sets of ``benchmarks/real.py``: rooms lit through windows and
+by ceiling lamps, light not measured: the choice takes light a camera reads as near daylight not to be flagged; at 0.3
+one frame of each rendered set reached 0.54–0.56), ``python benchmarks/lamps.py``. Kept when the offset's prior moved
+to where measured surfaces average (:func:`expected_scene_offset`), though those photographs then read 0.02–0.19 and
+0.35 would leave them 0.30: at 0.35 the test of a camera nobody measured judged 12–30 of 30 frames of rendered
+daylight read as sensor RGB lamp-lit on their own (0–2 at 0.25; ``tests/core/diagnosis/test_lamp_history.py``,
+development ``benchmarks/unmeasured.py`` histories)."""
 
 SCENE_OFFSET_SD = 0.155
 """Standard deviation (log r/g and b/g) of a scene's average colour about the mean measured surface's under the same

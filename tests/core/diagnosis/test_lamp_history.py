@@ -144,7 +144,7 @@ def test_a_measured_camera_outside_the_prior_keeps_its_own_daylight(shared_data)
 
 @pytest.mark.parametrize("frames", [[0, 1, 2], [10, 11], [25, 26, 27, 28, 29]])
 def test_a_short_sensor_rgb_history_is_judged_for_its_light(shared_data, frames):
-    """Sensor RGB of 2–5 frames (the real MIMO scene ``spdif`` has 3, the sony-dolp daylight sets 3): judged for its
+    """Sensor RGB of 2–5 frames (the real MIMO scene ``spdif`` has 3, the sony-dolp indoor sets 3): judged for its
     light alone, as rendered output is — lamp-lit windows named with all their frames, daylight windows clean."""
     obs, css = _raw("raw+lamps", 3007)
     short = obs.subset(np.array(frames))

@@ -102,7 +102,7 @@ def test_real_lamp_lit_scenes_follow_the_lamps(shared_data, sony_raw):
     (before the level told lamp-only histories apart: 10.0° and 15.8° against 0.96° and 1.64°) and every frame
     ``non_daylight`` ≥ 0.5, and the confidence stated for the lamp-lit whites near the fraction of frames within 1°
     (0.08 stated where 0.50 were, before the log-chromaticity variance was turned into an angle's); the development
-    daylight photographs keep every frame below 0.5."""
+    indoor photographs (``sony-dolp``, light unknown, read as near daylight) keep every frame below 0.5."""
     import lamps
     import real
 
@@ -177,7 +177,8 @@ def test_real_lamp_lit_scenes_read_as_sensor_rgb_follow_the_lamps(shared_data, s
     """The same development lamp-lit scenes read as sensor RGB of a camera nobody measured (``--primaries camera``,
     the CLI's default): the scene average places the history among the lamps' whites through the prior camera rather
     than its daylights', so the level follows it (before: 11.0° and 16.4° against gray-world's 0.96° and 1.64°, every
-    frame ``non_daylight`` < 0.5); the development sensor-RGB daylight photographs (``sony-raw``) stay daylight."""
+    frame ``non_daylight`` < 0.5); the development sensor-RGB indoor photographs (``sony-raw``, light unknown) stay
+    daylight."""
     import lamps
     import real
 

@@ -222,7 +222,8 @@ def run_case(sim: str, camera: str, case: str, seed: int, hours: float = 0.0, me
             "mired_key": camera_mired_key(model, model.camera["calibration"], measured),
             "camera_log_gain": float(model.noise["model_error"].get("camera_log_gain", 0.0)),
             "camera_glare_log": float(model.noise["model_error"].get("camera_glare_log", 0.0)),
-            "laplace_scale": float(model.noise["model_error"].get("laplace_scale", 1.0))}
+            "laplace_scale": float(model.noise["model_error"].get("laplace_scale", 1.0)),
+            "split_mired": float(model.noise.get("split_mired", 0.0))}
 
 
 def summarise(rows: list[dict]) -> list[dict]:

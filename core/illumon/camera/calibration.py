@@ -17,8 +17,14 @@ their eqs. 15–16, here in the 3-dimensional basis spanned by ``C0``'s columns,
 3. repeat until the camera white moves by less than 0.01°.
 
 What a reference pins: a grey card (flat) only each channel's scale (``T`` diagonal); a chart with chromatic patches
-the whole 3 × 3 ``T``. Without references ``T`` stays at its prior mean (the identity) and the estimate carries the
-spread of the measured cameras as an extra, honest uncertainty (:data:`CAMERA_WHITE_SD`).
+the whole 3 × 3 ``T``. Without references, rendered output keeps ``T`` at its prior mean (the identity: the camera's
+own balance set its scales), and sensor RGB reads ``T``'s diagonal from the scene's average colour
+(:func:`_scene_average_transform`, gray-world made Bayesian) at the fitted light, read again at each refit's light
+until the camera white moves by less than ``tol_deg`` — unless the history was judged lit by lamps throughout
+(:mod:`illumon.model.level`), whose colour is the lamps' and is read once. The scene cannot say how its colour splits
+between the channel scales and the light: the move of the light's temperature from the first fit (through the prior
+camera) to the last widens the temperature's interval (``noise["split_mired"]``). The estimate carries the spread of
+the measured cameras as an extra, honest uncertainty (:data:`CAMERA_WHITE_SD`).
 
 References
 ----------
@@ -583,13 +589,25 @@ def calibrate_scene_model(
         # reads the scene average as daylight's, which makes the two components' levels nearly one in the refit while
         # the light's temperature still hangs on the verdict (illumon.model.level.verdict_shift)
         verdict = {k: v for k, v in model.noise.get("model_error", {}).items() if k.startswith("verdict_")}
-        t, s_scene = _scene_average_transform(scene, base, model, theta)
-        model, theta = fit(scene, base @ t)
+        # judged lamp-lit (:mod:`illumon.model.level`), the scene's colour is the lamps': read once
+        rounds = 1 if float(model.noise.get("unbalanced", 0.0) or 0.0) > 0.5 else max_iterations
+        for it in range(1, rounds + 1):  # noqa: B007
+            # read again at the refit's light until the scales hold: the refit's light relaxes towards the daylight
+            # prior's once the scales explain the scene's colour, which leaves the first scales short
+            t_new, s_scene = _scene_average_transform(scene, base, model, theta)
+            change = float(angular_error_deg(_d65_white(base @ t), _d65_white(base @ t_new)))
+            t = t_new
+            model, theta = fit(scene, base @ t)
+            if change < tol_deg:
+                break
         me = model.noise.setdefault("model_error", {})
         for k in [k for k in me if k.startswith("verdict_")]:  # the refit's own (illumon.model.intervals.VERDICT_KEYS)
             me.pop(k)
         me.update(verdict)
-        it = 1
+        # how far the light's temperature moved when the scene's colour went from the light (the first fit, through
+        # the prior camera) to the channel scales: where between the two the truth lies, the scene cannot say
+        split = float(np.nanmedian(theta[:, 0]) - np.nanmedian(theta_first[:, 0]))
+        model.noise["split_mired"] = split if math.isfinite(split) else 0.0
     model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()
     if "reference_light" in extra:
         model.camera["chart_read_as"] = chart_space
@@ -818,6 +836,8 @@ def _record_camera_uncertainty(model, kind: str, primaries: str, *, measured: bo
     length = history_length_regime((getattr(model, "training", None) or {}).get("frames"))
     if not measured:  # a short history does not show how its light moves, which pins a long one's temperatures
         mired_sd = math.hypot(mired_sd, _MIRED_SD_BY_LENGTH[length].get((primaries, key), 0.0))
+        # the scene's colour split between the channel scales and the light (calibrate_scene_model, no reference)
+        mired_sd = math.hypot(mired_sd, float(model.noise.get("split_mired", 0.0)))
     table = {**STATED_WHITE_SPREAD, **_WHITE_SPREAD_BY_LENGTH[length]}
     scale, stated, glare_k = ((1.0, white_sd, 1.0) if measured
                               else table.get((primaries, kind), (1.0, white_sd, 1.0)))

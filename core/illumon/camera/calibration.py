@@ -568,19 +568,14 @@ def calibrate_scene_model(
         dm = model.daylight_model()
         if primaries == "srgb":  # rendered output: the reference iterations hold the first fit's level
             extra["common_level"] = _held_level(model, theta)
-        for it in range(1, max_iterations + 1):  # noqa: B007
-            # The references are left out of the scene fit: a reference seen in one frame cannot tell a shift
-            # common to every frame's daylight from a change of T, so the frames' daylight comes from the scene
-            # (as without references) and T absorbs the rest, pinning the camera white of the reference frames.
-            t_new, sd = camera_transform_Kinoshita2023(
-                base, spectra, dm.spectra(theta[frames, :2]), values[frames], diagonal=(kind == "grey"),
-                neutral=neutral,
-            )
-            change = float(angular_error_deg(_d65_white(base @ t), _d65_white(base @ t_new)))
-            t = t_new
-            model, theta = fit(scene, base @ t, **extra)
-            if change < tol_deg:
-                break
+        # The references are left out of the scene fit: a reference seen in one frame cannot tell a shift common to
+        # every frame's daylight from a change of T, so the frames' daylight comes from the scene (as without
+        # references) and T absorbs the rest, pinning the camera white of the reference frames.
+        model, theta, t, sd, it, change = _read_until_held(
+            model, theta, t, sd, base,
+            lambda m, th: camera_transform_Kinoshita2023(base, spectra, dm.spectra(th[frames, :2]), values[frames],
+                                                         diagonal=(kind == "grey"), neutral=neutral),
+            lambda c: fit(scene, c, **extra), max_iterations, tol_deg)
         glare_sd = _glare_white_sd(base, spectra, dm.spectra(theta[frames, :2]), values[frames], kind == "grey",
                                    neutral, _reference_offset_sd(obs, frames, model.noise.get("flare_sd", 0.0)))
     if kind == "none" and primaries == "camera":
@@ -591,15 +586,11 @@ def calibrate_scene_model(
         verdict = {k: v for k, v in model.noise.get("model_error", {}).items() if k.startswith("verdict_")}
         # judged lamp-lit (:mod:`illumon.model.level`), the scene's colour is the lamps': read once
         rounds = 1 if float(model.noise.get("unbalanced", 0.0) or 0.0) > 0.5 else max_iterations
-        for it in range(1, rounds + 1):  # noqa: B007
-            # read again at the refit's light until the scales hold: the refit's light relaxes towards the daylight
-            # prior's once the scales explain the scene's colour, which leaves the first scales short
-            t_new, s_scene = _scene_average_transform(scene, base, model, theta)
-            change = float(angular_error_deg(_d65_white(base @ t), _d65_white(base @ t_new)))
-            t = t_new
-            model, theta = fit(scene, base @ t)
-            if change < tol_deg:
-                break
+        # read again at the refit's light until the scales hold: the refit's light relaxes towards the daylight
+        # prior's once the scales explain the scene's colour, which leaves the first scales short
+        model, theta, t, s_scene, it, change = _read_until_held(
+            model, theta, t, s_scene, base, lambda m, th: _scene_average_transform(scene, base, m, th),
+            lambda c: fit(scene, c), rounds, tol_deg)
         me = model.noise.setdefault("model_error", {})
         for k in [k for k in me if k.startswith("verdict_")]:  # the refit's own (illumon.model.intervals.VERDICT_KEYS)
             me.pop(k)
@@ -628,6 +619,25 @@ def calibrate_scene_model(
                                 estimate if estimate is not None else obs,
                                 float(model.noise.get("flare_sd", 0.0) or 0.0))
     return model
+
+
+def _read_until_held(model, theta: NDArray[np.float64], t: NDArray[np.float64], aux, base: NDArray[np.float64],  # noqa: ANN001
+                     read: Callable[..., tuple], refit: Callable[[NDArray[np.float64]], tuple], rounds: int,
+                     tol_deg: float) -> tuple:
+    """:func:`calibrate_scene_model`'s block coordinate descent on ``T`` and the scene: ``read(model, theta)`` gives
+    the transform at the current fit and what came with it (``aux``: its posterior spread, or the scene average's
+    precision), ``refit(base @ T)`` the scene fitted through it, until the camera's D65 white moves by less than
+    ``tol_deg`` or after ``rounds`` rounds. Returns the model, ``theta``, ``T``, the last ``aux``, the rounds run and
+    the last change (degrees); the inputs unchanged where ``rounds`` is 0."""
+    it, change = 0, 0.0
+    for it in range(1, rounds + 1):  # noqa: B007
+        t_new, aux = read(model, theta)
+        change = float(angular_error_deg(_d65_white(base @ t), _d65_white(base @ t_new)))
+        t = t_new
+        model, theta = refit(base @ t)
+        if change < tol_deg:
+            break
+    return model, theta, t, aux, it, change
 
 
 def _reference_data(obs: Observations, scene: Observations, ids: list[str], known: Mapping[str, NDArray[np.float64]]

@@ -10,7 +10,8 @@ branch ``diag-clean`` (best patch's in-sample gain over the runner-up's under th
 the median of χ²₃; the stage's weights without the measured standard errors), the two patches and the best patch's
 emission share, and each surface's squared Mahalanobis distance under the reflectance prior (the coefficients of its
 projection on the basis); then the ratio the stage compares now on the observed values
-(:func:`illumon.diagnosis.spectral.studentised_fluorescence_ratio` with the Student-t prior). Variants:
+(:func:`illumon.diagnosis.spectral.studentised_fluorescence_ratio` with the Student-t prior and the emission above its
+excitation band, :data:`illumon.diagnosis.spectral.STOKES_SHIFT_NM`). Variants:
 
 * ``observed``: the history's values;
 * ``exact``: ``Σλ E_f R_p C`` at the history's exposure (no noise, no pipeline);
@@ -45,7 +46,7 @@ def ratio(obs: Observations, values: NDArray[np.float64], css: NDArray[np.float6
         base.prob.Lambda = lam * prior_factor
         try:
             fg, _, share = spectral.generic_fluorescence_gains(
-                base, local_sd=spectral.LOCAL_REFLECTANCE_SD / np.sqrt(prior_factor), prior_dof=None)
+                base, local_sd=spectral.LOCAL_REFLECTANCE_SD / np.sqrt(prior_factor), prior_dof=None, shift_nm=None)
         finally:
             base.prob.Lambda = lam
     p, q = np.argsort(-fg)[:2]
@@ -88,7 +89,8 @@ def main() -> int:
         base = stages.refined_spectral_base(obs, css)
         r, p, _, scale = spectral.studentised_fluorescence_ratio(base, spectral.generic_fluorescence_gains(base)[0],
                                                                  float(chi2.median(3)), stages.REFINE_ITERS)
-    print(f"now         studentised ratio {r:5.2f}  best patch {p}, scale {scale:.1f} (Student-t prior)")
+    print(f"now         studentised ratio {r:5.2f}  best patch {p}, scale {scale:.1f} (Student-t prior, emission above "
+          f"its band)")
     return 0
 
 

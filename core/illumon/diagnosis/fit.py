@@ -37,7 +37,8 @@ noise, sets the scale of their gains, so each is measured against the history it
   percentile of the score on 200 clean development histories of the project's simulator, −3.6); 14 with both
   simulators (clean raw-pipeline histories reach −13).
 * **Fluorescence** (:func:`.spectral.generic_fluorescence_gains`, Han et al. 2012 eqs. 1–2): the best patch's gain
-  from an emission of free colour driven by a generic short-wave band, divided by the largest gain of any other patch
+  from an emission driven by a generic short-wave band, of any colour light above that band gives (the Stokes shift:
+  :func:`.spectral.emission_cone`), divided by the largest gain of any other patch
   (at least the median of χ²₃); score minus that ratio. The gains are externally studentised
   (:func:`.spectral.studentised_fluorescence_ratio`: each patch against the lights, reflectances and noise scale
   re-fitted without it, the best of the three largest in-sample gains so measured, the other patches also without
@@ -46,7 +47,7 @@ noise, sets the scale of their gains, so each is measured against the history it
   fitted with it misfit nor one the Gaussian prior shrinks reads as fluorescent, and a fluorescent patch no longer
   raises the other patches' gains through the lights it bent. Margin 2.3 when set on the project's simulator alone
   (the 98th percentile of the ratio on 200 clean development histories of the project's simulator); 3.0 with both
-  simulators (see :data:`NONE_MARGIN`), kept for the studentised ratio.
+  simulators (see :data:`NONE_MARGIN`), kept for the studentised ratio; 5.0 since the emission lies above its band.
 
 Off-locus light is tested first (its misfit can make a patch look fluorescent, not the reverse), with the best
 fluorescent-looking patch left out when its ratio passes the margin. The illuminants are then re-estimated with the
@@ -148,9 +149,29 @@ def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank:
                                   patch_index=chosen.patch, frame_index=chosen.frame)
             modelled, _ = spectral_stage(corrected_observations(obs, as_chosen), sensitivities,
                                          margins["fluorescence"])
-        if next(c.score for c in modelled if c.effect == cand.effect) < -margins[cand.effect]:
+        again_cand = next(c for c in modelled if c.effect == cand.effect)
+        if again_cand.score < -margins[cand.effect] and _lamp_frames_hold(chosen, again_cand, y.shape[0]):
             return cand
     return None
+
+
+def _lamp_frames_hold(chosen: Candidate, lamp: Candidate, n_frames: int) -> bool:
+    """Whether the lamp-lit frames still found with a patch change or shadow modelled are where it was (its onset
+    on, the shaded frames): lamp light explains such an effect only in the frames the effect shows in. Other effects,
+    or a candidate that is not off-locus light: ``True``. (A development history shaded at frames 2–5, ΔBIC −5 406:
+    with the shaded values dropped, two other daylight frames passed the off-locus margin by 0.3 and the shadow was
+    put down to lamp light.)"""
+    if lamp.effect != "off_locus_illuminant" or chosen.effect not in ("patch_change", "shadow"):
+        return True
+    found = set(lamp.parameters.get("frame_indices") or ())
+    prm = chosen.parameters
+    if chosen.effect == "shadow" and "first_frame_index" in prm:
+        where = set(range(int(prm["first_frame_index"]), int(prm["last_frame_index"]) + 1))
+    elif chosen.frame is not None:
+        where = set(range(int(chosen.frame), n_frames))
+    else:
+        return True
+    return bool(found & where)
 
 
 @single_blas_thread

@@ -10,8 +10,9 @@ known of daylight, cameras and surfaces, i.e. against the joint spectral fit of 
   basis, no prior). A daylight frame gains little from the freedom; a lamp-lit frame gains much.
 * **fluorescence** (Han, Matsushita, Sato, Okabe & Sato, CVPR 2012, eqs. 1–2): with the frames' illuminants
   re-fitted as measured daylight (above) and held, each patch is re-fitted with its reflectance (Gaussian prior)
-  plus an emission ``k_f (Σλ a(λ) E_f(λ)) w``: :func:`generic_fluorescence_gains` (used by the diagnosis) with a free
-  non-negative RGB ``w`` and a generic short-wave absorption band ``a``, so the fluorophore need not be known;
+  plus an emission ``k_f (Σλ a(λ) E_f(λ)) w``: :func:`generic_fluorescence_gains` (used by the diagnosis) with ``w``
+  any camera response to light above a generic short-wave absorption band ``a`` (the Stokes shift), so the
+  fluorophore need not be known;
   :func:`fluorescence_gains` with ``w = s Cᵀe``, ``s ≥ 0``, for each of the 21 fluorophores shipped in
   ``illumon/data/fluorophores.csv`` (reported as the closest shipped one).
 
@@ -47,7 +48,8 @@ __all__ = [
     "SpectralBase", "fit_spectral_base", "refine_with_measured_daylight", "off_locus_gains", "fluorescence_gains",
     "generic_fluorescence_gains", "excitation_bands", "EXCITATION_CENTRES_NM", "daylight_mixture",
     "LOCAL_REFLECTANCE_SD", "local_reflectance_functions", "spectral_pedestal", "without_patches",
-    "studentised_fluorescence_ratio", "REFLECTANCE_PRIOR_DOF", "FLUORESCENCE_CANDIDATES",
+    "studentised_fluorescence_ratio", "REFLECTANCE_PRIOR_DOF", "FLUORESCENCE_CANDIDATES", "STOKES_SHIFT_NM",
+    "emission_cone",
 ]
 
 
@@ -384,24 +386,46 @@ def excitation_bands(centres: tuple[float, ...] = EXCITATION_CENTRES_NM, width_n
     return np.exp(-0.5 * ((WAVELENGTHS[None, :] - np.asarray(centres)[:, None]) / width_nm) ** 2)
 
 
-def _nonneg_quadratic_gain(h: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
-    """``max 2 bᵀx − xᵀHx`` over ``x ≥ 0`` (small ``x``: every active set), with its maximiser."""
-    n = b.size
-    best, xbest = 0.0, np.zeros(n)
-    for mask in range(1, 2**n):
-        idx = [i for i in range(n) if mask >> i & 1]
-        hs = h[np.ix_(idx, idx)]
-        try:
-            xs = np.linalg.solve(hs, b[idx])
-        except np.linalg.LinAlgError:
-            continue
-        if np.any(xs < 0):
-            continue
-        g = float(b[idx] @ xs)
-        if g > best:
-            best, xbest = g, np.zeros(n)
-            xbest[idx] = xs
-    return best, xbest
+STOKES_SHIFT_NM = 40.0
+"""How far above an excitation band's centre the emission of the fluorescence test may start
+(:func:`emission_cone`): a fluorophore re-emits what it absorbs at longer wavelengths (the Stokes shift; Han et al.
+2012, Fig. 2). Before 2026-11-28 the emission was any non-negative RGB, so a surface's misfit of the spectral model in
+any colour — blue under a green band included — could pass for an emission, and every patch's gain, which sets the
+test's scale, grew with it. With 40 nm the emission's bumps (σ 15 nm) begin about 15 nm above the band's centre,
+inside its own 30 nm width, so a fluorophore of small Stokes shift is still reached through a bluer band. Chosen on
+the development histories (``python benchmarks/diagnose.py --split dev --sims illumon,rawsim,imgsim --effects
+fluorescence --seeds 20``, and ``--effects none --seeds 60``), 30 and 40 nm tried: fluorescent patches named 17 / 14 /
+10 of 20 (``illumon`` / ``rawsim`` / ``imgsim``, margin 3.0) → 18 / 15 / 14 (30 nm, margin 4.0, clean maxima 2.68 /
+3.98 / 3.92) and 18 / 15 / 13 (40 nm, margin 5.0, clean maxima 2.93 / 4.08 / 4.44, the weakest named 5.41 / 5.87 /
+5.47): 40 nm kept, whose margin sits in a gap rather than at its edge."""
+
+
+def emission_cone(sensitivities: NDArray[np.float64], centre_nm: float, shift_nm: float = STOKES_SHIFT_NM,
+                  step_nm: float = 15.0, width_nm: float = 15.0) -> NDArray[np.float64]:
+    """Generators of the camera responses an emission above ``centre_nm + shift_nm`` can give (3 × n, unit columns):
+    Gaussian bumps every ``step_nm`` from there to 700 nm seen through ``sensitivities`` (61 × 3); the emission's RGB
+    is a non-negative combination of them (:data:`STOKES_SHIFT_NM`)."""
+    first = min(centre_nm + shift_nm, 700.0)
+    centres = np.arange(first, 700.0 + 1e-9, step_nm)
+    bumps = np.exp(-0.5 * ((WAVELENGTHS[:, None] - centres[None, :]) / width_nm) ** 2)
+    g = np.asarray(sensitivities, dtype=float).T @ bumps
+    return g / np.maximum(np.linalg.norm(g, axis=0, keepdims=True), 1e-300)
+
+
+def _cone_quadratic_gain(h: NDArray[np.float64], b: NDArray[np.float64],
+                         cone: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+    """``max 2 bᵀx − xᵀHx`` over ``x = G c``, ``c ≥ 0`` (``G`` = ``cone``, 3 × n), with its maximiser ``x``.
+
+    With ``H = UᵀU`` and ``b = Uᵀz`` the objective is ``|z|² − |z − U G c|²``: a non-negative least-squares
+    problem (:func:`scipy.optimize.nnls`)."""
+    from scipy.optimize import nnls
+
+    lv, vv = np.linalg.eigh(0.5 * (h + h.T))
+    lv = np.maximum(lv, max(float(lv.max()), 1e-300) * 1e-10)
+    u = np.sqrt(lv)[:, None] * vv.T
+    z = (vv.T @ b) / np.sqrt(lv)
+    c, rn = nnls(u @ cone, z)
+    return float(z @ z - rn**2), cone @ c
 
 
 LOCAL_REFLECTANCE_SD = 0.05
@@ -434,15 +458,18 @@ mode)."""
 def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | None = None,
                                local_sd: float = LOCAL_REFLECTANCE_SD,
                                patches: Sequence[int] | None = None,
-                               prior_dof: float | None = REFLECTANCE_PRIOR_DOF) -> tuple[NDArray[np.float64],
+                               prior_dof: float | None = REFLECTANCE_PRIOR_DOF,
+                               shift_nm: float | None = STOKES_SHIFT_NM) -> tuple[NDArray[np.float64],
                                                                                        NDArray[np.int64],
                                                                                        NDArray[np.float64]]:
     """Per patch, the drop of whitened misfit (units of ``phi``) when the patch adds an emission of unknown colour.
 
     Han et al. (CVPR 2012, eqs. 1–2): the emitted light is a fixed spectrum scaled by the light the fluorophore
     absorbs, ``(Σλ' a(λ') E_f(λ')) e(λ)``, so the camera sees ``q_f · w`` with ``q_f`` the frame's absorbed light
-    and ``w = Cᵀe`` a fixed RGB. The fluorophore is not assumed known: ``w`` is a free non-negative 3-vector and the
-    excitation ``a`` one of a few generic short-wave bands (:func:`excitation_bands`). A reflectance cannot follow
+    and ``w = Cᵀe`` a fixed RGB. The fluorophore is not assumed known: the excitation ``a`` is one of a few generic
+    short-wave bands (:func:`excitation_bands`) and ``w`` any camera response to an emission at longer wavelengths
+    than the band's (``shift_nm`` above its centre: :func:`emission_cone`, :data:`STOKES_SHIFT_NM`; before 2026-11-28
+    any non-negative RGB). A reflectance cannot follow
     ``q_f`` because the ratio of absorbed short-wave light to the light a surface reflects changes with the sky's
     colour temperature: the evidence grows with the history's range of skies. Frames are the measured-daylight re-fit
     (``base.day_spectra``, exposure included), the patch's reflectance is re-fitted (Gaussian prior on the basis
@@ -451,6 +478,7 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
     freedom (:data:`REFLECTANCE_PRIOR_DOF`) with the Gaussian prior's mean and covariance: each patch's prior
     precision is scaled by ``(ν + K) / (ν + d²)`` at its reflectance without the emission (:data:`REFLECTANCE_PRIOR_ROUNDS`
     re-weightings), and the same prior serves the fit with the emission; ``None``: the Gaussian prior.
+    ``shift_nm`` ``None`` frees the emission's colour (any non-negative RGB, as before 2026-11-28).
     Returns the best gain over bands per patch, the band index and the emission's share of the patch's signal per
     channel (median over frames, P × 3); with ``patches`` given, only those patches are tested (the others' entries
     are 0).
@@ -476,6 +504,8 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
         mu = np.concatenate([mu, np.zeros(nb)])
     basis_block = np.zeros_like(lam)  # the Student-t re-weighting scales the basis coefficients' prior only
     basis_block[:kb, :kb] = prob.Lambda
+    cones = [np.eye(3) if shift_nm is None else
+             emission_cone(base.sensitivities, float(WAVELENGTHS[int(np.argmax(band))]), shift_nm) for band in bands]
     gains = np.zeros(prob.P)
     best = np.zeros(prob.P, dtype=np.int64)
     share = np.zeros((prob.P, 3))
@@ -497,7 +527,7 @@ def generic_fluorescence_gains(base: SpectralBase, bands: NDArray[np.float64] | 
             g = (w[:, :, None] * q[:, bi, None, None] * eye[None]).reshape(-1, 3)  # 3F × 3, one column per channel
             dg = d.T @ g
             h = g.T @ g - dg.T @ np.linalg.solve(nmat, dg)
-            gain, x = _nonneg_quadratic_gain(h, g.T @ res)
+            gain, x = _cone_quadratic_gain(h, g.T @ res, cones[bi])
             if gain / base.phi > gains[p]:
                 gains[p], best[p] = gain / base.phi, bi
                 ok = prob.present[:, p]
@@ -534,7 +564,8 @@ a larger clean statistic; the three best cost two re-fits more per history."""
 
 
 def studentised_fluorescence_ratio(base: SpectralBase, gains: NDArray[np.float64], floor: float,
-                                   iters: int = 3, candidates: int | None = None) -> tuple[float, int, float, float]:
+                                   iters: int = 3, candidates: int | None = None,
+                                   shift_nm: float | None = STOKES_SHIFT_NM) -> tuple[float, int, float, float]:
     """The fluorescence test's statistic with externally studentised gains: the best patch's gain over the largest
     gain any other patch shows under the same test.
 
@@ -562,6 +593,8 @@ def studentised_fluorescence_ratio(base: SpectralBase, gains: NDArray[np.float64
     candidates
         How many of the largest in-sample gains are measured against the fit without their patch (default
         :data:`FLUORESCENCE_CANDIDATES`; 1: the in-sample best alone, as before 2026-11-28).
+    shift_nm
+        The emission's start above its band (:func:`generic_fluorescence_gains`; ``None``: any colour).
 
     Returns
     -------
@@ -570,17 +603,19 @@ def studentised_fluorescence_ratio(base: SpectralBase, gains: NDArray[np.float64
     """
     k = FLUORESCENCE_CANDIDATES if candidates is None else candidates
     best = [int(c) for c in np.argsort(-gains, kind="stable")[:max(1, k)] if gains[c] > 0] or [int(np.argmax(gains))]
-    held = {c: _held_out_gain(base, c, (), iters) for c in best}
+    held = {c: _held_out_gain(base, c, (), iters, shift_nm) for c in best}
     p = max(best, key=held.__getitem__)
     gain_p = held[p]
     scale = floor
     for q in range(gains.size):
         if q != p and base.prob.present[:, q].any():
-            scale = max(scale, _held_out_gain(base, q, (p,), iters))
+            scale = max(scale, _held_out_gain(base, q, (p,), iters, shift_nm))
     return gain_p / scale, p, gain_p, scale
 
 
-def _held_out_gain(base: SpectralBase, patch: int, also: tuple[int, ...], iters: int) -> float:
+def _held_out_gain(base: SpectralBase, patch: int, also: tuple[int, ...], iters: int,
+                   shift_nm: float | None = STOKES_SHIFT_NM) -> float:
     """``patch``'s fluorescence gain against the lights, reflectances and noise scale re-fitted without it and the
     patches ``also`` (:func:`without_patches`)."""
-    return float(generic_fluorescence_gains(without_patches(base, [*also, patch], iters), patches=[patch])[0][patch])
+    return float(generic_fluorescence_gains(without_patches(base, [*also, patch], iters), patches=[patch],
+                                            shift_nm=shift_nm)[0][patch])

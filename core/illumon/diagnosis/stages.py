@@ -476,10 +476,10 @@ def spectral_stage(obs: Observations, sensitivities: NDArray[np.float64],
 
     base = refined_spectral_base(obs, sensitivities)
     f = base.prob.F
-    # fluorescence (Han et al. 2012, eqs. 1–2): the patch whose reflectance + an emission of free colour following a
-    # generic short-wave absorption band beats reflectance alone the most. One patch fluoresces: its gain must stand
-    # out from the runner-up's, which measures how much an ordinary patch gains from the spectral model's own misfit
-    # (at least the median of χ²₃, the gain of 3 non-negative parameters on noise alone)
+    # fluorescence (Han et al. 2012, eqs. 1–2): the patch whose reflectance + an emission following a generic
+    # short-wave absorption band, of a colour light above that band gives, beats reflectance alone the most. One patch
+    # fluoresces: its gain must stand out from the runner-up's, which measures how much an ordinary patch gains from
+    # the spectral model's own misfit (at least the median of χ²₃, the gain of 3 non-negative parameters on noise alone)
     # (:func:`.spectral.studentised_fluorescence_ratio`: the three best in-sample patches' gains against the lights and
     # noise re-fitted without each, the others' also without the best of them)
     fg, fband, share = generic_fluorescence_gains(base)

@@ -7,7 +7,8 @@ histories whose most unusual surface the prior shrinks, or the lights fitted wit
 fitted with it raised every other patch's gain and barely passed (``illumon`` 10004: 3.4). Now the gains are
 externally studentised and the reflectance prior is a Student t
 (:func:`illumon.diagnosis.spectral.studentised_fluorescence_ratio`,
-:data:`illumon.diagnosis.spectral.REFLECTANCE_PRIOR_DOF`).
+:data:`illumon.diagnosis.spectral.REFLECTANCE_PRIOR_DOF`), and the emission lies above its excitation band (the Stokes
+shift, :data:`illumon.diagnosis.spectral.STOKES_SHIFT_NM`).
 """
 
 from __future__ import annotations
@@ -25,6 +26,9 @@ rawsim = pytest.importorskip("rawsim")
 imgsim = pytest.importorskip("imgsim")
 
 FLOOR = float(chi2.median(3))
+FREE_COLOUR_MARGIN = 3.0
+"""The margin of the statistic while the emission's colour was free (``NONE_MARGIN["fluorescence"]`` before
+2026-11-28): the old statistics below are judged against it."""
 
 
 def _dev(sim: str, effect: str, i: int):
@@ -46,7 +50,7 @@ def _ratios(obs, css) -> tuple[float, float, int]:
     """The old statistic (in-sample gains, Gaussian prior: best over runner-up) and the new one, with its patch."""
     with dark_level_set(history_dark_level(obs.values, None)):
         base = refined_spectral_base(obs, css)
-        old = spectral.generic_fluorescence_gains(base, prior_dof=None)[0]
+        old = spectral.generic_fluorescence_gains(base, prior_dof=None, shift_nm=None)[0]
         new = spectral.generic_fluorescence_gains(base)[0]
         ratio, p, _, _ = spectral.studentised_fluorescence_ratio(base, new, FLOOR, REFINE_ITERS)
     return float(old.max() / max(np.sort(old)[-2], FLOOR)), ratio, p
@@ -70,10 +74,9 @@ def test_clean_history_with_an_unusual_surface_is_not_fluorescent(shared_data, s
     then read as lamp-lit in half its frames by the scene model's per-frame verdicts (``non_daylight`` 0.56…0.75), a
     false alarm of another test that the fluorescent patch's removal had hidden."""
     obs, css, _ = _dev(sim, "none", i)
-    margin = NONE_MARGIN["fluorescence"]
     old, new, _ = _ratios(obs, css)
-    assert old > margin
-    assert new < margin - 0.5
+    assert old > FREE_COLOUR_MARGIN
+    assert new < NONE_MARGIN["fluorescence"] - 0.5
     d = diagnose(obs, css, reestimate=False)
     assert "fluorescence" not in [e["effect"] for e in d.effects]
     if i < 10:
@@ -85,11 +88,10 @@ def test_fluorescent_patch_that_bends_the_lights_is_named_clearly(shared_data):
     so the runner-up's in-sample gain grew with it and the old ratio barely passed; against lights fitted without it
     the patch stands out many times over, and it is named."""
     obs, css, patch = _dev("illumon", "fluorescence", 4)
-    margin = NONE_MARGIN["fluorescence"]
     old, new, p = _ratios(obs, css)
     assert p == patch
-    assert old < margin + 1.0
-    assert new > 5 * margin
+    assert old < FREE_COLOUR_MARGIN + 1.0
+    assert new > 3 * NONE_MARGIN["fluorescence"]
     d = diagnose(obs, css, reestimate=False)
     assert d.effect == "fluorescence" and d.patch_index == patch
 
@@ -99,15 +101,53 @@ def test_fluorescent_patch_second_in_sample_is_found_against_the_fit_without_it(
     emission the lights fitted with it took up, ranked second): picked by its in-sample gain the test measured the
     wrong patch, whose studentised ratio is far below the margin, and the history was called lamp-lit. The three
     largest in-sample gains are each measured against the fit without their patch
-    (:data:`illumon.diagnosis.spectral.FLUORESCENCE_CANDIDATES`), and the fluorescent one stands out."""
+    (:data:`illumon.diagnosis.spectral.FLUORESCENCE_CANDIDATES`), and the fluorescent one stands out. (Measured with
+    the emission's colour free, as the test was then; with the emission above its band the patch ranks first.)"""
     obs, css, patch = _dev("rawsim", "fluorescence", 5)
-    margin = NONE_MARGIN["fluorescence"]
+    margin = FREE_COLOUR_MARGIN
     with dark_level_set(history_dark_level(obs.values, None)):
         base = refined_spectral_base(obs, css)
-        gains = spectral.generic_fluorescence_gains(base)[0]
-        first, p1, _, _ = spectral.studentised_fluorescence_ratio(base, gains, FLOOR, REFINE_ITERS, candidates=1)
-        ratio, p, _, _ = spectral.studentised_fluorescence_ratio(base, gains, FLOOR, REFINE_ITERS)
+        gains = spectral.generic_fluorescence_gains(base, shift_nm=None)[0]
+        first, p1, _, _ = spectral.studentised_fluorescence_ratio(base, gains, FLOOR, REFINE_ITERS, candidates=1,
+                                                                  shift_nm=None)
+        ratio, p, _, _ = spectral.studentised_fluorescence_ratio(base, gains, FLOOR, REFINE_ITERS, shift_nm=None)
+        above = spectral.generic_fluorescence_gains(base)[0]
     assert int(np.argmax(gains)) != patch and p1 != patch and first < 0.5
     assert p == patch and ratio > margin + 0.5
+    assert int(np.argmax(above)) == patch  # its emission above its band: first in sample too (2026-11-28)
     d = diagnose(obs, css, reestimate=False)
     assert d.effect == "fluorescence" and d.patch_index == patch
+
+
+@pytest.mark.parametrize(("sim", "i", "before", "after"), [("imgsim", 7, 2.5, 8.0), ("rawsim", 12, 3.0, 4.5),
+                                                          ("imgsim", 4, 2.5, 4.0)])
+def test_emission_above_its_excitation_band_names_patches_a_free_colour_missed(shared_data, sim, i, before, after):
+    """Development fluorescent histories the test missed while the emission could take any colour: every other
+    patch's misfit of the spectral model, in whatever colour, could pass for an emission too, and the ratio stayed
+    under the margin (``imgsim`` 10007 1.9, ``rawsim`` 10012 2.9, ``imgsim`` 10004 2.1). With the emission confined to
+    wavelengths above its band (:func:`illumon.diagnosis.spectral.emission_cone`) the other patches gain much less
+    and the fluorescent one stands out (12.8, 5.9, 7.6); the diagnosis names it."""
+    obs, css, patch = _dev(sim, "fluorescence", i)
+    with dark_level_set(history_dark_level(obs.values, None)):
+        base = refined_spectral_base(obs, css)
+        free = spectral.generic_fluorescence_gains(base, shift_nm=None)[0]
+        r_free, _, _, _ = spectral.studentised_fluorescence_ratio(base, free, FLOOR, REFINE_ITERS, shift_nm=None)
+        gains = spectral.generic_fluorescence_gains(base)[0]
+        ratio, p, _, _ = spectral.studentised_fluorescence_ratio(base, gains, FLOOR, REFINE_ITERS)
+    assert r_free < before <= FREE_COLOUR_MARGIN
+    assert p == patch and ratio > after
+    d = diagnose(obs, css, reestimate=False)
+    assert d.effect == "fluorescence" and d.patch_index == patch
+
+
+def test_emission_cone_lies_above_the_band(shared_data):
+    """The cone's generators are camera responses to light above the band's centre + the shift: under a band at 550 nm
+    a camera's blue channel sees almost none of them, under one at 400 nm it does."""
+    from illumon.simulation import datasets
+
+    css = np.asarray(datasets.load_camera(rawsim.DEV_CAMERAS[0]), dtype=float)
+    red = spectral.emission_cone(css, 550.0)
+    violet = spectral.emission_cone(css, 400.0)
+    assert np.allclose(np.linalg.norm(red, axis=0), 1.0)
+    assert red[2].max() < 0.1 and violet[2].max() > 0.5
+    assert violet.shape[1] > red.shape[1]

@@ -33,7 +33,7 @@ from importlib import resources
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.optimize import least_squares
+from scipy.optimize import least_squares, nnls
 
 from ..daylight import CIEDaylight, daylight_model
 from ..model.general import cie_lamp_spectra
@@ -388,23 +388,28 @@ def excitation_bands(centres: tuple[float, ...] = EXCITATION_CENTRES_NM, width_n
 
 STOKES_SHIFT_NM = 40.0
 """How far above an excitation band's centre the emission of the fluorescence test may start
-(:func:`emission_cone`): a fluorophore re-emits what it absorbs at longer wavelengths (the Stokes shift; Han et al.
-2012, Fig. 2). Before 2026-11-28 the emission was any non-negative RGB, so a surface's misfit of the spectral model in
-any colour — blue under a green band included — could pass for an emission, and every patch's gain, which sets the
-test's scale, grew with it. With 40 nm the emission's bumps (σ 15 nm) begin about 15 nm above the band's centre,
-inside its own 30 nm width, so a fluorophore of small Stokes shift is still reached through a bluer band. Chosen on
-the development histories (``python benchmarks/diagnose.py --split dev --sims illumon,rawsim,imgsim --effects
-fluorescence --seeds 20``, and ``--effects none --seeds 60``), 30 and 40 nm tried: fluorescent patches named 17 / 14 /
-10 of 20 (``illumon`` / ``rawsim`` / ``imgsim``, margin 3.0) → 18 / 15 / 14 (30 nm, margin 4.0, clean maxima 2.68 /
-3.98 / 3.92) and 18 / 15 / 13 (40 nm, margin 5.0, clean maxima 2.93 / 4.08 / 4.44, the weakest named 5.41 / 5.87 /
-5.47): 40 nm kept, whose margin sits in a gap rather than at its edge."""
+(:func:`emission_cone`): a fluorophore re-emits what it absorbs at longer wavelengths (the Stokes shift, as in the
+fluorophores' spectra Han et al. 2012 work with). Before 2026-11-28 the emission was any non-negative RGB, so a
+surface's misfit of the spectral model in any colour — blue under a green band included — could pass for an
+emission, and every patch's gain, which sets the test's scale, grew with it. With 40 nm the emission's bumps (σ 15
+nm) begin about 15 nm above the band's centre, inside its own 30 nm width, so a fluorophore of small Stokes shift is
+still reached through a bluer band. Chosen on the development histories (``python benchmarks/diagnose.py --split dev
+--sims illumon,rawsim,imgsim --effects fluorescence --seeds 20``, and ``--effects none --seeds 60``), 30 and 40 nm
+tried: fluorescent patches named 17 / 14 / 10 of 20 (``illumon`` / ``rawsim`` / ``imgsim``, margin 3.0) → 18 / 15 /
+14 (30 nm, margin 4.0, clean maxima 2.68 / 3.98 / 3.92) and 18 / 15 / 13 (40 nm, margin 5.0, clean maxima 2.93 /
+4.08 / 4.44, the weakest named 5.41 / 5.87 / 5.47): 40 nm kept, whose margin sits in a gap rather than at its edge."""
 
 
 def emission_cone(sensitivities: NDArray[np.float64], centre_nm: float, shift_nm: float = STOKES_SHIFT_NM,
                   step_nm: float = 15.0, width_nm: float = 15.0) -> NDArray[np.float64]:
     """Generators of the camera responses an emission above ``centre_nm + shift_nm`` can give (3 × n, unit columns):
     Gaussian bumps every ``step_nm`` from there to 700 nm seen through ``sensitivities`` (61 × 3); the emission's RGB
-    is a non-negative combination of them (:data:`STOKES_SHIFT_NM`)."""
+    is a non-negative combination of them (:data:`STOKES_SHIFT_NM`).
+
+    References
+    ----------
+    .. [Han2012] Han et al., CVPR 2012: eqs. 1–2, the emission ``e(λ)`` a fluorophore gives for the light it absorbs.
+    """
     first = min(centre_nm + shift_nm, 700.0)
     centres = np.arange(first, 700.0 + 1e-9, step_nm)
     bumps = np.exp(-0.5 * ((WAVELENGTHS[:, None] - centres[None, :]) / width_nm) ** 2)
@@ -418,8 +423,6 @@ def _cone_quadratic_gain(h: NDArray[np.float64], b: NDArray[np.float64],
 
     With ``H = UᵀU`` and ``b = Uᵀz`` the objective is ``|z|² − |z − U G c|²``: a non-negative least-squares
     problem (:func:`scipy.optimize.nnls`)."""
-    from scipy.optimize import nnls
-
     lv, vv = np.linalg.eigh(0.5 * (h + h.T))
     lv = np.maximum(lv, max(float(lv.max()), 1e-300) * 1e-10)
     u = np.sqrt(lv)[:, None] * vv.T

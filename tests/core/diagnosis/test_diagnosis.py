@@ -516,3 +516,30 @@ def test_shadow_is_not_put_down_to_lamp_frames_elsewhere(shared_data):
     assert d.patch_index == h.patch and abs(d.frame_index - h.frame) <= 2
     scores = {c.effect: c.score for c in d.candidates}
     assert scores["off_locus_illuminant"] < -NONE_MARGIN["off_locus_illuminant"]  # the frames do read as lamp-lit
+
+
+def test_a_channel_held_at_the_white_level_is_clipping(shared_data):
+    """An auto-exposure metering the brightest region past the full well holds its green at the white level in 35 of
+    36 frames (development ``rawsim`` 6019): a column constant over the frames lies in the span of the rank-4 frame
+    factors, so censoring it gains nothing by ΔBIC (+3.6), yet no light makes one channel of a surface constant
+    while the other two move. Held at the white level, it is clipping; the same values below the white level (a
+    history scaled to 0.9) are not held there, and the ΔBIC test alone decides (none). A clean history with a few
+    values at the white level is not held there either."""
+    import rawsim
+    from illumon.diagnosis.stages import held_at_white
+    from illumon.observations import Observations
+
+    h = rawsim.hide_effect_raw("clipping", "Nikon_D40", 6019, split="dev")
+    obs = h.observations
+    d = diagnose(obs, h.sensitivities, reestimate=False)
+    clip = next(c for c in d.candidates if c.effect == "clipping")
+    assert clip.score > -NONE_MARGIN["clipping"] and clip.parameters["held_at_white"]
+    assert d.effect == "clipping" and d.parameters["clipped_values"] >= 30
+    scaled = Observations(frames=obs.frames, patches=obs.patches, values=obs.values * 0.9, times=obs.times)
+    assert diagnose(scaled, h.sensitivities, reestimate=False).effect == "none"
+    # 6 values (0.8 %) at the white level, one channel in a fifth of its frames
+    clean = rawsim.hide_effect_raw("none", "Point_Grey_Grasshopper2_14S5C", 3027, split="dev")
+    y = clean.observations.values.reshape(clean.observations.values.shape[0], -1)
+    at = np.isfinite(y) & (y >= np.nanmax(y) - 2e-3)
+    assert np.nanmax(y) == pytest.approx(1.0) and at.sum() >= 4
+    assert not held_at_white(y, at, float(np.nanmax(y)))

@@ -8,7 +8,8 @@ Two stages, each a penalised-likelihood comparison against its own base model (S
    2008; at least the quantisation
    noise of values delivered on an 8…16-bit grid; values at 0 censored), ``φ`` profiled, ``BIC = 2·NLL + k·ln n``.
    Extensions: tone curve (γ, sRGB or BT.709), black offset (3 pedestals), clipping (censored values at the clip
-   level), patch change (patch, onset), shadow (patch, run, per-channel scale). The tone curve is judged with each
+   level; named without the ΔBIC when a channel is held at the white level, :func:`.stages.held_at_white`), patch
+   change (patch, onset), shadow (patch, run, per-channel scale). The tone curve is judged with each
    hypothesis's own learned noise in its linear light (shot noise carrying at least 90 % of the variance at the median
    signal; for values delivered as codes, plus the output rounding's variance step²/12 carried into that light through
    the curve's slope), the

@@ -597,7 +597,7 @@ def calibrate_scene_model(
         me.update(verdict)
         # how far the light's temperature moved when the scene's colour went from the light (the first fit, through
         # the prior camera) to the channel scales: where between the two the truth lies, the scene cannot say
-        split = float(np.nanmedian(theta[:, 0]) - np.nanmedian(theta_first[:, 0]))
+        split = _common_mired_shift(theta_first, theta)
         model.noise["split_mired"] = split if math.isfinite(split) else 0.0
     model.camera = CameraCalibration(kind, t, sd, it, change).to_dict()
     if "reference_light" in extra:
@@ -776,7 +776,15 @@ def _reporting_offset(theta_first: NDArray[np.float64], theta: NDArray[np.float6
     the CCT ends 34–38 MK⁻¹ RMS off, though the whites gain from the iterations). The temperature is read as the sRGB
     functions saw it before the reference moved the camera: the shift common to every frame between the first fit
     and the last is kept as a reporting offset (CCT, Duv, spectrum)."""
-    return float(np.nanmedian(theta_first[:, 0] - theta[:, 0]))
+    return -_common_mired_shift(theta_first, theta)
+
+
+def _common_mired_shift(theta_first: NDArray[np.float64], theta: NDArray[np.float64]) -> float:
+    """The reciprocal-temperature shift (MK⁻¹) common to every frame from the first fit (``theta_first``, F × 2
+    ``(mired, δ)``) to the last (``theta``): the median over frames of each frame's move, NaN-frames left out. Both the
+    rendered cameras' reporting offset (:func:`_reporting_offset`) and the temperature's spread a scene average adds
+    (``noise["split_mired"]``) read it."""
+    return float(np.nanmedian(theta[:, 0] - theta_first[:, 0]))
 
 
 def _reference_offset_sd(obs: Observations, frames: NDArray[np.int64], flare_sd: float) -> NDArray[np.float64] | None:

@@ -543,3 +543,33 @@ def test_a_channel_held_at_the_white_level_is_clipping(shared_data):
     at = np.isfinite(y) & (y >= np.nanmax(y) - 2e-3)
     assert np.nanmax(y) == pytest.approx(1.0) and at.sum() >= 4
     assert not held_at_white(y, at, float(np.nanmax(y)))
+
+
+def test_clipping_in_patch_means_is_modelled_channel_by_channel(shared_data):
+    """Modelling clipping must not throw away the channels that did not clip: development ``rawsim`` 6019 was 0.33°
+    off before and 2.59° after the clipped patch was dropped in every frame its green clipped. The re-estimate
+    censors the clipped channels alone (at the white level: the estimate without the effect, which censors them
+    anyway); a clip level below white is censored the same way, with the patch's other channels kept."""
+    import rawsim
+    from illumon.diagnosis.correction import corrected_observations, estimate_with_effect
+    from illumon.observations import Observations
+
+    h = rawsim.hide_effect_raw("clipping", "Nikon_D40", 6019, split="dev")
+    obs, css, truth = h.observations, h.sensitivities, h.true_white
+    fast = {"start_offsets": (0.0,), "polish_max_frames": 0}
+    d = diagnose(obs, css, reestimate=False)
+
+    def err(r) -> float:
+        return float(np.median(angular_error_deg(r.white, truth)))
+
+    before = err(retrieve_illuminants(obs, css, **fast))
+    after = err(estimate_with_effect(obs, css, d, **fast))
+    dropped = err(retrieve_illuminants(corrected_observations(obs, d), css, **fast))
+    assert after == pytest.approx(before, abs=0.02) and before < 0.5
+    assert dropped > before + 1.0
+    # below the white level (video range): the clipped values at 0.85 are censored by the re-estimate alone
+    low = Observations(obs.frames, obs.patches, obs.values * 0.85, obs.times)
+    d_low = diagnose(low, css, reestimate=False)
+    d_low.effect, d_low.parameters = "clipping", {"clip_level": 0.85, "clipped_values": d.parameters["clipped_values"]}
+    assert err(estimate_with_effect(low, css, d_low, **fast)) == pytest.approx(before, abs=0.02)
+    assert err(retrieve_illuminants(corrected_observations(low, d_low), css, **fast)) > before + 1.0

@@ -571,7 +571,6 @@ MINOR_CLIPPING_DEG = 0.1
 values at the white level, censored by every fit anyway)."""
 
 
-
 def _choose(obs: Observations, css: NDArray[np.float64], rank: int, margins: dict[str, float], learn_noise: bool,
             exclude: set[str] | frozenset = frozenset(), from_images: bool = False,
             structural: NDArray[np.bool_] | None = None) -> tuple[Candidate | None, list[Candidate], dict]:

@@ -109,10 +109,7 @@ def estimate_with_effect(obs: Observations, sensitivities: NDArray[np.float64], 
         out.reflectances = res_day.reflectances
         out.info = {**res_all.info, "off_locus_frames": [int(i) for i in off]}
         return out
-    if diag.effect == "clipping" and obs.sd is None:
-        corr = _clip_at_white(obs, diag)
-    else:
-        corr = corrected_observations(obs, diag)
+    corr = _for_retrieval(obs, [diag])
     res = retrieve_illuminants(corr, sensitivities, **kwargs)
     if len(corr.patches) != len(obs.patches):
         res.patches = list(corr.patches)
@@ -121,6 +118,19 @@ def estimate_with_effect(obs: Observations, sensitivities: NDArray[np.float64], 
 
 VALUE_CORRECTIONS = ("nonlinear_response", "black_offset")
 """Corrections that change the values (the others drop or split them, and commute with a scale)."""
+
+
+def _for_retrieval(obs: Observations, found: list[Diagnosis]) -> Observations:
+    """``obs`` with the effects ``found`` corrected for the joint retrieval, in the order found
+    (:func:`corrected_observations`; lamp-lit frames are the caller's): clipping in patch means is censored channel by
+    channel (:func:`_clip_at_white`) where no other correction changes the values."""
+    scaled = obs.sd is None and not any(d.effect in VALUE_CORRECTIONS for d in found)
+    corrected = obs
+    for d in found:
+        if d.effect == "off_locus_illuminant":
+            continue
+        corrected = _clip_at_white(corrected, d) if d.effect == "clipping" and scaled else corrected_observations(corrected, d)
+    return corrected
 
 
 def _clip_at_white(obs: Observations, diag: Diagnosis) -> Observations:
@@ -150,18 +160,8 @@ def estimate_with_effects(obs: Observations, sensitivities: NDArray[np.float64],
     found = diag.info.get("found") or []
     if len(found) <= 1:
         return estimate_with_effect(obs, sensitivities, diag, **kwargs)
-    corrected = obs
-    off: list[int] = []
-    # clipping censored channel by channel (:func:`_clip_at_white`) in patch means, where no other correction changes
-    # the values
-    scaled = obs.sd is None and not any(d.effect in VALUE_CORRECTIONS for d in found)
-    for d in found:
-        if d.effect == "off_locus_illuminant":
-            off += list(d.parameters.get("frame_indices", []))
-        elif d.effect == "clipping" and scaled:
-            corrected = _clip_at_white(corrected, d)
-        else:
-            corrected = corrected_observations(corrected, d)
+    corrected = _for_retrieval(obs, found)
+    off = [i for d in found if d.effect == "off_locus_illuminant" for i in d.parameters.get("frame_indices", [])]
     res = None
     if off:
         lamp = Diagnosis("off_locus_illuminant", None, None, {"frame_indices": sorted(set(off))}, [], 0.0, 0.0, None)

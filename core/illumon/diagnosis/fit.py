@@ -81,11 +81,11 @@ from .stages import (
     MIN_OFFSET,
     MINOR_CLIPPING_FRACTION,
     bilinear_stage,
-    clipping_supported,
     daylight_reflectances,
     pedestal_allowed,
     refined_spectral_base,
     spectral_stage,
+    supported,
 )
 
 if TYPE_CHECKING:
@@ -144,8 +144,7 @@ def _spectral_cause(obs: Observations, sensitivities: NDArray[np.float64], rank:
             masked[:, 3 * cand.patch : 3 * cand.patch + 3] = np.nan
         _, again, _ = bilinear_stage(masked, rank, margins["clipping"], learn_noise, *_image_noise(from_images),
                                      se=se_kept)
-        left = next(c for c in again if c.effect == chosen.effect)
-        if left.score < 0.0 or left.parameters.get("held_at_white"):  # the effect stands without the spectral one
+        if supported(next(c for c in again if c.effect == chosen.effect), 0.0):  # it stands without the spectral one
             continue
         if modelled is None:
             as_chosen = Diagnosis(chosen.effect, None, None, dict(chosen.parameters), [], 0.0, 0.0, None,
@@ -590,8 +589,7 @@ def _choose(obs: Observations, css: NDArray[np.float64], rank: int, margins: dic
             c.parameters["frame"] = obs.frames[c.frame]
     chosen: Candidate | None = None
     bil = [c for c in cands if c.effect not in ("off_locus_illuminant", "fluorescence") and c.effect not in exclude]
-    ok = [c for c in bil if (clipping_supported(c, margins[c.effect]) if c.effect == "clipping"
-                             else c.score < -margins[c.effect])]
+    ok = [c for c in bil if supported(c, margins[c.effect])]
     spectral_ok = [c for c in spectral if c.effect not in exclude]
     if ok:
         chosen = min(ok, key=lambda c: c.score)

@@ -335,7 +335,7 @@ def _saturated(y: NDArray[np.float64], se: NDArray[np.float64] | None, at_level:
 MINOR_CLIPPING_FRACTION = 0.01
 """Values at the white level in at most this share of a history's values are a few (a note if modelling them changes
 little, :func:`.fit._ranked`); above it, and holding a channel of a patch there (:data:`HELD_AT_WHITE`), they are
-clipping whatever the bilinear fit says (:func:`held_at_white`)."""
+clipping whatever the bilinear fit says (:func:`held_at_white`, :func:`supported`)."""
 
 HELD_AT_WHITE = 0.5
 """A channel of a patch at the white level in at least this share of the frames it is seen in is held there by the
@@ -366,9 +366,9 @@ def held_at_white(y: NDArray[np.float64], censored: NDArray[np.bool_], level: fl
     return bool(np.any(censored.sum(axis=0) >= HELD_AT_WHITE * np.maximum(seen, 1)))
 
 
-def clipping_supported(cand: Candidate, margin: float) -> bool:
-    """Whether a clipping candidate is named: its ΔBIC passes ``margin`` or its values are held at the white level
-    (:func:`held_at_white`)."""
+def supported(cand: Candidate, margin: float) -> bool:
+    """Whether a bilinear candidate stands: its ΔBIC passes ``margin``, or (clipping) its values are held at the
+    white level (:func:`held_at_white`)."""
     return cand.score < -margin or bool(cand.parameters.get("held_at_white"))
 
 
@@ -485,7 +485,7 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
     # patch change and shadow, on the values measured from images above black (:func:`_dark_censored`), and when
     # clipping is supported on the unclipped values only
     w_patch = np.where(_dark_censored(y, codec_cap), 0.0, w)
-    if "clipping" in fits and clipping_supported(cands[-1], clip_margin):
+    if "clipping" in fits and supported(cands[-1], clip_margin):
         w_patch = np.where(fits["clipping"]["censored"], 0.0, w_patch)
     cands += _patch_candidates(y, w_patch, base, rank, n, rms0, fits)
     return base, cands, {"fits": fits, "rms_base": rms0, "noise": fits["noise"], "dark_level": fits["dark_level"]}

@@ -551,7 +551,7 @@ def test_clipping_in_patch_means_is_modelled_channel_by_channel(shared_data):
     censors the clipped channels alone (at the white level: the estimate without the effect, which censors them
     anyway); a clip level below white is censored the same way, with the patch's other channels kept."""
     import rawsim
-    from illumon.diagnosis.correction import corrected_observations, estimate_with_effect
+    from illumon.diagnosis.correction import Diagnosis, corrected_observations, estimate_with_effect
     from illumon.observations import Observations
 
     h = rawsim.hide_effect_raw("clipping", "Nikon_D40", 6019, split="dev")
@@ -569,7 +569,7 @@ def test_clipping_in_patch_means_is_modelled_channel_by_channel(shared_data):
     assert dropped > before + 1.0
     # below the white level (video range): the clipped values at 0.85 are censored by the re-estimate alone
     low = Observations(obs.frames, obs.patches, obs.values * 0.85, obs.times)
-    d_low = diagnose(low, css, reestimate=False)
-    d_low.effect, d_low.parameters = "clipping", {"clip_level": 0.85, "clipped_values": d.parameters["clipped_values"]}
+    d_low = Diagnosis("clipping", None, None, {"clip_level": 0.85, "clipped_values": d.parameters["clipped_values"]},
+                      [], 0.0, 0.0, None)
     assert err(estimate_with_effect(low, css, d_low, **fast)) == pytest.approx(before, abs=0.02)
     assert err(retrieve_illuminants(corrected_observations(low, d_low), css, **fast)) > before + 1.0

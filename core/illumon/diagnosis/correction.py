@@ -15,6 +15,7 @@ from .._blas import single_blas_thread
 from ..observations import Observations
 from ..retrieval import retrieve_illuminants
 from .candidate import Candidate
+from .noise import at_clip_level
 from .tone import bt709_decode, srgb_decode
 
 __all__ = ["Diagnosis", "corrected_observations", "estimate_with_effect", "estimate_with_effects"]
@@ -73,7 +74,7 @@ def corrected_observations(obs: Observations, diag: Diagnosis) -> Observations:
         v = np.clip(v - np.asarray(prm["offsets"])[None, None, :], 1e-6, None)
     elif e == "clipping":
         level = prm["clip_level"]
-        v[np.any(v >= level - max(2e-3 * level, 1e-6), axis=-1)] = np.nan
+        v[np.any(at_clip_level(v, level), axis=-1)] = np.nan
     elif e == "patch_change" and diag.patch_index is not None and diag.frame_index is not None:
         new = np.full((v.shape[0], 1, 3), np.nan)
         new[diag.frame_index :, 0] = v[diag.frame_index :, diag.patch_index]

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import nnls
 
 from ..camera.noise import DEFAULT_NOISE
@@ -223,6 +223,18 @@ def _learn_noise(x: NDArray[np.float64], present: NDArray[np.bool_], rank: int, 
     rho = 0.5 * z**2 if huber is None else np.where(z < huber, 0.5 * z**2, huber * z - 0.5 * huber**2)
     nll = float(rho[present].sum()) + 0.5 * float(np.log(1.0 / w[present]).sum())
     return LearnedNoise(fit, shot, read2, nll, c_out)
+
+
+CLIP_TOLERANCE = 2e-3
+"""Values within this share of a clip level (at least 1e-6) sit at it (:func:`at_clip_level`)."""
+
+
+def at_clip_level(values: ArrayLike, level: float) -> NDArray[np.bool_]:
+    """Which ``values`` sit at the clip ``level`` (within :data:`CLIP_TOLERANCE` of it; NaN: not): what the clipping
+    test censors (:func:`.stages.bilinear_stage`), the correction drops (:func:`.correction.corrected_observations`)
+    and, with ``level`` 1, the white level of the 0…1 scale (:func:`.stages.held_at_white`)."""
+    with np.errstate(invalid="ignore"):
+        return np.asarray(values, dtype=float) >= level - max(CLIP_TOLERANCE * level, 1e-6)
 
 
 DARK_LEVEL = 0.03

@@ -341,14 +341,10 @@ HELD_AT_WHITE = 0.5
 """A channel of a patch at the white level in at least this share of the frames it is seen in is held there by the
 sensor (:func:`held_at_white`)."""
 
-WHITE_LEVEL = 1.0 - 2e-3
-"""Values on the 0…1 scale at or above this are at the white level (within the clip test's tolerance)."""
-
-
 def held_at_white(y: NDArray[np.float64], censored: NDArray[np.bool_], level: float) -> bool:
     """Whether the values at the history's highest ``level`` (``censored``, frames × (patches·channels)) are the
     sensor's ceiling holding the scene's brightest channel: the level is the white level of the 0…1 scale
-    (:data:`WHITE_LEVEL`), more than :data:`MINOR_CLIPPING_FRACTION` of the values sit there, and one channel of a
+    (:func:`.noise.at_clip_level` of 1), more than :data:`MINOR_CLIPPING_FRACTION` of the values sit there, and one channel of a
     patch sits there in at least :data:`HELD_AT_WHITE` of the frames it is seen in.
 
     *Hidden assumption* (issue 28, session 25): that clipping shows as a misfit of the bilinear model. An
@@ -360,7 +356,7 @@ def held_at_white(y: NDArray[np.float64], censored: NDArray[np.bool_], level: fl
     simulator, 20 per effect) clean ones put at most 0.83 % of their values at the white level (one channel of a patch
     in at most 20 % of its frames), clipping ones at least 2.5 % (69 %); no other effect does, but a fluorescent patch
     metered past the full well (``rawsim`` 10013, already named clipping by its ΔBIC)."""
-    if level < WHITE_LEVEL or censored.sum() <= MINOR_CLIPPING_FRACTION * y.size:
+    if not nz.at_clip_level(level, 1.0) or censored.sum() <= MINOR_CLIPPING_FRACTION * y.size:
         return False
     seen = np.isfinite(y).sum(axis=0)
     return bool(np.any(censored.sum(axis=0) >= HELD_AT_WHITE * np.maximum(seen, 1)))
@@ -468,7 +464,7 @@ def bilinear_stage(y: NDArray[np.float64], rank: int, clip_margin: float, learn_
 
     # clipping: values at the highest level, if several share it
     vmax = float(np.nanmax(y))
-    censored = _saturated(y, se, present & (y >= vmax - max(2e-3 * vmax, 1e-6)))
+    censored = _saturated(y, se, present & nz.at_clip_level(y, vmax))
     if censored.sum() >= 2:
         fit_c = bl.fit_clipping(y, w, rank, base.U, vmax, censored)
         cands.append(Candidate("clipping", _bic(_nll(fit_c.wrss, n, half_log_var), fit_c.k, n) - bic0,

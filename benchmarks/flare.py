@@ -177,7 +177,7 @@ def main() -> int:
                             "deviations": dev.tolist(), **t})
     floor = consistency_floor(expected, spectra)
     print(f"floor: noiseless charts, {floor['daylight']['charts']} development camera × daylight pairs and the "
-          f"{floor['A']['charts']} development cameras under each lamp (development data; nothing chosen on it)")
+          f"{floor[LAMPS[0]]['charts']} development cameras under each lamp (development data; nothing chosen on it)")
     print(f"{'light':9} {'median 5–95 %':>15} {'(extremes)':>15} {'largest: median, max':>21}")
     for kind, f in floor.items():
         print(f"{kind:9} {f['median_p5']:7.2f} {f['median_p95']:6.2f}  ({f['median_min']:5.2f} {f['median_max']:5.2f})"

@@ -66,7 +66,9 @@ def grey_offsets(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray
 def effective_reflectances(css: np.ndarray, light: np.ndarray, spectra: np.ndarray) -> np.ndarray:
     """Each reflectance's value relative to a perfect white's (P × 3), through sensitivities ``css`` (61 × 3) under
     ``light`` (61,)."""
-    return (spectra * light) @ css / (light @ css)
+    from illumon.camera.formation import camera_white, render
+
+    return render(css, light, spectra) / camera_white(css, light)
 
 
 def against_greys(values: np.ndarray, expected: np.ndarray) -> np.ndarray:
@@ -80,12 +82,11 @@ def against_greys(values: np.ndarray, expected: np.ndarray) -> np.ndarray:
     return np.log(measured / expected[idx].sum(axis=1))
 
 
-def _chart_spectra() -> np.ndarray:
-    """The ColorChecker's reflectances (24 × 61, chart order)."""
-    from illumon.camera.references import colourchecker_references
+def chart_spectra() -> np.ndarray:
+    """The ColorChecker's reflectances (24 × 61, in the chart's order, :data:`real.ALL`)."""
+    from illumon.priors.surfaces import colourchecker_reflectances
 
-    refs = colourchecker_references()
-    return np.array([refs[p] for p in real.ALL])
+    return colourchecker_reflectances()[1]
 
 
 def _cie_light(name: str) -> np.ndarray:
@@ -161,7 +162,7 @@ def main() -> int:
           "of freedom taken (illumon.camera.formation.FLARE_SD: a history's mean glare is learned into its reflectances)")
     from illumon.camera.calibration import prior_sensitivities
 
-    spectra = _chart_spectra()
+    spectra = chart_spectra()
     expected = effective_reflectances(prior_sensitivities(), _cie_light("D65"), spectra)
     print()
     print("the colour patches against the greys' light: log(measured / expected), expected = the known reflectance "

@@ -341,6 +341,7 @@ HELD_AT_WHITE = 0.5
 """A channel of a patch at the white level in at least this share of the frames it is seen in is held there by the
 sensor (:func:`held_at_white`)."""
 
+
 def held_at_white(y: NDArray[np.float64], censored: NDArray[np.bool_], level: float) -> bool:
     """Whether the values at the history's highest ``level`` (``censored``, frames × (patches·channels)) are the
     sensor's ceiling holding the scene's brightest channel: the level is the white level of the 0…1 scale
